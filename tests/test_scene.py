@@ -1,0 +1,232 @@
+"""Scene TOML reader: mapping onto the dataclasses and one clear error per problem."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from warpcoil.coil import CoilSpec
+from warpcoil.scene import SceneError, load_scene
+from warpcoil.settings import CatheterSpec, ContactSettings, OutputSettings, SimulationSettings
+
+MINIMAL_COIL = "[[coil]]\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 3.0\nlength_mm = 60.0\n"
+
+FULL = """
+[wall]
+mesh = "meshes/sac.stl"
+units = "m"
+
+[catheter]
+tip = [1.0, 2.0, 3]
+direction = [0.0, 3.0, 4.0]
+centerline = [[1, 2, -7], [1.0, 2.0, 3.0]]
+
+[[coil]]
+name = "framing"
+shape = "spherical"
+wire_diameter_mm = 0.3
+loop_diameter_mm = 4.0
+length_mm = 80
+shrink = 0.5
+segment_length_mm = 0.25
+primary_wire_diameter_mm = 0.04
+bending_stiffness_uN_mm2 = 2869.0
+twist_stiffness_uN_mm2 = 3400.0
+linear_density_g_mm = 6.4e-4
+axial_stiffness_uN = 4.7e5
+stretch_resistant = false
+
+[[coil]]
+shape = "file"
+file = "preshape.txt"
+wire_diameter_mm = 0.25
+loop_diameter_mm = 2.0
+length_mm = 30.0
+
+[[coil]]
+wire_diameter_mm = 0.25
+loop_diameter_mm = 2.0
+length_mm = 20.0
+pitch_mm = 0.6
+
+[contact]
+P0_uN = 500.0
+c0_mm = 0.02
+
+[simulation]
+push_speed_mm_s = 10.0
+damping_uN_per_mm = 25.0
+damping_speed_mm_s = 15.0
+dt_s = 2e-6
+dt_safety = 1.0
+allow_unstable_dt = true
+mass_scale = 4
+jam_force_uN = 2e5
+rest_kinetic_energy_nJ = 1e-2
+max_time_s = 3.0
+frame_interval_s = 0.005
+
+[output]
+usd = false
+"""
+
+
+def write(folder: Path, text: str, name: str = "scene.toml") -> Path:
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def scene_dir(tmp_path: Path) -> Path:
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "sac.stl").write_text("solid sac\nendsolid sac\n")
+    (tmp_path / "preshape.txt").write_text("0 0 0\n1 0 0\n")
+    return tmp_path
+
+
+def test_full_scene_maps_onto_dataclasses(scene_dir: Path) -> None:
+    path = write(scene_dir, FULL)
+    scene = load_scene(str(path))
+
+    assert scene.source == path.resolve()
+    assert scene.wall.mesh == (scene_dir / "meshes" / "sac.stl").resolve()
+    assert scene.wall.units == "m"
+    assert scene.catheter == CatheterSpec(
+        tip_mm=(1.0, 2.0, 3.0), direction=(0.0, 0.6, 0.8), centerline_mm=((1.0, 2.0, -7.0), (1.0, 2.0, 3.0))
+    )
+    framing, from_file, helix = scene.coils
+    assert framing == CoilSpec(
+        wire_diameter_mm=0.3,
+        length_mm=80.0,
+        loop_diameter_mm=4.0,
+        shape="spherical",
+        shrink=0.5,
+        segment_length_mm=0.25,
+        primary_wire_diameter_mm=0.04,
+        bending_stiffness_uN_mm2=2869.0,
+        twist_stiffness_uN_mm2=3400.0,
+        linear_density_g_mm=6.4e-4,
+        axial_stiffness_uN=4.7e5,
+        stretch_resistant=False,
+    )
+    assert framing.name == "framing"
+    assert isinstance(framing.length_mm, float)
+    assert from_file.shape == "file"
+    assert from_file.preshape_file == (scene_dir / "preshape.txt").resolve()
+    assert (from_file.name, helix.name) == ("coil_1", "coil_2")
+    assert (helix.shape, helix.pitch_mm) == ("helix", 0.6)
+    assert scene.contact == ContactSettings(P0_uN=500.0, c0_mm=0.02)
+    assert scene.simulation == SimulationSettings(
+        push_speed_mm_s=10.0,
+        damping_uN_per_mm=25.0,
+        damping_speed_mm_s=15.0,
+        dt_s=2e-6,
+        dt_safety=1.0,
+        allow_unstable_dt=True,
+        mass_scale=4.0,
+        jam_force_uN=2e5,
+        rest_kinetic_energy_nJ=1e-2,
+        max_time_s=3.0,
+        frame_interval_s=0.005,
+    )
+    assert scene.output == OutputSettings(usd=False)
+
+
+def test_paths_resolve_against_the_scene_folder_not_the_cwd(
+    scene_dir: Path, tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path_factory.mktemp("elsewhere"))
+    scene = load_scene(write(scene_dir, FULL))
+    assert scene.wall.mesh == (scene_dir / "meshes" / "sac.stl").resolve()
+
+
+def test_minimal_scene_gives_defaults(tmp_path: Path) -> None:
+    scene = load_scene(write(tmp_path, MINIMAL_COIL))
+    assert scene.wall is None
+    assert scene.coils == (CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=3.0, length_mm=60.0),)
+    assert scene.coils[0].name == "coil_0"
+    assert scene.catheter == CatheterSpec()
+    assert scene.contact == ContactSettings()
+    assert scene.simulation == SimulationSettings()
+    assert scene.output == OutputSettings()
+
+
+def with_coil(**keys: str) -> str:
+    """The minimal coil with some keys replaced or added (values as TOML text)."""
+    base = {"wire_diameter_mm": "0.2921", "loop_diameter_mm": "3.0", "length_mm": "60.0"} | keys
+    return "[[coil]]\n" + "".join(f"{key} = {value}\n" for key, value in base.items())
+
+
+def without(key: str) -> str:
+    return "".join(line + "\n" for line in MINIMAL_COIL.splitlines() if not line.startswith(key))
+
+
+ERRORS = {
+    # id: (scene text, dotted key expected in the message, fragment of the problem)
+    "invalid TOML": (MINIMAL_COIL + "[simulation]\ndt_s = = 1\n", "line 6", "not valid TOML"),
+    "unknown table": (MINIMAL_COIL + "[simulaton]\n", "simulaton", "'simulation'"),
+    "unknown key": (with_coil(lenght_mm="60.0"), "coil[0].lenght_mm", "'length_mm'"),
+    "unknown key far off": (MINIMAL_COIL + "[output]\nzzz = 1\n", "output.zzz", "known: usd"),
+    "missing required": (without("length_mm"), "coil[0].length_mm", "missing"),
+    "missing wall mesh": (MINIMAL_COIL + '[wall]\nunits = "mm"\n', "wall.mesh", "missing"),
+    "string for number": (with_coil(length_mm='"60"'), "coil[0].length_mm", "must be a number"),
+    "bool for number": (MINIMAL_COIL + "[contact]\nP0_uN = true\n", "contact.P0_uN", "must be a number"),
+    "number for bool": (MINIMAL_COIL + "[output]\nusd = 1\n", "output.usd", "true or false"),
+    "negative": (with_coil(length_mm="-3.0"), "coil[0].length_mm", "> 0"),
+    "zero": (MINIMAL_COIL + "[simulation]\ndt_s = 0\n", "simulation.dt_s", "> 0"),
+    "infinite": (MINIMAL_COIL + "[contact]\nc0_mm = inf\n", "contact.c0_mm", "finite"),
+    "nan": (MINIMAL_COIL + "[simulation]\nmass_scale = nan\n", "simulation.mass_scale", "finite"),
+    "dt_safety above 1": (MINIMAL_COIL + "[simulation]\ndt_safety = 1.5\n", "simulation.dt_safety", "(0, 1]"),
+    "vector length": (MINIMAL_COIL + "[catheter]\ntip = [0.0, 1.0]\n", "catheter.tip", "3 finite numbers"),
+    "zero direction": (MINIMAL_COIL + "[catheter]\ndirection = [0, 0, 0]\n", "catheter.direction", "zero"),
+    "units": (MINIMAL_COIL + '[wall]\nmesh = "sac.stl"\nunits = "cm"\n', "wall.units", "'cm'"),
+    "shape": (with_coil(shape='"cube"'), "coil[0].shape", "'cube'"),
+    "file for helix": (with_coil(file='"sac.stl"'), "coil[0].file", "only for shape = 'file'"),
+    "pitch for spherical": (with_coil(shape='"spherical"', pitch_mm="0.5"), "coil[0].pitch_mm", "only for"),
+    "file missing for file shape": (with_coil(shape='"file"'), "coil[0].file", "required"),
+    "mesh not found": (MINIMAL_COIL + '[wall]\nmesh = "nowhere.stl"\n', "wall.mesh", "nowhere.stl does not exist"),
+    "preshape not found": (with_coil(shape='"file"', file='"nope.txt"'), "coil[0].file", "nope.txt does not exist"),
+    "no coil": ('[output]\nusd = true\n', "coil", "[[coil]]"),
+    "empty coil list": ("coil = []\n", "coil", "[[coil]]"),
+    "coil as single table": (MINIMAL_COIL.replace("[[coil]]", "[coil]"), "coil", "[[coil]]"),
+    "short centerline": (MINIMAL_COIL + "[catheter]\ncenterline = [[0, 0, 0]]\n", "catheter.centerline", "2 points"),
+    "centerline end off tip": (
+        MINIMAL_COIL + "[catheter]\ncenterline = [[0, 0, -5], [0, 0, 1e-3]]\n",
+        "catheter.centerline",
+        "is not the tip",
+    ),
+    "primary wire too thick": (with_coil(primary_wire_diameter_mm="0.3"), "coil[0]", "smaller than wire_diameter_mm"),
+    "second coil": (MINIMAL_COIL + with_coil(wire_diameter_mm='"x"'), "coil[1].wire_diameter_mm", "number"),
+}
+
+
+@pytest.mark.parametrize(("text", "key", "problem"), ERRORS.values(), ids=ERRORS.keys())
+def test_errors_name_file_key_and_problem(tmp_path: Path, text: str, key: str, problem: str) -> None:
+    (tmp_path / "sac.stl").write_text("solid sac\nendsolid sac\n")
+    with pytest.raises(SceneError) as caught:
+        load_scene(write(tmp_path, text, "bad_scene.toml"))
+    message = str(caught.value)
+    assert "bad_scene.toml" in message
+    assert key in message
+    assert problem in message
+    assert "fix:" in message
+
+
+def test_centerline_end_within_tolerance_is_accepted(tmp_path: Path) -> None:
+    text = MINIMAL_COIL + "[catheter]\ntip = [0, 0, 1]\ncenterline = [[0, 0, -5], [0, 0, 1.0000000001]]\n"
+    assert math.isclose(load_scene(write(tmp_path, text)).catheter.centerline_mm[-1][2], 1.0)
+
+
+@pytest.mark.parametrize("make", [lambda tmp: tmp / "absent.toml", lambda tmp: tmp])
+def test_unreadable_file(tmp_path: Path, make) -> None:
+    path = make(tmp_path)
+    with pytest.raises(SceneError, match="cannot be read") as caught:
+        load_scene(path)
+    assert str(path.resolve()) in str(caught.value)
+
+
+def test_scene_error_is_a_value_error() -> None:
+    assert issubclass(SceneError, ValueError)

@@ -1,0 +1,1 @@
+"""Warp kernels, grouped by pass: rod geometry, elastic forces, integration, contact."""

@@ -1,0 +1,220 @@
+"""Integration pass: semi-implicit Euler with implicit nonlinear damping, the
+catheter/pusher kinematics, and the material-frame update.
+
+Per free node (MODEL.md)::
+
+    v* = v + dt F / m
+    v' = v* − dt/m · c (1 − exp(−|v'|/k)) v'/|v'|      (solved exactly: v' ∥ v*)
+    x' = x + dt v'
+
+The damping is taken at the new velocity, so it never reverses a velocity
+and adds no step-size limit; the conservative forces stay symplectic-Euler.
+Nodes behind the catheter tip (catheter coordinate σ = advance − s < 0) are
+placed on the catheter centerline and move with the pusher; clamped nodes
+stay put.
+"""
+
+import warp as wp
+
+from .rod import F64_0, F64_1, director_normal, edge_valid, rotate_about, transport
+
+
+@wp.func
+def damped_speed(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
+    """Root s ≥ 0 of s + a (1 − exp(−s/k)) = speed (a = dt c/m, mm/s).
+
+    The left side is increasing and concave, so Newton from the linearised
+    root s0 = speed/(1 + a/k) (a lower bound) rises monotonically to the root."""
+    if a <= F64_0 or speed <= F64_0:
+        return speed
+    s = speed / (F64_1 + a / k)
+    for _ in range(6):
+        e = wp.exp(-s / k)
+        s = s - (s + a * (F64_1 - e) - speed) / (F64_1 + a / k * e)
+    return wp.max(s, F64_0)
+
+
+@wp.func
+def catheter_point(path: wp.array(dtype=wp.vec3d), depth: wp.float64):
+    """Point and unit direction (towards the tip) on the catheter centerline at
+    arc distance ``depth`` ≥ 0 behind the tip. ``path`` runs proximal → tip;
+    beyond the proximal end the first segment is extended."""
+    n = path.shape[0]
+    remaining = depth
+    k = n - 1
+    while k > 0:
+        seg = path[k] - path[k - 1]
+        length = wp.length(seg)
+        direction = seg / length
+        if remaining <= length or k == 1:
+            return path[k] - remaining * direction, direction
+        remaining = remaining - length
+        k = k - 1
+    return path[n - 1], wp.vec3d(F64_0, F64_0, F64_1)
+
+
+@wp.func
+def coil_advance(advance: wp.array(dtype=wp.float64), active_coil: wp.array(dtype=wp.int32),
+                 coil: int, push_step: wp.float64) -> wp.float64:
+    a = advance[coil]
+    if coil == active_coil[0]:
+        a = a + push_step
+    return a
+
+
+@wp.kernel
+def integrate_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
+    advance_in: wp.array(dtype=wp.float64),
+    force: wp.array(dtype=wp.vec3d),
+    fixed: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    arc_s: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    catheter_path: wp.array(dtype=wp.vec3d),
+    active_coil: wp.array(dtype=wp.int32),
+    push_speed: wp.float64,
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    advance_out: wp.array(dtype=wp.float64),
+):
+    i = wp.tid()
+    push_step = push_speed * dt
+    if i < advance_in.shape[0]:
+        advance_out[i] = coil_advance(advance_in, active_coil, i, push_step)
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    if fixed[i] != 0:
+        x_out[i] = x_in[i]
+        v_out[i] = zero
+        free_out[i] = 0
+        return
+    c = coil_of[i]
+    sigma = coil_advance(advance_in, active_coil, c, push_step) - arc_s[i]
+    if sigma < F64_0:
+        p, direction = catheter_point(catheter_path, -sigma)
+        x_out[i] = p
+        if c == active_coil[0]:
+            v_out[i] = push_speed * direction
+        else:
+            v_out[i] = zero
+        free_out[i] = 0
+        return
+    v = v_in[i] + dt * inv_mass[i] * force[i]
+    speed = wp.length(v)
+    if speed > F64_0:
+        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+    v_out[i] = v
+    x_out[i] = x_in[i] + dt * v
+    free_out[i] = 1
+
+
+@wp.kernel
+def update_frames(
+    x_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    m1_in: wp.array(dtype=wp.vec3d),
+    omega_in: wp.array(dtype=wp.float64),
+    torque: wp.array(dtype=wp.float64),
+    free_out: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    inv_inertia: wp.array(dtype=wp.float64),
+    twist_damping: wp.array(dtype=wp.float64),
+    dt: wp.float64,
+    m1_out: wp.array(dtype=wp.vec3d),
+    omega_out: wp.array(dtype=wp.float64),
+):
+    """Carry each edge's director to its new tangent by parallel transport, then
+    turn it about the tangent by its twist rate (free edges only; edges with a
+    node in the catheter or clamped do not spin). Twist damping is linear and
+    implicit: ω' = (ω + dt T/J) / (1 + dt b/J)."""
+    i = wp.tid()
+    if not edge_valid(has_next, i):
+        m1_out[i] = m1_in[i]
+        omega_out[i] = F64_0
+        return
+    t_old = wp.normalize(x_in[i + 1] - x_in[i])
+    t_new = wp.normalize(x_out[i + 1] - x_out[i])
+    m = transport(m1_in[i], t_old, t_new)
+    omega = F64_0
+    if free_out[i] != 0 and free_out[i + 1] != 0:
+        inv_j = inv_inertia[i]
+        omega = (omega_in[i] + dt * torque[i] * inv_j) / (F64_1 + dt * twist_damping[i] * inv_j)
+        m = rotate_about(m, t_new, omega * dt)
+    m1_out[i] = director_normal(m, t_new)
+    omega_out[i] = omega
+
+
+@wp.kernel
+def kinetic_energies(
+    v: wp.array(dtype=wp.vec3d),
+    omega: wp.array(dtype=wp.float64),
+    free: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    inv_inertia: wp.array(dtype=wp.float64),
+    energy: wp.array(dtype=wp.float64),
+    unhealthy: wp.array(dtype=wp.int32),
+    speed_limit: wp.float64,
+):
+    """Kinetic energy (nJ) of free node i and of edge i's spin; flags a node
+    whose velocity is non-finite or above ``speed_limit`` (mm/s)."""
+    i = wp.tid()
+    vi = v[i]
+    speed_sq = wp.dot(vi, vi)
+    bad = 0
+    if not wp.isfinite(speed_sq) or speed_sq > speed_limit * speed_limit:
+        bad = 1
+    unhealthy[i] = bad
+    e = F64_0
+    if free[i] != 0:
+        e = wp.float64(0.5) * speed_sq / inv_mass[i] + wp.float64(0.5) * omega[i] * omega[i] / inv_inertia[i]
+    energy[i] = e
+
+
+@wp.kernel
+def place_on_catheter(
+    arc_s: wp.array(dtype=wp.float64),
+    coil_of: wp.array(dtype=wp.int32),
+    advance: wp.array(dtype=wp.float64),
+    catheter_path: wp.array(dtype=wp.vec3d),
+    x: wp.array(dtype=wp.vec3d),
+):
+    """Packed positions: node i at catheter coordinate σ = advance − s_i (σ ≤ 0
+    inside; σ > 0 is placed on the tip's extension)."""
+    i = wp.tid()
+    sigma = advance[coil_of[i]] - arc_s[i]
+    if sigma <= F64_0:
+        p, direction = catheter_point(catheter_path, -sigma)
+        x[i] = p
+    else:
+        p, direction = catheter_point(catheter_path, F64_0)
+        x[i] = p + sigma * direction
+
+
+@wp.kernel
+def transported_directors(
+    x: wp.array(dtype=wp.vec3d),
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    first_director: wp.array(dtype=wp.vec3d),
+    m1: wp.array(dtype=wp.vec3d),
+):
+    """Bishop (twist-free) directors along each coil: the first edge's director
+    is given, each next one is the parallel transport of the previous. One
+    thread per coil (the transport is sequential along the coil)."""
+    c = wp.tid()
+    first = coil_first[c]
+    last = coil_last[c]
+    t_prev = wp.normalize(x[first + 1] - x[first])
+    d = director_normal(first_director[c], t_prev)
+    m1[first] = d
+    for i in range(first + 1, last):
+        t = wp.normalize(x[i + 1] - x[i])
+        d = director_normal(transport(d, t_prev, t), t)
+        m1[i] = d
+        t_prev = t
+    m1[last] = d

@@ -1,0 +1,39 @@
+"""Atomic file output: a failed run never leaves a half-written file behind."""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_path(final_path: Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``final_path``; move it there on success.
+
+    The temporary file lives in the same directory (so the final ``os.replace``
+    is an atomic rename on the same filesystem) and keeps the same suffix, e.g.
+    ``run.usdc`` -> ``.run.usdc.tmp-ab12cd.usdc``, so writers that pick their
+    format from the extension still work. On an exception the temporary file
+    is deleted and the exception re-raised; ``final_path`` is left untouched.
+    The temporary file is not pre-created (the writer creates it, so it gets
+    the usual umask permissions rather than ``mkstemp``'s 0600).
+    """
+    final_path = Path(final_path)
+    tmp_path = final_path.with_name(
+        f".{final_path.name}.tmp-{secrets.token_hex(4)}{final_path.suffix}"
+    )
+    try:
+        yield tmp_path
+        os.replace(tmp_path, final_path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: Path, text: str, encoding: str = "utf-8") -> None:
+    """Write ``text`` to ``path`` atomically (all or nothing)."""
+    with atomic_path(Path(path)) as tmp_path:
+        tmp_path.write_text(text, encoding=encoding)

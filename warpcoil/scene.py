@@ -1,0 +1,251 @@
+"""Read a scene TOML file (schema: docs/SCENES.md) into a :class:`Scene`.
+
+Every problem raises :class:`SceneError` with one message naming the file,
+the dotted key (``coil[1].length_mm``), what is wrong and how to fix it.
+Paths in the file are relative to the scene file's folder.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from .coil import SHAPES, CoilSpec
+from .settings import CatheterSpec, ContactSettings, OutputSettings, Scene, SimulationSettings, WallSpec
+
+Vec3 = tuple[float, float, float]
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be read; the message says where and how to fix it."""
+
+
+class _Invalid(Exception):
+    """A bad value; the reader adds the file and the key."""
+
+    def __init__(self, problem: str, fix: str) -> None:
+        super().__init__(problem)
+        self.problem, self.fix = problem, fix
+
+
+# --- value checks: (TOML value, scene folder) -> converted value ----------------
+Check = Callable[[Any, Path], Any]
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _positive(value: object, base: Path) -> float:
+    if not _is_number(value):
+        raise _Invalid(f"must be a number, got {value!r}", "write a number without quotes, e.g. 1.0")
+    if not (math.isfinite(value) and value > 0.0):
+        raise _Invalid(f"must be a finite number > 0, got {value!r}", "give a positive value")
+    return float(value)
+
+
+def _fraction(value: object, base: Path) -> float:
+    number = _positive(value, base)
+    if number > 1.0:
+        raise _Invalid(f"must be in (0, 1], got {value!r}", "give a value such as 0.5")
+    return number
+
+
+def _bool(value: object, base: Path) -> bool:
+    if not isinstance(value, bool):
+        raise _Invalid(f"must be true or false, got {value!r}", "write true or false without quotes")
+    return value
+
+
+def _text(value: object, base: Path) -> str:
+    if not isinstance(value, str):
+        raise _Invalid(f"must be a string, got {value!r}", 'write it in quotes, e.g. "framing"')
+    return value
+
+
+def _choice(*options: str) -> Check:
+    def check(value: object, base: Path) -> str:
+        if _text(value, base) not in options:
+            raise _Invalid(f"must be one of {', '.join(map(repr, options))}, got {value!r}", f"use one of {options}")
+        return value
+
+    return check
+
+
+def _vec3(value: object, base: Path) -> Vec3:
+    if not (isinstance(value, list) and len(value) == 3 and all(_is_number(v) and math.isfinite(v) for v in value)):
+        raise _Invalid(f"must be a list of 3 finite numbers [x, y, z], got {value!r}", "write e.g. [0.0, 0.0, 1.0]")
+    return tuple(float(v) for v in value)
+
+
+def _direction(value: object, base: Path) -> Vec3:
+    vector = _vec3(value, base)
+    norm = math.hypot(*vector)
+    if norm == 0.0:
+        raise _Invalid("must not be the zero vector", "give the catheter axis, e.g. [0.0, 0.0, 1.0]")
+    return tuple(v / norm for v in vector)
+
+
+def _polyline(value: object, base: Path) -> tuple[Vec3, ...]:
+    if not (isinstance(value, list) and len(value) >= 2):
+        raise _Invalid(
+            f"must be a list of at least 2 points [[x, y, z], ...], got {value!r}",
+            "list the points from the proximal end to the tip",
+        )
+    return tuple(_vec3(point, base) for point in value)
+
+
+def _existing_file(value: object, base: Path) -> Path:
+    path = (base / _text(value, base)).resolve()
+    if not path.is_file():
+        raise _Invalid(f"file {path} does not exist", f"check the path; it is relative to {base}")
+    return path
+
+
+# --- schema ---------------------------------------------------------------------
+class _Key(NamedTuple):
+    check: Check
+    field: str | None = None  # dataclass field, if named differently
+    required: bool = False
+    shape: str | None = None  # coil key only meaningful for this shape
+
+
+_WALL = {"mesh": _Key(_existing_file, required=True), "units": _Key(_choice("mm", "m"))}
+_CATHETER = {
+    "tip": _Key(_vec3, "tip_mm"),
+    "direction": _Key(_direction),
+    "centerline": _Key(_polyline, "centerline_mm"),
+}
+_COIL = {
+    "name": _Key(_text),
+    "shape": _Key(_choice(*SHAPES)),
+    "file": _Key(_existing_file, "preshape_file", shape="file"),
+    "wire_diameter_mm": _Key(_positive, required=True),
+    "loop_diameter_mm": _Key(_positive, required=True),
+    "length_mm": _Key(_positive, required=True),
+    "pitch_mm": _Key(_positive, shape="helix"),
+    "shrink": _Key(_positive, shape="spherical"),
+    "segment_length_mm": _Key(_positive),
+    "primary_wire_diameter_mm": _Key(_positive),
+    "bending_stiffness_uN_mm2": _Key(_positive),
+    "twist_stiffness_uN_mm2": _Key(_positive),
+    "linear_density_g_mm": _Key(_positive),
+    "axial_stiffness_uN": _Key(_positive),
+    "stretch_resistant": _Key(_bool),
+}
+_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive)}
+_SIMULATION = {
+    "push_speed_mm_s": _Key(_positive),
+    "damping_uN_per_mm": _Key(_positive),
+    "damping_speed_mm_s": _Key(_positive),
+    "dt_s": _Key(_positive),
+    "dt_safety": _Key(_fraction),
+    "allow_unstable_dt": _Key(_bool),
+    "mass_scale": _Key(_positive),
+    "jam_force_uN": _Key(_positive),
+    "rest_kinetic_energy_nJ": _Key(_positive),
+    "max_time_s": _Key(_positive),
+    "frame_interval_s": _Key(_positive),
+}
+_OUTPUT = {"usd": _Key(_bool)}
+_TABLES = ("wall", "catheter", "coil", "contact", "simulation", "output")
+
+
+def _unknown(key: str, known: Sequence[str]) -> str:
+    close = difflib.get_close_matches(key, known, n=1)
+    return f"did you mean {close[0]!r}?" if close else f"remove it; known: {', '.join(known)}"
+
+
+class _Reader:
+    def __init__(self, source: Path) -> None:
+        self.source, self.base = source, source.parent
+
+    def error(self, key: str | None, problem: str, fix: str) -> SceneError:
+        where = f"{self.source}: {key}" if key else str(self.source)
+        return SceneError(f"{where}: {problem}; fix: {fix}")
+
+    def table(self, value: object, schema: dict[str, _Key], where: str) -> dict[str, Any]:
+        """Checked values of one table, keyed by dataclass field."""
+        if not isinstance(value, dict):
+            raise self.error(where, f"must be a table, got {value!r}", f"write it as a [{where}] table")
+        for key in value:
+            if key not in schema:
+                raise self.error(f"{where}.{key}", "unknown key", _unknown(key, list(schema)))
+        for key, spec in schema.items():
+            if spec.required and key not in value:
+                raise self.error(f"{where}.{key}", "required key is missing", f"add {key} = ... to [{where}]")
+        values = {}
+        for key, item in value.items():
+            try:
+                values[schema[key].field or key] = schema[key].check(item, self.base)
+            except _Invalid as bad:
+                raise self.error(f"{where}.{key}", bad.problem, bad.fix) from None
+        return values
+
+    def build(self, cls: type, values: dict[str, Any], where: str) -> Any:
+        """``cls(**values)``, its ValueErrors turned into SceneErrors about ``where``."""
+        try:
+            return cls(**values)
+        except ValueError as exc:
+            raise self.error(where, str(exc), "correct the values of this table") from exc
+
+    def section(self, document: dict[str, Any], name: str, schema: dict[str, _Key], cls: type) -> Any:
+        return self.build(cls, self.table(document.get(name, {}), schema, name), name)
+
+    def coil(self, value: object, index: int) -> CoilSpec:
+        where = f"coil[{index}]"
+        values = self.table(value, _COIL, where)
+        shape = values.get("shape", CoilSpec.shape)
+        for key, spec in _COIL.items():
+            if spec.shape is not None and spec.shape != shape and key in value:
+                raise self.error(f"{where}.{key}", f"is only for shape = {spec.shape!r}, not {shape!r}", "remove it")
+        if shape == "file" and "file" not in value:
+            fix = 'add file = "preshape.txt" (x y z per line, mm)'
+            raise self.error(f"{where}.file", "is required for shape = 'file'", fix)
+        return self.build(CoilSpec, {"name": f"coil_{index}", **values}, where)
+
+    def catheter(self, document: dict[str, Any]) -> CatheterSpec:
+        catheter = self.section(document, "catheter", _CATHETER, CatheterSpec)
+        line = catheter.centerline_mm
+        if line is not None and math.dist(line[-1], catheter.tip_mm) > 1e-6:
+            raise self.error(
+                "catheter.centerline",
+                f"last point {list(line[-1])} is not the tip {list(catheter.tip_mm)}",
+                "end the centerline at catheter.tip",
+            )
+        return catheter
+
+    def scene(self, document: dict[str, Any]) -> Scene:
+        for key in document:
+            if key not in _TABLES:
+                raise self.error(key, "unknown top-level table or key", _unknown(key, _TABLES))
+        coils = document.get("coil")
+        if not isinstance(coils, list) or not coils:
+            raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
+        return Scene(
+            coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
+            catheter=self.catheter(document),
+            wall=self.section(document, "wall", _WALL, WallSpec) if "wall" in document else None,
+            contact=self.section(document, "contact", _CONTACT, ContactSettings),
+            simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
+            output=self.section(document, "output", _OUTPUT, OutputSettings),
+            source=self.source,
+        )
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read the scene TOML file at ``path``; raise :class:`SceneError` on any problem."""
+    source = Path(path).expanduser().resolve()
+    reader = _Reader(source)
+    try:
+        with source.open("rb") as file:
+            document = tomllib.load(file)
+    except OSError as exc:
+        raise reader.error(None, f"cannot be read ({exc.strerror or exc})", "check the path and permissions") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise reader.error(None, f"is not valid TOML: {exc}", "correct the syntax there") from exc
+    return reader.scene(document)

@@ -1,0 +1,85 @@
+"""State: everything that changes in time, as device arrays (mm, mm/s, rad/s)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .kernels import integrate
+from .model import Model
+
+ALL_OUT_MM = 1.0e9  # a pusher advance that puts every node past the tip (free space)
+
+
+@dataclass
+class State:
+    x: wp.array  # node positions, mm
+    v: wp.array  # node velocities, mm/s
+    m1: wp.array  # edge material directors (unit)
+    omega: wp.array  # edge twist rates, rad/s
+    free: wp.array  # 1 where a node has free dynamics
+    advance: wp.array  # per coil pusher advance, mm (node i is out when advance − s_i ≥ 0)
+    time_s: float = 0.0
+
+    def copy_from(self, other: "State") -> None:
+        for name in ("x", "v", "m1", "omega", "free", "advance"):
+            wp.copy(getattr(self, name), getattr(other, name))
+        self.time_s = other.time_s
+
+    def positions(self) -> np.ndarray:
+        return self.x.numpy()
+
+
+def _free_flags(model: Model, advance: np.ndarray) -> np.ndarray:
+    coil_of = model.coil_of.numpy()
+    sigma = advance[coil_of] - model.arc_s.numpy()
+    return ((sigma >= 0.0) & (model.fixed.numpy() == 0)).astype(np.int32)
+
+
+def _state(model: Model, x: np.ndarray, m1: np.ndarray, advance: np.ndarray) -> State:
+    n = model.node_count
+    return State(
+        x=model.array(x, wp.vec3d), v=wp.zeros(n, dtype=wp.vec3d, device=model.device),
+        m1=model.array(m1, wp.vec3d), omega=wp.zeros(n, dtype=wp.float64, device=model.device),
+        free=model.array(_free_flags(model, advance), wp.int32), advance=model.array(advance, wp.float64),
+    )
+
+
+def state_from_positions(model: Model, positions_mm: np.ndarray, first_directors: np.ndarray | None = None) -> State:
+    """A state at rest with the given positions, every node free (no catheter), and
+    twist-free directors carried along each coil."""
+    positions_mm = np.asarray(positions_mm, dtype=np.float64)
+    advance = np.full(model.coil_count, ALL_OUT_MM)
+    return _state(model, positions_mm, model.directors_along(positions_mm, first_directors), advance)
+
+
+def rest_state(model: Model) -> State:
+    """Each coil in its pre-shape, at rest, free."""
+    return state_from_positions(model, model.rest_positions)
+
+
+def packed_state(model: Model, gap_mm: float = 1.0) -> State:
+    """The coils packed in the catheter, one behind the other (``gap_mm`` apart),
+    the first coil's distal node at the tip; directors carried along the
+    catheter so each edge keeps its pre-shape frame orientation (MODEL.md, Step 2)."""
+    lengths = np.array([model.arc_s.numpy()[last] for last in model.coil_last])
+    behind = np.concatenate([[0.0], np.cumsum(lengths + gap_mm)[:-1]])
+    advance = -behind
+    x = wp.zeros(model.node_count, dtype=wp.vec3d, device=model.device)
+    wp.launch(integrate.place_on_catheter, model.node_count, device=model.device, inputs=[
+        model.arc_s, model.coil_of, model.array(advance, wp.float64), model.catheter_path, x])
+    positions = x.numpy()
+    return _state(model, positions, model.directors_along(positions), advance)
+
+
+def new_state_like(model: Model) -> State:
+    """An uninitialised state of the model's sizes (the output buffer of a step)."""
+    n = model.node_count
+    dev = model.device
+    return State(
+        x=wp.zeros(n, dtype=wp.vec3d, device=dev), v=wp.zeros(n, dtype=wp.vec3d, device=dev),
+        m1=wp.zeros(n, dtype=wp.vec3d, device=dev), omega=wp.zeros(n, dtype=wp.float64, device=dev),
+        free=wp.zeros(n, dtype=wp.int32, device=dev), advance=wp.zeros(model.coil_count, dtype=wp.float64, device=dev),
+    )
