@@ -9,7 +9,7 @@ import pytest
 
 from warpcoil.coil import CoilSpec
 from warpcoil.scene import SceneError, load_scene
-from warpcoil.settings import CatheterSpec, ContactSettings, OutputSettings, SimulationSettings
+from warpcoil.settings import CatheterSpec, ContactSettings, OutputSettings, SimulationSettings, WallSpec
 
 MINIMAL_COIL = "[[coil]]\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 3.0\nlength_mm = 60.0\n"
 
@@ -17,6 +17,7 @@ FULL = """
 [wall]
 mesh = "meshes/sac.stl"
 units = "m"
+repair = true
 
 [catheter]
 tip = [1.0, 2.0, 3]
@@ -92,8 +93,7 @@ def test_full_scene_maps_onto_dataclasses(scene_dir: Path) -> None:
     scene = load_scene(str(path))
 
     assert scene.source == path.resolve()
-    assert scene.wall.mesh == (scene_dir / "meshes" / "sac.stl").resolve()
-    assert scene.wall.units == "m"
+    assert scene.wall == WallSpec(mesh=(scene_dir / "meshes" / "sac.stl").resolve(), units="m", repair=True)
     assert scene.catheter == CatheterSpec(
         tip_mm=(1.0, 2.0, 3.0), direction=(0.0, 0.6, 0.8), centerline_mm=((1.0, 2.0, -7.0), (1.0, 2.0, 3.0))
     )
@@ -154,6 +154,11 @@ def test_minimal_scene_gives_defaults(tmp_path: Path) -> None:
     assert scene.output == OutputSettings()
 
 
+def test_sphere_wall(tmp_path: Path) -> None:
+    text = MINIMAL_COIL + "[wall]\nsphere_diameter_mm = 6\ncenter_mm = [1, 2, 3.5]\n"
+    assert load_scene(write(tmp_path, text)).wall == WallSpec(sphere_diameter_mm=6.0, center_mm=(1.0, 2.0, 3.5))
+
+
 def with_coil(**keys: str) -> str:
     """The minimal coil with some keys replaced or added (values as TOML text)."""
     base = {"wire_diameter_mm": "0.2921", "loop_diameter_mm": "3.0", "length_mm": "60.0"} | keys
@@ -171,7 +176,26 @@ ERRORS = {
     "unknown key": (with_coil(lenght_mm="60.0"), "coil[0].lenght_mm", "'length_mm'"),
     "unknown key far off": (MINIMAL_COIL + "[output]\nzzz = 1\n", "output.zzz", "known: usd"),
     "missing required": (without("length_mm"), "coil[0].length_mm", "missing"),
-    "missing wall mesh": (MINIMAL_COIL + '[wall]\nunits = "mm"\n', "wall.mesh", "missing"),
+    "missing wall mesh": (MINIMAL_COIL + '[wall]\nunits = "mm"\n', "wall.mesh / wall.sphere_diameter_mm", "missing"),
+    "mesh and sphere": (
+        MINIMAL_COIL + '[wall]\nmesh = "sac.stl"\nsphere_diameter_mm = 6.0\n',
+        "wall.mesh / wall.sphere_diameter_mm",
+        "both are given",
+    ),
+    "center for mesh": (
+        MINIMAL_COIL + '[wall]\nmesh = "sac.stl"\ncenter_mm = [0, 0, 0]\n',
+        "wall.center_mm",
+        "only for wall.sphere_diameter_mm",
+    ),
+    "repair for sphere": (MINIMAL_COIL + "[wall]\nsphere_diameter_mm = 6\nrepair = true\n", "wall.repair", "only for"),
+    "units for sphere": (MINIMAL_COIL + '[wall]\nsphere_diameter_mm = 6.0\nunits = "m"\n', "wall.units", "only for"),
+    "repair not bool": (MINIMAL_COIL + '[wall]\nmesh = "sac.stl"\nrepair = "yes"\n', "wall.repair", "true or false"),
+    "sphere diameter": (MINIMAL_COIL + "[wall]\nsphere_diameter_mm = -6.0\n", "wall.sphere_diameter_mm", "> 0"),
+    "center length": (
+        MINIMAL_COIL + "[wall]\nsphere_diameter_mm = 6.0\ncenter_mm = [0, 0]\n",
+        "wall.center_mm",
+        "3 finite numbers",
+    ),
     "string for number": (with_coil(length_mm='"60"'), "coil[0].length_mm", "must be a number"),
     "bool for number": (MINIMAL_COIL + "[contact]\nP0_uN = true\n", "contact.P0_uN", "must be a number"),
     "number for bool": (MINIMAL_COIL + "[output]\nusd = 1\n", "output.usd", "true or false"),

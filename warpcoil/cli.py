@@ -1,9 +1,78 @@
-"""Command line: ``warpcoil validate``, ``warpcoil run SCENE.toml``."""
+"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil validate``.
+
+Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
+validation case out of tolerance), 2 bad input, 3 jammed or timed out.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
+from pathlib import Path
+
+EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3}
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .deploy import Deployment
+    from .preshape import PreshapeError
+    from .recorder import outputs
+    from .scene import SceneError, load_scene
+    from .solver import UnstableStepError
+    from .wall import WallError
+
+    try:
+        scene = load_scene(args.scene)
+        if args.frame_interval is not None:
+            scene = replace(scene, simulation=replace(scene.simulation, frame_interval_s=args.frame_interval))
+        deployment = Deployment(scene)
+    except (SceneError, WallError, PreshapeError, UnstableStepError) as error:
+        print(f"warpcoil run: {error}", file=sys.stderr)
+        return 2
+    out = Path(args.output) if args.output else Path("out") / Path(args.scene).stem
+    out.mkdir(parents=True, exist_ok=True)
+    usd = None
+    if scene.output.usd and not args.no_usd:
+        usd = outputs.UsdFrames(out / outputs.DEPLOYMENT_USD, deployment.model, scene.simulation.frame_interval_s)
+    progress = _progress(deployment, quiet=args.quiet)
+
+    def on_frame(frame, state):
+        if usd is not None:
+            usd(frame, state)
+        progress(frame)
+
+    result = deployment.run(on_frame)
+    progress(None)
+    if usd is not None:
+        usd.close()
+    outputs.write_timeseries_csv(out / outputs.TIMESERIES_CSV, result.frames)
+    outputs.write_centerline_csv(out / outputs.CENTERLINE_CSV, result.positions_mm)
+    outputs.write_result_json(out / outputs.RESULT_JSON, result, {"scene": str(scene.source)})
+    print(f"{result.status}: {result.reason}")
+    density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
+    print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
+          f"{result.steps} steps of {result.dt_s:.3g} s in {result.wall_time_s:.1f} s wall time -> {out}")
+    return EXIT_FOR_STATUS[result.status]
+
+
+def _progress(deployment, quiet: bool):
+    """A tqdm bar over the deployed length (mm), with push force; silent when quiet."""
+    if quiet:
+        return lambda frame: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=round(float(deployment.coil_lengths_mm.sum()), 1), unit="mm", desc="deployed",
+               bar_format="{desc} {n:.1f}/{total} mm |{bar}| {elapsed} {postfix}")
+
+    def update(frame):
+        if frame is None:
+            bar.close()
+            return
+        bar.n = round(frame.deployed_length_mm, 1)
+        bar.set_postfix_str(f"push {frame.push_force_uN:8.1f} µN, t = {frame.time_s:.3f} s", refresh=True)
+
+    return update
 
 
 def _validate(args: argparse.Namespace) -> int:
@@ -30,6 +99,14 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help=f"subset of: {', '.join(CASES)} (default: all)")
     validate.set_defaults(func=_validate)
+
+    run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
+    run.add_argument("scene", help="scene TOML file")
+    run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")
+    run.add_argument("--no-usd", action="store_true", help="skip deployment.usdc")
+    run.add_argument("--frame-interval", type=float, help="seconds of simulated time between recorded frames")
+    run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=_run)
     return parser
 
 

@@ -14,6 +14,7 @@ Twist inertia per edge: ``m r²`` with r the winding radius (d − d_w)/2.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,49 @@ import warp as wp
 
 from .coil import CoilSpec
 from .kernels import elastic, integrate
-from .settings import CatheterSpec, SimulationSettings
+from .settings import CatheterSpec, ContactSettings, SimulationSettings
+
+CONTACT_DESIGN_OVERLAP_U = 3.0  # u = 1 − h/c0 at which the step bound takes the contact stiffness (h = −2 c0)
+
+
+@dataclass
+class WallModel:
+    """The wall on the device: a Warp BVH mesh (float32, stored relative to
+    ``origin``) and float64 copies of its vertices and faces for exact distances."""
+
+    mesh: wp.Mesh
+    vertices: wp.array  # vec3d, mm, relative to origin
+    faces: wp.array  # int32, flat (3 per triangle), wound with outward normals
+    origin: np.ndarray  # mm
+    volume_mm3: float
+    vertices_mm: np.ndarray  # absolute, for output
+    faces_np: np.ndarray
+
+    @staticmethod
+    def create(vertices_mm: np.ndarray, faces: np.ndarray, volume_mm3: float, device) -> "WallModel":
+        vertices_mm = np.asarray(vertices_mm, dtype=np.float64)
+        faces = np.asarray(faces, dtype=np.int32)
+        origin = 0.5 * (vertices_mm.min(axis=0) + vertices_mm.max(axis=0))
+        local = vertices_mm - origin
+        mesh = wp.Mesh(points=wp.array(local.astype(np.float32), dtype=wp.vec3, device=device),
+                       indices=wp.array(faces.ravel(), dtype=wp.int32, device=device))
+        return WallModel(mesh=mesh, vertices=wp.array(local, dtype=wp.vec3d, device=device),
+                         faces=wp.array(faces.ravel(), dtype=wp.int32, device=device), origin=origin,
+                         volume_mm3=float(volume_mm3), vertices_mm=vertices_mm, faces_np=faces)
+
+
+@dataclass(frozen=True)
+class ContactModel:
+    """Contact parameters resolved for the model's coils."""
+
+    p0_uN: float
+    c0_mm: float
+    exclusion_edges: int  # same-coil edges this close along the coil never touch (bonded neighbours)
+    query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0
+
+    def stiffness_uN_mm(self, u: float = CONTACT_DESIGN_OVERLAP_U) -> float:
+        """−d|F|/dh of the contact law at u (µN/mm)."""
+        return self.p0_uN / ((math.e - 1.0) * self.c0_mm) * (math.exp(u) * (1.0 + u) - 1.0)
 
 
 def _default_director(t: np.ndarray) -> np.ndarray:
@@ -74,6 +117,9 @@ class Model:
     catheter_path: wp.array
     catheter_axis: np.ndarray  # unit, towards the tip at the tip
     mass_scale: float
+    node_radius: wp.array  # d/2 of the node's coil, mm
+    contact: ContactModel
+    wall: WallModel | None = None
 
     @property
     def node_count(self) -> int:
@@ -109,9 +155,13 @@ def _unit(v: np.ndarray) -> np.ndarray:
 class ModelBuilder:
     """Collects coils and boundary conditions, then :meth:`finalize` s a Model."""
 
-    def __init__(self, catheter: CatheterSpec | None = None, settings: SimulationSettings | None = None):
+    def __init__(self, catheter: CatheterSpec | None = None, settings: SimulationSettings | None = None,
+                 contact: ContactSettings | None = None, wall=None):
+        """``wall``: a :class:`warpcoil.wall.WallMesh` (closed, outward normals) or None."""
         self.catheter = catheter or CatheterSpec()
         self.settings = settings or SimulationSettings()
+        self.contact = contact or ContactSettings()
+        self.wall = wall
         self._coils: list[CoilSpec] = []
         self._rest: list[np.ndarray] = []
         self._fixed: list[int] = []
@@ -183,6 +233,13 @@ class ModelBuilder:
         for node, f in self._forces:
             external[node] += f
         path = catheter_path(self.catheter)
+        d = per_coil(lambda c: c.d)
+        c0 = self.contact.c0_mm if self.contact.c0_mm is not None else 0.1 * float(d.min())
+        longest = float(edge_len.max())
+        contact_model = ContactModel(
+            p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
+            exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
+            query_radius_mm=longest + float(d.max()) + c0)
 
         arr = lambda v, t: wp.array(v, dtype=t, device=device)  # noqa: E731
         model = Model(
@@ -198,7 +255,9 @@ class ModelBuilder:
             rest_K0=wp.zeros(n, dtype=wp.vec2d, device=device), rest_K1=wp.zeros(n, dtype=wp.vec2d, device=device),
             rest_twist=wp.zeros(n, dtype=wp.float64, device=device),
             catheter_path=arr(path, wp.vec3d), catheter_axis=_unit(path[-1] - path[-2]),
-            mass_scale=float(s.mass_scale),
+            mass_scale=float(s.mass_scale), node_radius=arr(0.5 * d, wp.float64), contact=contact_model,
+            wall=None if self.wall is None else WallModel.create(
+                self.wall.vertices_mm, self.wall.faces, self.wall.volume_mm3, device),
         )
         rest_m1 = model.directors_along(rest)
         wp.launch(elastic.rest_strains, n, device=device, inputs=[

@@ -114,7 +114,15 @@ class _Key(NamedTuple):
     shape: str | None = None  # coil key only meaningful for this shape
 
 
-_WALL = {"mesh": _Key(_existing_file, required=True), "units": _Key(_choice("mm", "m"))}
+_WALL = {
+    "mesh": _Key(_existing_file),
+    "units": _Key(_choice("mm", "m")),
+    "repair": _Key(_bool),
+    "sphere_diameter_mm": _Key(_positive),
+    "center_mm": _Key(_vec3),
+}
+_WALL_SOURCES = ("mesh", "sphere_diameter_mm")  # exactly one is given
+_WALL_ONLY_WITH = {"units": "mesh", "repair": "mesh", "center_mm": "sphere_diameter_mm"}
 _CATHETER = {
     "tip": _Key(_vec3, "tip_mm"),
     "direction": _Key(_direction),
@@ -219,6 +227,19 @@ class _Reader:
             )
         return catheter
 
+    def wall(self, document: dict[str, Any]) -> WallSpec:
+        value = document["wall"]
+        values = self.table(value, _WALL, "wall")
+        given = [source for source in _WALL_SOURCES if source in value]
+        if len(given) != 1:
+            problem = "both are given" if given else "one of them is required, both are missing"
+            fix = 'give either mesh = "sac.stl" (a file) or sphere_diameter_mm = 6.0 (a generated sphere)'
+            raise self.error("wall.mesh / wall.sphere_diameter_mm", problem, fix)
+        for key, source in _WALL_ONLY_WITH.items():
+            if key in value and source not in value:
+                raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
+        return self.build(WallSpec, values, "wall")
+
     def scene(self, document: dict[str, Any]) -> Scene:
         for key in document:
             if key not in _TABLES:
@@ -229,7 +250,7 @@ class _Reader:
         return Scene(
             coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
             catheter=self.catheter(document),
-            wall=self.section(document, "wall", _WALL, WallSpec) if "wall" in document else None,
+            wall=self.wall(document) if "wall" in document else None,
             contact=self.section(document, "contact", _CONTACT, ContactSettings),
             simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
             output=self.section(document, "output", _OUTPUT, OutputSettings),

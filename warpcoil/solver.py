@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .kernels import elastic, integrate
+from .kernels import contact, elastic, integrate
 from .model import Model
 from .state import State, new_state_like
 
@@ -98,9 +98,13 @@ class Solver:
     """
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = 0.5,
-                 allow_unstable_dt: bool = False, contact_stiffness_uN_mm: float = 0.0):
+                 allow_unstable_dt: bool = False, coil_contact: bool = True):
         self.model = model
-        self.bound = stable_step_bound(model, contact_stiffness_uN_mm)
+        self.coil_contact = coil_contact
+        with_contact = coil_contact or model.wall is not None
+        # two nodes pressing on each other: relative stiffness 2k
+        contact_k = 2.0 * model.contact.stiffness_uN_mm() if with_contact else 0.0
+        self.bound = stable_step_bound(model, contact_k)
         self.dt_s = dt_safety * self.bound.dt_s if dt_s is None else float(dt_s)
         if self.dt_s > self.bound.dt_s and not allow_unstable_dt:
             raise UnstableStepError(
@@ -115,11 +119,39 @@ class Solver:
         self.torque, self.push_share = zeros(wp.float64), zeros(wp.float64)
         self._kinetic, self._unhealthy = zeros(wp.float64), zeros(wp.int32)
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
+        self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
+        self.wall_distance.fill_(float(contact.FAR_MM))
+        self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
+        self._midpoints = zeros(wp.vec3d)
+        self.push_accumulator = wp.zeros(2, dtype=wp.float64, device=dev)  # Σ and max of the step push force
+        cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
+        self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
 
     # --- one step ----------------------------------------------------------
+    def compute_contacts(self, state: State) -> None:
+        """Wall and coil–coil contact forces into ``contact_force`` (µN), with the
+        per-node wall distance, smallest coil gap and contact counts."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
+        if m.wall is not None:
+            w = m.wall
+            wp.launch(contact.wall_contact, n, device=dev, inputs=[
+                state.x, state.free, m.node_radius, w.mesh.id, w.vertices, w.faces, wp.vec3d(*w.origin),
+                c.p0_uN, c.c0_mm, self.wall_force, self.wall_distance])
+        if self.coil_contact:
+            wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
+            self._grid.build(self._midpoints, c.query_radius_mm)
+            wp.launch(contact.coil_contact, n, device=dev, inputs=[
+                state.x, state.free, m.has_next, m.coil_of, m.node_radius, self._grid.id, self._midpoints,
+                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self.wall_force, self.contact_force,
+                self.coil_gap, self.coil_contacts])
+        elif m.wall is not None:
+            wp.copy(self.contact_force, self.wall_force)
+
     def compute_forces(self, state: State) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
         m, dev, n = self.model, self.model.device, self.model.node_count
+        self.compute_contacts(state)
         wp.launch(elastic.vertex_gradients, n, device=dev, inputs=[
             state.x, state.m1, state.free, m.has_next, m.k_bend, m.k_twist, m.rest_K0, m.rest_K1,
             m.rest_twist, self.grad_prev, self.grad_mid, self.grad_next, self.grad_theta])
@@ -140,6 +172,7 @@ class Solver:
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.has_next,
             m.inv_inertia, m.twist_damping, dt, state_out.m1, state_out.omega])
+        wp.launch(integrate.accumulate_push_force, 1, device=dev, inputs=[self.push_share, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
 
     # --- measurements ------------------------------------------------------
@@ -168,9 +201,12 @@ class Solver:
             "twist_nJ": float(self._twist_e.numpy().sum()),
         }
 
-    def push_force_uN(self) -> float:
-        """Axial force the pusher applies (µN, compressive > 0), from the last force pass."""
-        return float(self.push_share.numpy().sum())
+    def take_push_force(self, steps: int) -> tuple[float, float]:
+        """Mean and largest push force (µN, compressive > 0) over the last ``steps``
+        steps, and restart the accumulation."""
+        total, largest = self.push_accumulator.numpy()
+        self.push_accumulator.zero_()
+        return float(total) / max(steps, 1), float(largest)
 
     def check_health(self, state: State) -> dict[str, float]:
         """Energies of ``state``; raises SimulationUnstable on NaN or runaway speed."""

@@ -49,3 +49,180 @@ def evaluate_law(
     i = wp.tid()
     force[i] = contact_force_magnitude(h[i], p0, c0)
     stiffness[i] = contact_stiffness(h[i], p0, c0)
+
+
+# --- coil–wall -----------------------------------------------------------------
+FAR_MM = wp.constant(wp.float64(1.0e6))
+
+
+@wp.func
+def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+               origin: wp.vec3d, p: wp.vec3d):
+    """Signed distance (mm, > 0 inside the lumen) of a point to the closed wall,
+    and the unit wall normal pointing into the lumen.
+
+    The BVH (float32, mesh stored relative to ``origin``) finds the closest
+    face and the sign (angle-weighted pseudo-normal); the distance is then
+    evaluated in float64 on that face."""
+    local = p - origin
+    q = wp.mesh_query_point_sign_normal(mesh, wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2])),
+                                        wp.float32(1.0e6))
+    f = q.face
+    v0 = vertices[faces[3 * f]]
+    v1 = vertices[faces[3 * f + 1]]
+    v2 = vertices[faces[3 * f + 2]]
+    u = wp.float64(q.u)
+    v = wp.float64(q.v)
+    closest = u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2
+    delta = local - closest
+    dist = wp.length(delta)
+    inward = -wp.normalize(wp.cross(v1 - v0, v2 - v0))  # faces are wound with outward normals
+    if dist > wp.float64(1.0e-12):
+        if q.sign < wp.float32(0.0):
+            inward = delta / dist
+        else:
+            inward = -delta / dist
+    if q.sign < wp.float32(0.0):
+        return dist, inward
+    return -dist, inward
+
+
+@wp.kernel
+def wall_contact(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    mesh: wp.uint64,
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    origin: wp.vec3d,
+    p0: wp.float64,
+    c0: wp.float64,
+    force: wp.array(dtype=wp.vec3d),
+    centre_distance: wp.array(dtype=wp.float64),
+):
+    """Wall force on each free node (µN): the contact law of the gap h = signed
+    distance − d/2, along the inward wall normal. Writes (overwrites) ``force``
+    and the node centre's signed distance (mm, > 0 inside; +FAR for nodes in the
+    catheter)."""
+    i = wp.tid()
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    signed = FAR_MM
+    if free[i] != 0:
+        signed, inward = wall_query(mesh, vertices, faces, origin, x[i])
+        f = contact_force_magnitude(signed - node_radius[i], p0, c0) * inward
+    force[i] = f
+    centre_distance[i] = signed
+
+
+# --- coil–coil -----------------------------------------------------------------
+@wp.func
+def segment_closest_params(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3d) -> wp.vec2d:
+    """Parameters (s, t) in [0, 1]² of the closest points of segments p1q1 and p2q2
+    (Ericson, Real-Time Collision Detection, §5.1.9)."""
+    d1 = q1 - p1
+    d2 = q2 - p2
+    r = p1 - p2
+    a = wp.dot(d1, d1)
+    e = wp.dot(d2, d2)
+    f = wp.dot(d2, r)
+    c = wp.dot(d1, r)
+    b = wp.dot(d1, d2)
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    denom = a * e - b * b
+    s = zero
+    if denom > wp.float64(1.0e-14) * a * e:
+        s = wp.clamp((b * f - c * e) / denom, zero, one)
+    t = (b * s + f) / e
+    if t < zero:
+        t = zero
+        s = wp.clamp(-c / a, zero, one)
+    elif t > one:
+        t = one
+        s = wp.clamp((b - c) / a, zero, one)
+    return wp.vec2d(s, t)
+
+
+@wp.func
+def edge_in_contact_pass(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), e: int) -> bool:
+    """Edge e takes part in coil contact when it exists and one of its nodes is free."""
+    if has_next[e] == 0:
+        return False
+    return free[e] != 0 or free[e + 1] != 0
+
+
+@wp.kernel
+def edge_midpoints(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), mid: wp.array(dtype=wp.vec3d)):
+    """Midpoint of each edge (the last node of a coil, which has none, keeps its own position)."""
+    i = wp.tid()
+    if has_next[i] != 0:
+        mid[i] = wp.float64(0.5) * (x[i] + x[i + 1])
+    else:
+        mid[i] = x[i]
+
+
+@wp.kernel
+def coil_contact(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    wall_force: wp.array(dtype=wp.vec3d),
+    force: wp.array(dtype=wp.vec3d),
+    min_gap: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+):
+    """Segment–segment contact between coil edges (so a segment cannot slip
+    between two nodes), gathered per node: node i sums, over its own edges
+    a ∈ {i−1, i}, the law of the surface gap h = |p_a − p_b| − (r_a + r_b)
+    between the closest points of a and every other edge b found in the hash
+    grid of edge midpoints, along (p_a − p_b)/|p_a − p_b|, weighted by node i's
+    barycentric share of p_a. Edges of the same coil closer than ``exclusion``
+    along it are bonded neighbours and skipped. Writes ``force`` = wall force +
+    coil force, the node's smallest gap (mm) and its edge i's touching pairs."""
+    i = wp.tid()
+    gap_min = query_radius
+    touching = int(0)
+    if free[i] == 0:
+        force[i] = wall_force[i]
+        min_gap[i] = gap_min
+        contacts[i] = touching
+        return
+    total = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    for side in range(2):
+        a = i - 1 + side  # side 0: edge i−1 (node i is its end), side 1: edge i (its start)
+        if a >= 0:
+            if edge_in_contact_pass(free, has_next, a):
+                pa0 = x[a]
+                pa1 = x[a + 1]
+                query = wp.hash_grid_query(grid, mid[a], query_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(query, b):
+                    skip = not edge_in_contact_pass(free, has_next, b)
+                    if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
+                        skip = True
+                    if not skip:
+                        st = segment_closest_params(pa0, pa1, x[b], x[b + 1])
+                        pa = pa0 + st[0] * (pa1 - pa0)
+                        pb = x[b] + st[1] * (x[b + 1] - x[b])
+                        delta = pa - pb
+                        dist = wp.length(delta)
+                        gap = dist - node_radius[a] - node_radius[b]
+                        gap_min = wp.min(gap_min, gap)
+                        if gap < c0 and dist > wp.float64(1.0e-12):
+                            share = st[0]
+                            if side == 1:
+                                share = wp.float64(1.0) - st[0]
+                                touching += 1
+                            total = total + (share * contact_force_magnitude(gap, p0, c0) / dist) * delta
+    force[i] = wall_force[i] + total
+    min_gap[i] = gap_min
+    contacts[i] = touching

@@ -218,3 +218,15 @@ def transported_directors(
         m1[i] = d
         t_prev = t
     m1[last] = d
+
+
+@wp.kernel
+def accumulate_push_force(push_share: wp.array(dtype=wp.float64), accumulator: wp.array(dtype=wp.float64)):
+    """One thread: this step's push force (µN) = Σ push shares; adds it to
+    accumulator[0] and keeps the step maximum in accumulator[1] (a fixed-order
+    sum, so the result does not depend on the device)."""
+    total = wp.float64(0.0)
+    for i in range(push_share.shape[0]):
+        total = total + push_share[i]
+    accumulator[0] = accumulator[0] + total
+    accumulator[1] = wp.max(accumulator[1], total)

@@ -1,0 +1,144 @@
+"""Contact geometry and the no-crossing / no-escape invariants."""
+
+import math
+
+import numpy as np
+import pytest
+
+import warpcoil as wc
+from warpcoil.kernels import contact
+from warpcoil.wall import sphere_wall
+
+R_SAC = 1.75
+D = 0.2921
+
+
+def one_node_per_coil_model(points, wall=None):
+    """Tiny 3-node straight coils (one per point, centred on it) to probe contact."""
+    spec = wc.CoilSpec(length_mm=2 * D, segment_length_mm=D)
+    builder = wc.ModelBuilder(wall=wall)
+    for p in points:
+        builder.add_coil(spec, np.asarray(p) + np.array([[-D, 0, 0], [0, 0, 0], [D, 0, 0]]))
+    return builder.finalize()
+
+
+def test_wall_gap_sign_and_normal_inside_and_outside_the_sac():
+    wall = sphere_wall(2 * R_SAC)
+    radii = np.array([0.3, 1.0, 1.6, 1.9, 2.5])  # inside, inside, near the wall, outside, far outside
+    directions = np.array([[0, 0, 1], [1, 0, 0], [0, -1, 0], [1, 1, 1], [-1, 2, 0.5]], float)
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    points = radii[:, None] * directions
+    model = one_node_per_coil_model(points, wall)
+    state = wc.rest_state(model)
+    solver = wc.Solver(model, coil_contact=False)
+    solver.compute_contacts(state)
+    centre = solver.wall_distance.numpy()[1::3]
+    faceting = R_SAC * (1 - math.cos(math.radians(3.0)))  # subdivision-4 icosphere: faces ~3° across
+    assert np.allclose(centre, R_SAC - radii, atol=faceting)  # > 0 inside, < 0 outside
+    force = solver.wall_force.numpy()[1::3]
+    gap = centre - D / 2
+    c0 = model.contact.c0_mm
+    touching = gap < c0
+    assert touching.tolist() == [False, False, True, True, True]
+    normals = force[touching] / np.linalg.norm(force[touching], axis=1)[:, None]
+    assert np.allclose(normals, -directions[touching], atol=0.06)  # pushes back into the sac
+    assert np.all(np.linalg.norm(force[~touching], axis=1) == 0.0)
+    # magnitude from the one contact law
+    f = wp_law(gap[touching], model.contact.p0_uN, c0)
+    assert np.allclose(np.linalg.norm(force[touching], axis=1), f, rtol=1e-9)
+
+
+def wp_law(h, p0, c0):
+    import warp as wp
+
+    out = wp.zeros(len(h), dtype=wp.float64)
+    k = wp.zeros(len(h), dtype=wp.float64)
+    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), p0, c0, out, k])
+    return out.numpy()
+
+
+def crossing_pair(speed_mm_s):
+    """Coil A along x at z = +0.6 falls onto coil B along y at z = 0, aimed so that a
+    node of B passes exactly between two nodes of A (the worst case for node–node
+    contact). Undamped."""
+    n = 9
+    s = (np.arange(n) - n // 2) * D
+    a = np.stack([s, np.zeros(n), np.full(n, 0.6)], axis=1)
+    b = np.stack([np.full(n, D / 2), s, np.zeros(n)], axis=1)
+    spec = wc.CoilSpec(length_mm=(n - 1) * D, segment_length_mm=D)
+    builder = wc.ModelBuilder(settings=wc.SimulationSettings(damping_uN_per_mm=0.0))
+    builder.add_coil(spec, a)
+    builder.add_coil(spec, b)
+    model = builder.finalize()
+    state = wc.rest_state(model)
+    v = np.zeros((2 * n, 3))
+    v[:n, 2] = -speed_mm_s
+    v[n:, 2] = +speed_mm_s
+    state.v.assign(v)
+    return model, state, n
+
+
+def segment_separation(x, n):
+    """Smallest distance between edges of A and edges of B, and the sign of A's height
+    over B at their closest pair."""
+    best, sign = np.inf, 0.0
+    for i in range(n - 1):
+        for j in range(n - 1):
+            p1, q1, p2, q2 = x[i], x[i + 1], x[n + j], x[n + j + 1]
+            # sample-based closest points (fine grid; segments are short)
+            t = np.linspace(0, 1, 41)
+            pa = p1 + t[:, None] * (q1 - p1)
+            pb = p2 + t[:, None] * (q2 - p2)
+            dist = np.linalg.norm(pa[:, None] - pb[None], axis=2)
+            k = np.unravel_index(np.argmin(dist), dist.shape)
+            if dist[k] < best:
+                best, sign = dist[k], np.sign(pa[k[0]][2] - pb[k[1]][2])
+    return best, sign
+
+
+@pytest.mark.parametrize("speed_mm_s, bounces", [(200.0, True), (2000.0, False)])
+def test_two_coil_segments_driven_across_each_other_do_not_cross(speed_mm_s, bounces):
+    """At 2 m/s the coils wrap around each other before they part; they still never cross."""
+    model, state, n = crossing_pair(speed_mm_s)
+    stepper = wc.Stepper(wc.Solver(model), state, wc.Control.create(model), chunk=10)
+    approach = 0.6 / (2 * speed_mm_s)
+    steps = int(3 * approach / stepper.solver.dt_s)
+    closest = np.inf
+    for _ in range(steps // stepper.chunk + 1):
+        x = stepper.run_steps(stepper.chunk).x.numpy()
+        gap, sign = segment_separation(x, n)
+        closest = min(closest, gap)
+        assert sign > 0, "coil A passed through coil B"
+    assert closest < D + model.contact.c0_mm  # they did touch
+    assert closest > 0.5 * D  # and the surfaces overlapped by less than half a diameter
+    if bounces:
+        v = stepper.state.v.numpy()
+        assert v[:n, 2].mean() > 0 and v[n:, 2].mean() < 0
+
+
+def sphere_scene(length_mm=12.0, push_speed_mm_s=100.0):
+    return wc.Scene(
+        coils=(wc.CoilSpec(shape="helix", length_mm=length_mm, loop_diameter_mm=2.5, pitch_mm=0.6),),
+        catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), direction=(0.0, 0.0, 1.0)),
+        wall=wc.WallSpec(sphere_diameter_mm=2 * R_SAC),
+        simulation=wc.SimulationSettings(push_speed_mm_s=push_speed_mm_s, frame_interval_s=0.005),
+    )
+
+
+def test_short_deployment_into_the_sphere_completes_inside_with_the_analytic_packing_density():
+    from warpcoil.deploy import COMPLETED, Deployment
+
+    scene = sphere_scene()
+    deployment = Deployment(scene)
+    radii = []
+    result = deployment.run(lambda frame, state: radii.append(
+        np.linalg.norm(state.x.numpy()[state.free.numpy() == 1], axis=1).max(initial=0.0)))
+    assert result.status == COMPLETED, result.reason
+    assert max(radii) < R_SAC  # no node centre left the sac in any frame
+    assert result.length_outside_sac_mm == 0.0
+    assert result.min_wall_gap_mm > -0.5 * D
+    assert result.min_coil_gap_mm > -0.1 * D
+    length = result.coil_length_mm
+    analytic = math.pi * (D / 2) ** 2 * length / (math.pi / 6 * (2 * R_SAC) ** 3)
+    assert result.packing_density == pytest.approx(analytic, rel=0.01)
+    assert result.deployed_length_mm == pytest.approx(length)

@@ -1,0 +1,213 @@
+"""Deployment: push the scene's coils out of the catheter into the wall, frame by frame.
+
+The orchestrator owns no physics: it builds the Model from a Scene, then
+advances the Solver in captured chunks of one frame each, and between frames
+measures, records and decides (detach, next coil, jam, rest, timeout,
+unstable). Units mm, g, s, µN, nJ.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .model import Model, ModelBuilder
+from .settings import Scene
+from .solver import Control, SimulationUnstable, Solver, Stepper
+from .state import State, packed_state
+
+COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
+
+
+@dataclass
+class Frame:
+    """What a run reports per recorded frame."""
+
+    time_s: float
+    deployed_length_mm: float
+    push_force_uN: float  # mean over the frame's steps
+    push_force_max_uN: float  # largest single step
+    kinetic_nJ: float
+    bend_nJ: float
+    twist_nJ: float
+    stretch_nJ: float
+    wall_contacts: int  # free nodes with wall gap < c0
+    coil_contacts: int  # edge pairs with gap < c0
+    max_wall_force_uN: float
+    min_wall_gap_mm: float
+    min_coil_gap_mm: float
+    length_outside_sac_mm: float
+
+
+@dataclass
+class RunResult:
+    """End-of-run report (MODEL.md, "What a run reports"); keys carry their units."""
+
+    status: str
+    reason: str
+    steps: int
+    dt_s: float
+    step_bound_s: float
+    mass_scale: float
+    wall_time_s: float
+    simulated_time_s: float
+    coil_length_mm: float
+    deployed_length_mm: float
+    sac_volume_mm3: float | None
+    packing_density: float | None
+    length_outside_sac_mm: float
+    min_wall_gap_mm: float
+    min_coil_gap_mm: float
+    max_wall_force_uN: float
+    max_push_force_uN: float  # largest frame-mean push force (single steps ring: see the frames)
+    stored_energy_nJ: float
+    final_kinetic_nJ: float
+    final_bend_nJ: float
+    final_twist_nJ: float
+    final_stretch_nJ: float
+    frames: list[Frame] = field(default_factory=list, repr=False)
+    positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
+
+    def summary(self) -> dict:
+        """The JSON-ready scalars (no frames or positions)."""
+        d = asdict(self)
+        d.pop("frames")
+        d.pop("positions_mm")
+        return d
+
+
+def build_model(scene: Scene, device=None) -> Model:
+    """Model from a scene: coils (pre-shapes), catheter, contact and the wall mesh."""
+    from .wall import load_wall
+
+    wall = load_wall(scene.wall) if scene.wall is not None else None
+    builder = ModelBuilder(catheter=scene.catheter, settings=scene.simulation, contact=scene.contact, wall=wall)
+    for coil in scene.coils:
+        builder.add_coil(coil)
+    return builder.finalize(device)
+
+
+class Deployment:
+    """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
+    (if given) is called after every recorded frame with (frame, state)."""
+
+    def __init__(self, scene: Scene, device=None, model: Model | None = None):
+        self.scene = scene
+        sim = scene.simulation
+        self.model = model or build_model(scene, device)
+        self.solver = Solver(self.model, dt_s=sim.dt_s, dt_safety=sim.dt_safety,
+                             allow_unstable_dt=sim.allow_unstable_dt)
+        steps = max(2, 2 * round(sim.frame_interval_s / self.solver.dt_s / 2))
+        self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=sim.push_speed_mm_s)
+        self.stepper = Stepper(self.solver, packed_state(self.model), self.control, chunk=steps)
+        self.coil_lengths_mm = np.array([self.model.arc_s.numpy()[last] for last in self.model.coil_last])
+        self.stored_energy_nJ = self._elastic(self.solver.energies(self.stepper.state))
+        push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
+        self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
+        self._radius = self.model.node_radius.numpy()
+        self._segment = np.repeat([self.model.rest_length.numpy()[f] for f in self.model.coil_first],
+                                  self.model.coil_last - self.model.coil_first + 1)
+
+    @staticmethod
+    def _elastic(e: dict) -> float:
+        return e["bend_nJ"] + e["twist_nJ"] + e["stretch_nJ"]
+
+    # --- measurement ---------------------------------------------------------
+    def measure(self, state: State, push: tuple[float, float]) -> Frame:
+        """Frame quantities at ``state`` (contacts recomputed at this state)."""
+        s, m = self.solver, self.model
+        energies = s.check_health(state)
+        s.compute_contacts(state)
+        free = state.free.numpy() == 1
+        advance = state.advance.numpy()
+        deployed = float(np.clip(advance, 0.0, self.coil_lengths_mm).sum())
+        c0 = m.contact.c0_mm
+        wall_gap = np.inf
+        wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
+        if m.wall is not None and free.any():
+            centre = s.wall_distance.numpy()[free]
+            gaps = centre - self._radius[free]
+            wall_gap = float(gaps.min())
+            wall_contacts = int((gaps < c0).sum())
+            max_wall_force = float(np.linalg.norm(s.wall_force.numpy()[free], axis=1).max())
+            outside = float(self._segment[free][centre < 0.0].sum())
+        coil_gap = float(s.coil_gap.numpy()[free].min()) if (s.coil_contact and free.any()) else np.inf
+        return Frame(
+            time_s=state.time_s, deployed_length_mm=deployed, push_force_uN=push[0], push_force_max_uN=push[1],
+            kinetic_nJ=energies["kinetic_nJ"], bend_nJ=energies["bend_nJ"], twist_nJ=energies["twist_nJ"],
+            stretch_nJ=energies["stretch_nJ"], wall_contacts=wall_contacts,
+            coil_contacts=int(s.coil_contacts.numpy()[free].sum()) // 2 if s.coil_contact else 0,
+            max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
+            length_outside_sac_mm=outside)
+
+    # --- the run ---------------------------------------------------------------
+    def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
+        sim = self.scene.simulation
+        stepper, control = self.stepper, self.control
+        frames: list[Frame] = []
+        active = 0
+        status, reason = TIMEOUT, f"simulated time reached max_time_s = {self.max_time_s:g} s"
+        started = time.perf_counter()
+        first = self.measure(stepper.state, (0.0, 0.0))
+        frames.append(first)
+        if on_frame:
+            on_frame(first, stepper.state)
+        while stepper.state.time_s < self.max_time_s:
+            try:
+                stepper.run_chunk()
+                frame = self.measure(stepper.state, self.solver.take_push_force(stepper.chunk))
+            except SimulationUnstable as error:
+                status, reason = FAILED, error.reason
+                break
+            frames.append(frame)
+            if on_frame:
+                on_frame(frame, stepper.state)
+            if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
+                status = JAMMED
+                reason = (f"coil {active} ({self.scene.coils[active].name}): push force "
+                          f"{frame.push_force_uN:.4g} µN > jam_force_uN = {sim.jam_force_uN:g} µN at "
+                          f"{frame.deployed_length_mm:.2f} mm deployed")
+                break
+            if active >= 0 and stepper.state.advance.numpy()[active] >= self.coil_lengths_mm[active]:
+                active = active + 1 if active + 1 < self.model.coil_count else -1  # detach; next coil
+                control.set_active_coil(active)
+            if active < 0 and frame.kinetic_nJ < sim.rest_kinetic_energy_nJ:
+                status, reason = COMPLETED, "all coils detached and at rest"
+                break
+        return self._result(status, reason, frames, time.perf_counter() - started)
+
+    def _result(self, status: str, reason: str, frames: list[Frame], wall_time_s: float) -> RunResult:
+        m, state = self.model, self.stepper.state
+        last = frames[-1]
+        deployed = last.deployed_length_mm
+        sac_volume = m.wall.volume_mm3 if m.wall is not None else None
+        coil_volume = sum(math.pi * (c.d / 2.0) ** 2 * float(np.clip(a, 0.0, length))
+                          for c, a, length in zip(m.coils, state.advance.numpy(), self.coil_lengths_mm))
+        x = state.x.numpy()
+        finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
+        return RunResult(
+            status=status, reason=reason, steps=self.stepper.steps, dt_s=self.solver.dt_s,
+            step_bound_s=self.solver.bound.dt_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
+            simulated_time_s=state.time_s, coil_length_mm=float(self.coil_lengths_mm.sum()),
+            deployed_length_mm=deployed, sac_volume_mm3=sac_volume,
+            packing_density=coil_volume / sac_volume if sac_volume else None,
+            length_outside_sac_mm=last.length_outside_sac_mm,
+            min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
+            min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
+            max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
+            max_push_force_uN=max(f.push_force_uN for f in frames),
+            stored_energy_nJ=self.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
+            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, frames=frames,
+            positions_mm=[x[m.node_slice(c)] for c in range(m.coil_count)])
+
+
+def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:
+    """Run one deployment of ``scene`` (see :class:`Deployment`)."""
+    return Deployment(scene, device).run(on_frame)
+
+
+__all__ = ["COMPLETED", "Deployment", "FAILED", "Frame", "JAMMED", "RunResult", "TIMEOUT", "build_model", "deploy"]

@@ -1,0 +1,84 @@
+"""Run outputs: result.json, centerline.csv, timeseries.csv and deployment.usdc.
+
+Every file is written under a temporary name and renamed when complete
+(:mod:`warpcoil.recorder.atomic`), so a failed run leaves no half-written file.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import asdict, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..deploy import Frame, RunResult
+from ..model import Model
+from ..state import State
+from .atomic import write_text_atomic
+from .usd import UsdRecorder
+
+RESULT_JSON = "result.json"
+CENTERLINE_CSV = "centerline.csv"
+TIMESERIES_CSV = "timeseries.csv"
+DEPLOYMENT_USD = "deployment.usdc"
+
+
+def _json_ready(value):
+    """inf/NaN have no JSON form: report them as null (no data, e.g. no contact partner)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    return value
+
+
+def write_result_json(path: Path, result: RunResult, extra: dict | None = None) -> None:
+    payload = {**result.summary(), **(extra or {})}
+    write_text_atomic(path, json.dumps(_json_ready(payload), indent=2) + "\n")
+
+
+def write_centerline_csv(path: Path, positions_mm: list[np.ndarray]) -> None:
+    """Final centerline: one row per node, columns coil,node,x_mm,y_mm,z_mm."""
+    buffer = io.StringIO()
+    buffer.write("coil,node,x_mm,y_mm,z_mm\n")
+    for coil, x in enumerate(positions_mm):
+        rows = np.column_stack([np.full(len(x), coil), np.arange(len(x)), x])
+        np.savetxt(buffer, rows, fmt=["%d", "%d", "%.9g", "%.9g", "%.9g"], delimiter=",")
+    write_text_atomic(path, buffer.getvalue())
+
+
+def write_timeseries_csv(path: Path, frames: list[Frame]) -> None:
+    """One row per recorded frame, the Frame fields as columns (units in the names)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=[f.name for f in fields(Frame)], lineterminator="\n")
+    writer.writeheader()
+    for frame in frames:
+        writer.writerow({k: ("" if isinstance(v, float) and not math.isfinite(v) else v)
+                         for k, v in asdict(frame).items()})
+    write_text_atomic(path, buffer.getvalue())
+
+
+class UsdFrames:
+    """``on_frame`` callback that records every frame's centerlines into a USD file
+    (written on :meth:`close`; nothing is written if the run raises)."""
+
+    def __init__(self, path: Path, model: Model, frame_interval_s: float):
+        wall = model.wall
+        self.model = model
+        self.recorder = UsdRecorder(
+            path, [len(range(*model.node_slice(c).indices(model.node_count))) for c in range(model.coil_count)],
+            [c.d for c in model.coils], wall.vertices_mm if wall is not None else None,
+            wall.faces_np if wall is not None else None, time_codes_per_second=1.0 / frame_interval_s)
+
+    def __call__(self, frame: Frame, state: State) -> None:
+        x = state.x.numpy()
+        self.recorder.add_frame(frame.time_s, [x[self.model.node_slice(c)] for c in range(self.model.coil_count)])
+
+    def close(self) -> None:
+        self.recorder.close()
