@@ -21,6 +21,7 @@ from .solver import Control, SimulationUnstable, Solver, Stepper
 from .state import State, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
+COIL_GAP_MM = 1.0  # the next coil waits this far behind the tip
 
 
 @dataclass
@@ -69,6 +70,7 @@ class RunResult:
     final_bend_nJ: float
     final_twist_nJ: float
     final_stretch_nJ: float
+    coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
 
@@ -103,7 +105,8 @@ class Deployment:
                              allow_unstable_dt=sim.allow_unstable_dt)
         steps = max(2, 2 * round(sim.frame_interval_s / self.solver.dt_s / 2))
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=sim.push_speed_mm_s)
-        self.stepper = Stepper(self.solver, packed_state(self.model), self.control, chunk=steps)
+        self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control, chunk=steps)
+        self.coil_status: list[str] = []
         self.coil_lengths_mm = np.array([self.model.arc_s.numpy()[last] for last in self.model.coil_last])
         self.stored_energy_nJ = self._elastic(self.solver.energies(self.stepper.state))
         push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
@@ -144,12 +147,42 @@ class Deployment:
             max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
             length_outside_sac_mm=outside)
 
+    # --- coil sequence -------------------------------------------------------------
+    def _activate(self, coil: int) -> int:
+        """Hand the pusher to ``coil`` (its distal node at most 1 mm behind the tip);
+        −1 when none is left."""
+        if coil >= self.model.coil_count:
+            self.control.set_active_coil(-1)
+            return -1
+        advance = self.stepper.state.advance.numpy()
+        advance[coil] = max(advance[coil], -COIL_GAP_MM)
+        self.stepper.state.advance.assign(advance)
+        self.control.set_active_coil(coil)
+        self.coil_status[coil] = "pushing"
+        return coil
+
+    def _retract(self, coil: int) -> None:
+        """A jammed coil: its part still in the catheter is withdrawn (cut off at the
+        tip and parked, out of every pass); the deployed part stays and is detached."""
+        m = self.model
+        sl = m.node_slice(coil)
+        inside = np.flatnonzero(self.stepper.state.free.numpy()[sl] == 0) + sl.start
+        if inside.size == 0:
+            return
+        has_next, fixed = m.has_next.numpy(), m.fixed.numpy()
+        has_next[inside.min() - 1 if inside.min() > sl.start else sl.start:sl.stop] = 0
+        fixed[inside] = 1
+        m.has_next.assign(has_next)
+        m.fixed.assign(fixed)
+
     # --- the run ---------------------------------------------------------------
     def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
         sim = self.scene.simulation
-        stepper, control = self.stepper, self.control
+        stepper = self.stepper
         frames: list[Frame] = []
-        active = 0
+        self.coil_status = ["waiting"] * self.model.coil_count
+        self.jam_reasons: list[str] = []
+        active = self._activate(0)
         status, reason = TIMEOUT, f"simulated time reached max_time_s = {self.max_time_s:g} s"
         started = time.perf_counter()
         first = self.measure(stepper.state, (0.0, 0.0))
@@ -167,17 +200,25 @@ class Deployment:
             if on_frame:
                 on_frame(frame, stepper.state)
             if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
-                status = JAMMED
-                reason = (f"coil {active} ({self.scene.coils[active].name}): push force "
-                          f"{frame.push_force_uN:.4g} µN > jam_force_uN = {sim.jam_force_uN:g} µN at "
-                          f"{frame.deployed_length_mm:.2f} mm deployed")
-                break
-            if active >= 0 and stepper.state.advance.numpy()[active] >= self.coil_lengths_mm[active]:
-                active = active + 1 if active + 1 < self.model.coil_count else -1  # detach; next coil
-                control.set_active_coil(active)
+                self.coil_status[active] = JAMMED
+                deployed = float(np.clip(stepper.state.advance.numpy()[active], 0.0, self.coil_lengths_mm[active]))
+                self.jam_reasons.append(
+                    f"coil {active} ({self.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
+                    f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
+                    f"{self.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
+                self._retract(active)
+                active = self._activate(active + 1)
+            elif active >= 0 and stepper.state.advance.numpy()[active] >= self.coil_lengths_mm[active]:
+                self.coil_status[active] = "detached"
+                active = self._activate(active + 1)
             if active < 0 and frame.kinetic_nJ < sim.rest_kinetic_energy_nJ:
-                status, reason = COMPLETED, "all coils detached and at rest"
+                if self.jam_reasons:
+                    status, reason = JAMMED, "; ".join(self.jam_reasons) + "; then at rest"
+                else:
+                    status, reason = COMPLETED, "all coils detached and at rest"
                 break
+        if status in (TIMEOUT, FAILED) and self.jam_reasons:
+            reason = reason + "; earlier: " + "; ".join(self.jam_reasons)
         return self._result(status, reason, frames, time.perf_counter() - started)
 
     def _result(self, status: str, reason: str, frames: list[Frame], wall_time_s: float) -> RunResult:
@@ -185,8 +226,15 @@ class Deployment:
         last = frames[-1]
         deployed = last.deployed_length_mm
         sac_volume = m.wall.volume_mm3 if m.wall is not None else None
-        coil_volume = sum(math.pi * (c.d / 2.0) ** 2 * float(np.clip(a, 0.0, length))
-                          for c, a, length in zip(m.coils, state.advance.numpy(), self.coil_lengths_mm))
+        deployed_each = np.clip(state.advance.numpy(), 0.0, self.coil_lengths_mm)
+        volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in m.coils]) * deployed_each
+        coil_volume = float(volumes.sum())
+        density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
+        coils = [dict(name=c.name, status=self.coil_status[k], wire_diameter_mm=c.d,
+                      loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(self.coil_lengths_mm[k]),
+                      deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
+                      cumulative_packing_density=density(volumes[: k + 1].sum()))
+                 for k, c in enumerate(m.coils)]
         x = state.x.numpy()
         finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
         return RunResult(
@@ -201,7 +249,7 @@ class Deployment:
             max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
             max_push_force_uN=max(f.push_force_uN for f in frames),
             stored_energy_nJ=self.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
-            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, frames=frames,
+            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils, frames=frames,
             positions_mm=[x[m.node_slice(c)] for c in range(m.coil_count)])
 
 

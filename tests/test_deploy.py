@@ -1,0 +1,67 @@
+"""Several coils through one catheter: order, per-coil results, a jam ends one coil only."""
+
+import math
+
+import numpy as np
+import pytest
+
+import warpcoil as wc
+from warpcoil.deploy import COMPLETED, JAMMED, Deployment
+
+R_SAC = 1.75
+D = 0.2921
+
+
+def two_coil_scene(jam_force_uN=1.0e5):
+    coils = (
+        wc.CoilSpec(shape="helix", length_mm=8.0, loop_diameter_mm=2.5, pitch_mm=0.6, name="framing"),
+        wc.CoilSpec(shape="helix", length_mm=5.0, loop_diameter_mm=2.0, pitch_mm=0.6, name="filling",
+                    wire_diameter_mm=0.254, primary_wire_diameter_mm=0.04),
+    )
+    return wc.Scene(coils=coils, catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), direction=(0.0, 0.0, 1.0)),
+                    wall=wc.WallSpec(sphere_diameter_mm=2 * R_SAC),
+                    simulation=wc.SimulationSettings(push_speed_mm_s=100.0, frame_interval_s=0.005,
+                                                     jam_force_uN=jam_force_uN))
+
+
+def test_coils_are_deployed_in_order_and_earlier_coils_keep_moving():
+    deployment = Deployment(two_coil_scene())
+    first_coil_moved_late = []
+    snapshot = {}
+
+    def on_frame(frame, state):
+        x = state.x.numpy()[deployment.model.node_slice(0)].copy()
+        advance = state.advance.numpy()
+        if advance[1] > 0.0:  # second coil is out
+            if "x" in snapshot:
+                first_coil_moved_late.append(np.abs(x - snapshot["x"]).max())
+            snapshot["x"] = x
+        assert not (advance[1] > 0.0 and advance[0] < deployment.coil_lengths_mm[0])  # strictly in order
+
+    result = deployment.run(on_frame)
+    assert result.status == COMPLETED, result.reason
+    assert [c["status"] for c in result.coils] == ["detached", "detached"]
+    assert max(first_coil_moved_late) > 1e-4  # the first coil is pushed around by the second
+    volume = math.pi / 6 * (2 * R_SAC) ** 3
+    densities = [c["packing_density"] for c in result.coils]
+    for coil, spec in zip(result.coils, two_coil_scene().coils):
+        assert coil["packing_density"] == pytest.approx(math.pi * (spec.d / 2) ** 2 * coil["length_mm"] / volume,
+                                                        rel=0.01)
+    assert result.coils[1]["cumulative_packing_density"] == pytest.approx(sum(densities))
+    assert result.packing_density == pytest.approx(sum(densities))
+
+
+def test_a_jam_ends_that_coil_and_the_next_one_goes_on():
+    deployment = Deployment(two_coil_scene(jam_force_uN=2.0))
+    result = deployment.run()
+    assert result.status == JAMMED
+    assert "coil 0 (framing) jammed" in result.reason
+    first, second = result.coils
+    assert first["status"] == JAMMED and first["deployed_length_mm"] < first["length_mm"]
+    assert second["status"] in (JAMMED, "detached") and second["deployed_length_mm"] > 0.0
+    # the withdrawn part of the jammed coil is out of every pass: fixed, not free, cut off
+    state = deployment.stepper.state
+    sl = deployment.model.node_slice(0)
+    inside = state.free.numpy()[sl] == 0
+    assert inside.any() and np.all(deployment.model.fixed.numpy()[sl][inside] == 1)
+    assert np.all(np.linalg.norm(state.x.numpy()[state.free.numpy() == 1], axis=1) < R_SAC)
