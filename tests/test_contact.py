@@ -142,3 +142,22 @@ def test_short_deployment_into_the_sphere_completes_inside_with_the_analytic_pac
     analytic = math.pi * (D / 2) ** 2 * length / (math.pi / 6 * (2 * R_SAC) ** 3)
     assert result.packing_density == pytest.approx(analytic, rel=0.01)
     assert result.deployed_length_mm == pytest.approx(length)
+
+
+def test_limited_wall_search_gives_the_same_run_as_the_full_search():
+    """Skipping the BVH search beyond the contact range changes nothing, bit for bit."""
+    from warpcoil.kernels.contact import FAR_MM
+    from warpcoil.deploy import build_model
+
+    scene = sphere_scene(length_mm=6.0)
+    results = []
+    for search in (0.1, float(FAR_MM)):
+        model = build_model(scene)
+        solver = wc.Solver(model, wall_search_mm=search)
+        control = wc.Control.create(model, active_coil=0, push_speed_mm_s=100.0)
+        stepper = wc.Stepper(solver, wc.packed_state(model), control, chunk=500)
+        stepper.run_steps(8000)
+        results.append(stepper.state.x.numpy().copy())
+        assert np.linalg.norm(solver.wall_force.numpy(), axis=1).max() > 0.0  # the coil touches the wall
+    assert np.array_equal(results[0], results[1])
+    assert np.isfinite(results[0]).all()

@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from .kernels.contact import FAR_MM
 from .model import Model, ModelBuilder
 from .settings import Scene
 from .solver import Control, SimulationUnstable, Solver, Stepper
@@ -124,7 +125,7 @@ class Deployment:
         """Frame quantities at ``state`` (contacts recomputed at this state)."""
         s, m = self.solver, self.model
         energies = s.check_health(state)
-        s.compute_contacts(state)
+        s.compute_contacts(state, wall_search_mm=float(FAR_MM))  # exact distances for the report
         free = state.free.numpy() == 1
         advance = state.advance.numpy()
         deployed = float(np.clip(advance, 0.0, self.coil_lengths_mm).sum())
@@ -138,12 +139,13 @@ class Deployment:
             wall_contacts = int((gaps < c0).sum())
             max_wall_force = float(np.linalg.norm(s.wall_force.numpy()[free], axis=1).max())
             outside = float(self._segment[free][centre < 0.0].sum())
-        coil_gap = float(s.coil_gap.numpy()[free].min()) if (s.coil_contact and free.any()) else np.inf
+        in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
+        coil_gap = float(s.coil_gap.numpy()[in_pass].min()) if (s.coil_contact and free.any()) else np.inf
         return Frame(
             time_s=state.time_s, deployed_length_mm=deployed, push_force_uN=push[0], push_force_max_uN=push[1],
             kinetic_nJ=energies["kinetic_nJ"], bend_nJ=energies["bend_nJ"], twist_nJ=energies["twist_nJ"],
             stretch_nJ=energies["stretch_nJ"], wall_contacts=wall_contacts,
-            coil_contacts=int(s.coil_contacts.numpy()[free].sum()) // 2 if s.coil_contact else 0,
+            coil_contacts=int(s.coil_contacts.numpy().sum()) // 2 if s.coil_contact else 0,
             max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
             length_outside_sac_mm=outside)
 

@@ -19,6 +19,7 @@ from .model import Model
 from .state import State, new_state_like
 
 SPEED_LIMIT_MM_S = 1.0e4  # 10 m/s: no coil moves this fast; a node that does has gone unstable
+WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a node ~1e-3 mm
 
 
 class UnstableStepError(ValueError):
@@ -98,9 +99,11 @@ class Solver:
     """
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = 0.5,
-                 allow_unstable_dt: bool = False, coil_contact: bool = True):
+                 allow_unstable_dt: bool = False, coil_contact: bool = True,
+                 wall_search_mm: float = WALL_SEARCH_MM):
         self.model = model
         self.coil_contact = coil_contact
+        self.wall_search_mm = wall_search_mm
         with_contact = coil_contact or model.wall is not None
         # two nodes pressing on each other: relative stiffness 2k
         contact_k = 2.0 * model.contact.stiffness_uN_mm() if with_contact else 0.0
@@ -121,30 +124,40 @@ class Solver:
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
         self.wall_distance.fill_(float(contact.FAR_MM))
+        self._wall_side = zeros(wp.int32)
+        self._wall_side.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
         self._midpoints = zeros(wp.vec3d)
+        self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         self.push_accumulator = wp.zeros(2, dtype=wp.float64, device=dev)  # Σ and max of the step push force
         cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
 
     # --- one step ----------------------------------------------------------
-    def compute_contacts(self, state: State) -> None:
+    def compute_contacts(self, state: State, wall_search_mm: float | None = None) -> None:
         """Wall and coil–coil contact forces into ``contact_force`` (µN), with the
-        per-node wall distance, smallest coil gap and contact counts."""
+        per-node wall distance and the per-edge smallest coil gap and touching pairs
+        (each pair counted from both edges). ``wall_search_mm``: how far beyond the
+        contact range the wall is searched (default the solver's; a large value
+        gives exact distances for every node, for measurements)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         if m.wall is not None:
             w = m.wall
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.node_radius, w.mesh.id, w.vertices, w.faces, wp.vec3d(*w.origin),
-                c.p0_uN, c.c0_mm, self.wall_force, self.wall_distance])
+                c.p0_uN, c.c0_mm, self.wall_search_mm if wall_search_mm is None else wall_search_mm, self._wall_side,
+                self.wall_force, self.wall_distance])
         if self.coil_contact:
             wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
             self._grid.build(self._midpoints, c.query_radius_mm)
-            wp.launch(contact.coil_contact, n, device=dev, inputs=[
+            wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.coil_of, m.node_radius, self._grid.id, self._midpoints,
-                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self.wall_force, self.contact_force,
-                self.coil_gap, self.coil_contacts])
+                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self._edge_force_start,
+                self._edge_force_end, self.coil_gap, self.coil_contacts])
+            wp.launch(contact.gather_contact, n, device=dev, inputs=[
+                state.free, m.has_next, self.wall_force, self._edge_force_start, self._edge_force_end,
+                self.contact_force])
         elif m.wall is not None:
             wp.copy(self.contact_force, self.wall_force)
 

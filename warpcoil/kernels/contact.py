@@ -55,36 +55,41 @@ def evaluate_law(
 FAR_MM = wp.constant(wp.float64(1.0e6))
 
 
+NO_FACE = wp.constant(-1)
+
+
 @wp.func
 def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-               origin: wp.vec3d, p: wp.vec3d):
-    """Signed distance (mm, > 0 inside the lumen) of a point to the closed wall,
-    and the unit wall normal pointing into the lumen.
+               origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
+    """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
+    distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
 
-    The BVH (float32, mesh stored relative to ``origin``) finds the closest
-    face and the sign (angle-weighted pseudo-normal); the distance is then
+    The BVH (float32, mesh stored relative to ``origin``) finds the face and the
+    inside/outside sign (angle-weighted pseudo-normal); the distance is then
     evaluated in float64 on that face."""
     local = p - origin
-    q = wp.mesh_query_point_sign_normal(mesh, wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2])),
-                                        wp.float32(1.0e6))
+    q = wp.mesh_query_point_sign_normal(
+        mesh, wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2])), wp.float32(max_dist))
+    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if not q.result:
+        return NO_FACE, max_dist, zero
     f = q.face
     v0 = vertices[faces[3 * f]]
     v1 = vertices[faces[3 * f + 1]]
     v2 = vertices[faces[3 * f + 2]]
     u = wp.float64(q.u)
     v = wp.float64(q.v)
-    closest = u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2
-    delta = local - closest
+    delta = local - (u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2)
     dist = wp.length(delta)
+    inside = q.sign < wp.float32(0.0)
     inward = -wp.normalize(wp.cross(v1 - v0, v2 - v0))  # faces are wound with outward normals
     if dist > wp.float64(1.0e-12):
-        if q.sign < wp.float32(0.0):
-            inward = delta / dist
-        else:
-            inward = -delta / dist
-    if q.sign < wp.float32(0.0):
-        return dist, inward
-    return -dist, inward
+        inward = delta / dist
+        if not inside:
+            inward = -inward
+    if inside:
+        return f, dist, inward
+    return f, -dist, inward
 
 
 @wp.kernel
@@ -98,19 +103,41 @@ def wall_contact(
     origin: wp.vec3d,
     p0: wp.float64,
     c0: wp.float64,
+    search_mm: wp.float64,
+    inside: wp.array(dtype=wp.int32),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
 ):
-    """Wall force on each free node (µN): the contact law of the gap h = signed
-    distance − d/2, along the inward wall normal. Writes (overwrites) ``force``
-    and the node centre's signed distance (mm, > 0 inside; +FAR for nodes in the
-    catheter)."""
+    """Wall force on each free node (µN): the contact law of the gap
+    h = signed distance − d/2, along the inward wall normal.
+
+    The BVH search is limited to ``search_mm`` beyond the contact range: a node
+    farther from the wall feels no force, and keeps the side (``inside``: 1 in
+    the lumen, 0 outside, −1 not yet known) it had when last seen near the
+    wall — it cannot change side without coming near it, as long as a step
+    moves it less than ``search_mm``. Nodes whose side is unknown (just out of
+    the catheter) get a full search. Writes the centre's signed distance (mm;
+    ± the search radius when no face is that close; +FAR in the catheter)."""
     i = wp.tid()
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     signed = FAR_MM
     if free[i] != 0:
-        signed, inward = wall_query(mesh, vertices, faces, origin, x[i])
-        f = contact_force_magnitude(signed - node_radius[i], p0, c0) * inward
+        reach = node_radius[i] + c0 + search_mm
+        side = inside[i]
+        if side < 0:
+            reach = FAR_MM
+        face, signed, inward = wall_query(mesh, vertices, faces, origin, x[i], reach)
+        if face == NO_FACE:
+            if side == 0:
+                signed = -reach
+        else:
+            if signed > wp.float64(0.0):
+                inside[i] = 1
+            else:
+                inside[i] = 0
+            f = contact_force_magnitude(signed - node_radius[i], p0, c0) * inward
+    else:
+        inside[i] = -1
     force[i] = f
     centre_distance[i] = signed
 
@@ -163,7 +190,7 @@ def edge_midpoints(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int3
 
 
 @wp.kernel
-def coil_contact(
+def edge_contact(
     x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
@@ -175,54 +202,71 @@ def coil_contact(
     exclusion: int,
     p0: wp.float64,
     c0: wp.float64,
-    wall_force: wp.array(dtype=wp.vec3d),
-    force: wp.array(dtype=wp.vec3d),
+    force_start: wp.array(dtype=wp.vec3d),
+    force_end: wp.array(dtype=wp.vec3d),
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
 ):
-    """Segment–segment contact between coil edges (so a segment cannot slip
-    between two nodes), gathered per node: node i sums, over its own edges
-    a ∈ {i−1, i}, the law of the surface gap h = |p_a − p_b| − (r_a + r_b)
-    between the closest points of a and every other edge b found in the hash
-    grid of edge midpoints, along (p_a − p_b)/|p_a − p_b|, weighted by node i's
-    barycentric share of p_a. Edges of the same coil closer than ``exclusion``
-    along it are bonded neighbours and skipped. Writes ``force`` = wall force +
-    coil force, the node's smallest gap (mm) and its edge i's touching pairs."""
-    i = wp.tid()
+    """Segment–segment contact on edge a (so a segment cannot slip between two
+    nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
+    closest points of a and every other edge b near it (hash grid of edge
+    midpoints), along (p_a − p_b)/|p_a − p_b|, split between a's start and end
+    node by the barycentric weight of p_a. Edges of the same coil closer than
+    ``exclusion`` along it are bonded neighbours and skipped. Each pair is
+    evaluated from both sides, so every edge writes only its own entries."""
+    a = wp.tid()
+    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    f_start = zero
+    f_end = zero
     gap_min = query_radius
     touching = int(0)
-    if free[i] == 0:
-        force[i] = wall_force[i]
-        min_gap[i] = gap_min
-        contacts[i] = touching
-        return
-    total = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    for side in range(2):
-        a = i - 1 + side  # side 0: edge i−1 (node i is its end), side 1: edge i (its start)
-        if a >= 0:
-            if edge_in_contact_pass(free, has_next, a):
-                pa0 = x[a]
-                pa1 = x[a + 1]
-                query = wp.hash_grid_query(grid, mid[a], query_radius)
-                b = int(0)
-                while wp.hash_grid_query_next(query, b):
-                    skip = not edge_in_contact_pass(free, has_next, b)
-                    if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
-                        skip = True
-                    if not skip:
-                        st = segment_closest_params(pa0, pa1, x[b], x[b + 1])
-                        pa = pa0 + st[0] * (pa1 - pa0)
-                        pb = x[b] + st[1] * (x[b + 1] - x[b])
-                        delta = pa - pb
-                        dist = wp.length(delta)
-                        gap = dist - node_radius[a] - node_radius[b]
-                        gap_min = wp.min(gap_min, gap)
-                        if gap < c0 and dist > wp.float64(1.0e-12):
-                            share = st[0]
-                            if side == 1:
-                                share = wp.float64(1.0) - st[0]
-                                touching += 1
-                            total = total + (share * contact_force_magnitude(gap, p0, c0) / dist) * delta
-    force[i] = wall_force[i] + total
-    min_gap[i] = gap_min
-    contacts[i] = touching
+    if edge_in_contact_pass(free, has_next, a):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], query_radius)
+        b = int(0)
+        while wp.hash_grid_query_next(query, b):
+            skip = not edge_in_contact_pass(free, has_next, b)
+            if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
+                skip = True
+            if not skip:
+                pb0 = x[b]
+                pb1 = x[b + 1]
+                # bounding spheres first: most candidates end here
+                if wp.length(mid[a] - mid[b]) < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+                    st = segment_closest_params(pa0, pa1, pb0, pb1)
+                    delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+                    dist = wp.length(delta)
+                    gap = dist - node_radius[a] - node_radius[b]
+                    gap_min = wp.min(gap_min, gap)
+                    if gap < c0 and dist > wp.float64(1.0e-12):
+                        f = (contact_force_magnitude(gap, p0, c0) / dist) * delta
+                        f_start = f_start + (wp.float64(1.0) - st[0]) * f
+                        f_end = f_end + st[0] * f
+                        touching += 1
+    force_start[a] = f_start
+    force_end[a] = f_end
+    min_gap[a] = gap_min
+    contacts[a] = touching
+
+
+@wp.kernel
+def gather_contact(
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    wall_force: wp.array(dtype=wp.vec3d),
+    force_start: wp.array(dtype=wp.vec3d),
+    force_end: wp.array(dtype=wp.vec3d),
+    force: wp.array(dtype=wp.vec3d),
+):
+    """Contact force on node i (µN): wall + its shares of edges i (start) and i−1 (end)."""
+    i = wp.tid()
+    f = wall_force[i]
+    if free[i] != 0:
+        if has_next[i] != 0:
+            f = f + force_start[i]
+        if i >= 1:
+            if has_next[i - 1] != 0:
+                f = f + force_end[i - 1]
+    force[i] = f

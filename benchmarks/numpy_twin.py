@@ -1,0 +1,623 @@
+"""NumPy twin of warpcoil's model: the same equations, discretisation and
+integrator as the Warp kernels, written plainly with NumPy array operations.
+
+This is the "as the method was first written in MATLAB" peer for benchmarks
+and the reference a reviewer reads side by side with the kernels. Every
+function names the kernel (or ``wp.func``) it mirrors. All node, edge, vertex
+and contact-pair work is vectorised over whole arrays; the only Python loop
+is over time steps (plus a loop over the few segments of the catheter
+polyline and over chunks of contact pairs / wall faces when they are many).
+
+The static data come from a finalised :class:`warpcoil.Model` and the initial
+state from a :class:`warpcoil.State` (``.numpy()`` copies), so the twin and
+the Warp solver simulate the same thing; after that everything is NumPy
+float64. Summation order differs from Warp, so results agree to rounding,
+not bit for bit.
+
+Differences in *method* (not in the model):
+
+* Coil–coil contact: brute force over all pairs of contact-pass edges (the
+  Warp kernel takes its candidates from a ``wp.HashGrid`` of edge
+  midpoints whose radius finds every pair within c0, so the set of pairs
+  that exert a force is the same).
+* Coil–wall contact: brute force closest point over all wall triangles
+  (Ericson's closest-point-on-triangle, as Warp's
+  ``closest_point_to_triangle``), in float64. Warp's BVH query runs in
+  float32 and returns float32 barycentrics that the kernel then evaluates
+  in float64, so the two closest points differ by ~1e-7 of the mesh size.
+  ``trimesh.proximity.closest_point`` would do the same job but needs
+  ``rtree``, which is not a warpcoil dependency.
+  Inside/outside: the sign of ``(p − closest) · n̂`` with n̂ the
+  angle-weighted pseudo-normal (Bærentzen & Aanæs 2005) of the feature that
+  holds the closest point: the face normal inside a face, the sum of the two
+  adjacent face normals on an edge, the angle-weighted vertex normal at a
+  vertex. Warp applies the same rule, with the feature decided to within
+  1e-3 of the mean edge length.
+
+Units: mm, g, s; forces µN, torques µN·mm, energies nJ.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# --- constants, identical to the kernels -----------------------------------------
+SMALL_ANGLE = 1.0e-4  # rod.py: SMALL_ANGLE (series for φ/sin φ below this)
+ANTIPARALLEL_COS = -0.999999999  # rod.py: transport's half-turn branch
+E_MINUS_1 = 1.718281828459045  # contact.py
+U_LINEAR = 7.0
+F_AT_7 = 7.0 * (1096.6331584284585 - 1.0)  # 7 (e^7 − 1)
+SLOPE_AT_7 = 8.0 * 1096.6331584284585 - 1.0  # 8 e^7 − 1
+FAR_MM = 1.0e6  # contact.py: FAR_MM
+DAMPING_NEWTON_ITERATIONS = 6  # integrate.py: damped_speed
+PAIR_CHUNK = 1 << 18
+# features of a triangle abc that can hold a closest point (closest_point_to_triangle)
+VERTEX_A, VERTEX_B, VERTEX_C, EDGE_BC, EDGE_AC, EDGE_AB, FACE = range(7)  # contact pairs / node–face pairs evaluated at once (memory bound)
+
+
+# --- small vector helpers (row-wise over (..., 3) arrays) ---------------------------
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.cross(a, b)
+
+
+def length(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(dot(a, a))
+
+
+def normalize(a: np.ndarray) -> np.ndarray:
+    return a / length(a)[..., None]
+
+
+def col(s: np.ndarray) -> np.ndarray:
+    """A per-row scalar as a column, to scale rows of (..., 3) arrays."""
+    return np.asarray(s)[..., None]
+
+
+# --- rod geometry (kernels/rod.py) -------------------------------------------------
+def transport(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """rod.py ``transport``: parallel transport of v from unit tangent a to b
+    (the smallest rotation taking a to b; a half turn about an axis normal to a
+    when b ≈ −a)."""
+    k = cross(a, b)
+    c = dot(a, b)
+    flip = c < ANTIPARALLEL_COS
+    denom = np.where(flip, 1.0, 1.0 + c)
+    out = v + cross(k, v) + cross(k, cross(k, v)) / col(denom)
+    if np.any(flip):
+        af, vf = a[flip], v[flip]
+        axis = cross(af, np.array([1.0, 0.0, 0.0]))
+        near_x = dot(axis, axis) < 1.0e-12
+        axis[near_x] = cross(af[near_x], np.array([0.0, 1.0, 0.0]))
+        axis = normalize(axis)
+        out[flip] = 2.0 * col(dot(axis, vf)) * axis - vf
+    return out
+
+
+def rotate_about(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """rod.py ``rotate_about``: rotate v about the unit axis by angle (rad)."""
+    c = np.cos(angle)
+    s = np.sin(angle)
+    return v * col(c) + cross(axis, v) * col(s) + axis * col(dot(axis, v) * (1.0 - c))
+
+
+def director_normal(m1: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """rod.py ``director_normal``: m1 made exactly unit and normal to t."""
+    return normalize(m1 - col(dot(m1, t)) * t)
+
+
+def angle_factors(s: np.ndarray, c: np.ndarray):
+    """rod.py ``angle_factors``: φ = atan2(s, c), ψ = φ/sin φ and
+    χ = (sin φ − φ cos φ)/sin³ φ, with their series below SMALL_ANGLE."""
+    phi = np.arctan2(s, c)
+    small = phi < SMALL_ANGLE
+    p2 = phi * phi
+    s_safe = np.where(small, 1.0, s)
+    psi = np.where(small, 1.0 + p2 / 6.0, phi / s_safe)
+    chi = np.where(small, 1.0 / 3.0 + 2.0 * p2 / 15.0, (s_safe - phi * c) / (s_safe * s_safe * s_safe))
+    return phi, psi, chi
+
+
+def material_curvature(kappa: np.ndarray, t: np.ndarray, m1: np.ndarray) -> np.ndarray:
+    """rod.py ``material_curvature``: (κ·m1, κ·m2), m2 = t × m1; shape (..., 2)."""
+    return np.stack([dot(kappa, m1), dot(kappa, cross(t, m1))], axis=-1)
+
+
+def vertex_twist(t0: np.ndarray, m1_0: np.ndarray, t1: np.ndarray, m1_1: np.ndarray) -> np.ndarray:
+    """rod.py ``vertex_twist``: signed angle about t1 from the transported m1_0 to m1_1."""
+    p = transport(m1_0, t0, t1)
+    return np.arctan2(dot(cross(p, m1_1), t1), dot(p, m1_1))
+
+
+# --- contact law and geometry (kernels/contact.py) -----------------------------------
+def contact_force_magnitude(h: np.ndarray, p0: float, c0: float) -> np.ndarray:
+    """contact.py ``contact_force_magnitude``: |F| (µN) at clearance h (mm)."""
+    h = np.asarray(h, dtype=np.float64)
+    u = 1.0 - h / c0
+    exponential = p0 / E_MINUS_1 * u * (np.exp(np.minimum(u, U_LINEAR)) - 1.0)
+    linear = p0 / E_MINUS_1 * (F_AT_7 + SLOPE_AT_7 * (u - U_LINEAR))
+    return np.where(h >= c0, 0.0, np.where(u < U_LINEAR, exponential, linear))
+
+
+def segment_closest_params(p1, q1, p2, q2):
+    """contact.py ``segment_closest_params``: (s, t) ∈ [0, 1]² of the closest
+    points of segments p1q1 and p2q2 (Ericson §5.1.9), row-wise."""
+    d1 = q1 - p1
+    d2 = q2 - p2
+    r = p1 - p2
+    a = dot(d1, d1)
+    e = dot(d2, d2)
+    f = dot(d2, r)
+    c = dot(d1, r)
+    b = dot(d1, d2)
+    denom = a * e - b * b
+    not_parallel = denom > 1.0e-14 * a * e
+    s = np.where(not_parallel, np.clip((b * f - c * e) / np.where(not_parallel, denom, 1.0), 0.0, 1.0), 0.0)
+    t = (b * s + f) / e
+    below, above = t < 0.0, t > 1.0
+    s = np.where(below, np.clip(-c / a, 0.0, 1.0), np.where(above, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    return s, t
+
+
+def closest_point_to_triangle(a, b, c, p):
+    """Warp's native ``closest_point_to_triangle`` (Ericson §5.1.5), row-wise in
+    float64: barycentric weights (u, v, w) of a, b, c of the point of triangle
+    abc closest to p, and the feature that holds it (one of FEATURES)."""
+    ab, ac, ap = b - a, c - a, p - a
+    bp, cp = p - b, p - c
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # the Voronoi regions in Ericson's order; the first that applies wins
+        regions = [
+            (d1 <= 0.0) & (d2 <= 0.0),  # vertex a
+            (d3 >= 0.0) & (d4 <= d3),  # vertex b
+            (vc <= 0.0) & (d1 >= 0.0) & (d3 <= 0.0),  # edge ab
+            (d6 >= 0.0) & (d5 <= d6),  # vertex c
+            (vb <= 0.0) & (d2 >= 0.0) & (d6 <= 0.0),  # edge ac
+            (va <= 0.0) & (d4 - d3 >= 0.0) & (d5 - d6 >= 0.0),  # edge bc
+        ]
+        zero, one = np.zeros_like(d1), np.ones_like(d1)
+        v_ab = d1 / (d1 - d3)
+        w_ac = d2 / (d2 - d6)
+        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        inv = 1.0 / (va + vb + vc)
+        v = np.select(regions, [zero, one, v_ab, zero, zero, 1.0 - w_bc], vb * inv)
+        w = np.select(regions, [zero, zero, zero, one, w_ac, w_bc], vc * inv)
+    feature = np.select(regions, [VERTEX_A, VERTEX_B, EDGE_AB, VERTEX_C, EDGE_AC, EDGE_BC], FACE)
+    u = 1.0 - v - w
+    return u, v, w, feature
+
+
+# --- the twin ---------------------------------------------------------------------
+class NumpyTwin:
+    """Semi-implicit Euler of warpcoil's coil model, in NumPy float64.
+
+    Mirrors :meth:`warpcoil.Solver.step` (and the :class:`~warpcoil.Control`
+    it is given: ``active_coil``, ``push_speed_mm_s``). State arrays (NumPy):
+    ``x`` (N, 3) mm, ``v`` (N, 3) mm/s, ``m1`` (N, 3) edge directors,
+    ``omega`` (N,) rad/s, ``free`` (N,) int32, ``advance`` (coils,) mm, ``time_s``.
+    """
+
+    def __init__(self, model, state, dt_s: float, push_speed_mm_s: float = 0.0, active_coil: int = -1,
+                 coil_contact: bool = True):
+        self.dt = float(dt_s)
+        self.push_speed = float(push_speed_mm_s)
+        self.active_coil = int(active_coil)
+        self.coil_contact = bool(coil_contact)
+
+        # static data, straight from the finalised Model
+        self.n = model.node_count
+        self.coil_count = model.coil_count
+        self.has_next = model.has_next.numpy() != 0
+        self.coil_of = model.coil_of.numpy().astype(np.int64)
+        self.arc_s = model.arc_s.numpy()
+        self.fixed = model.fixed.numpy() != 0
+        self.inv_mass = model.inv_mass.numpy()
+        self.damping_c = model.damping_c.numpy()
+        self.damping_k = float(model.damping_k)
+        self.external = model.external.numpy()
+        self.rest_length = model.rest_length.numpy()
+        self.k_stretch = model.k_stretch.numpy()
+        self.inv_inertia = model.inv_inertia.numpy()
+        self.twist_damping = model.twist_damping.numpy()
+        self.k_bend = model.k_bend.numpy()
+        self.k_twist = model.k_twist.numpy()
+        self.rest_K0 = model.rest_K0.numpy()
+        self.rest_K1 = model.rest_K1.numpy()
+        self.rest_twist = model.rest_twist.numpy()
+        self.catheter_path = model.catheter_path.numpy()
+        self.catheter_axis = np.asarray(model.catheter_axis, dtype=np.float64)
+        self.node_radius = model.node_radius.numpy()
+        c = model.contact
+        self.p0, self.c0, self.exclusion = float(c.p0_uN), float(c.c0_mm), int(c.exclusion_edges)
+
+        # topology: edge i joins nodes i, i+1; vertex j joins edges j-1, j (rod.py edge_valid/vertex_valid)
+        self.edges = np.flatnonzero(self.has_next)
+        vertex_valid = np.zeros(self.n, bool)
+        vertex_valid[1:] = self.has_next[1:] & self.has_next[:-1]
+        self.vertices = np.flatnonzero(vertex_valid)
+
+        self.wall = None if model.wall is None else _WallTwin(model.wall)
+
+        # state, copied once
+        self.x = state.x.numpy().astype(np.float64)
+        self.v = state.v.numpy().astype(np.float64)
+        self.m1 = state.m1.numpy().astype(np.float64)
+        self.omega = state.omega.numpy().astype(np.float64)
+        self.free = state.free.numpy().astype(np.int32)
+        self.advance = state.advance.numpy().astype(np.float64)
+        self.time_s = float(state.time_s)
+
+        # per-step outputs, kept for inspection (Solver's buffers of the same names)
+        self.contact_force = np.zeros((self.n, 3))
+        self.wall_force = np.zeros((self.n, 3))
+        self.wall_distance = np.full(self.n, FAR_MM)
+        self.force = np.zeros((self.n, 3))
+        self.torque = np.zeros(self.n)
+        self.push_share = np.zeros(self.n)
+        self.push_accumulator = np.zeros(2)  # Σ and max of the step push force
+
+    # --- forces ----------------------------------------------------------------
+    def wall_contact(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """contact.py ``wall_contact``: the law of the gap (signed centre distance
+        − d/2) along the inward wall normal, on each free node."""
+        force = np.zeros((self.n, 3))
+        self.wall_distance = np.full(self.n, FAR_MM)
+        nodes = np.flatnonzero(free != 0)
+        if nodes.size:
+            signed, inward = self.wall.query(x[nodes])
+            magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0)
+            force[nodes] = col(magnitude) * inward
+            self.wall_distance[nodes] = signed
+        return force
+
+    def coil_contact_forces(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """contact.py ``coil_contact``: segment–segment contact between every pair
+        (a, b) of contact-pass edges that are not bonded neighbours; node i gets
+        its barycentric share of the force on its edges a = i−1 (share s) and
+        a = i (share 1 − s). Only free nodes receive force."""
+        force = np.zeros((self.n, 3))
+        free_next = np.append(free[1:], 0)
+        in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
+        edges = np.flatnonzero(in_pass)
+        if edges.size < 2:
+            return force
+        rows_per_chunk = max(1, PAIR_CHUNK // edges.size)
+        for first in range(0, edges.size, rows_per_chunk):
+            a = edges[first:first + rows_per_chunk, None]  # edge a: rows
+            b = edges[None, :]  # edge b: columns
+            s, t = segment_closest_params(x[a], x[a + 1], x[b], x[b + 1])  # (A, B)
+            pa = x[a] + col(s) * (x[a + 1] - x[a])
+            pb = x[b] + col(t) * (x[b + 1] - x[b])
+            delta = pa - pb
+            dist = length(delta)
+            gap = dist - self.node_radius[a] - self.node_radius[b]
+            bonded = (self.coil_of[a] == self.coil_of[b]) & (np.abs(b - a) <= self.exclusion)
+            touching = ~bonded & (gap < self.c0) & (dist > 1.0e-12)
+            scale = np.where(touching, contact_force_magnitude(gap, self.p0, self.c0)
+                             / np.where(touching, dist, 1.0), 0.0)
+            f_ab = col(scale) * delta  # force on edge a from edge b, along pa − pb
+            rows = edges[first:first + rows_per_chunk]
+            force[rows] += np.sum(col(1.0 - s) * f_ab, axis=1)  # node a: side 1, share 1 − s
+            force[rows + 1] += np.sum(col(s) * f_ab, axis=1)  # node a + 1: side 0, share s
+        force[free == 0] = 0.0
+        return force
+
+    def compute_contacts(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Solver.compute_contacts: wall force + coil–coil force per node (µN)."""
+        self.wall_force = self.wall_contact(x, free) if self.wall is not None else np.zeros((self.n, 3))
+        total = self.wall_force.copy()
+        if self.coil_contact:
+            total += self.coil_contact_forces(x, free)
+        return total
+
+    def vertex_gradients(self, x: np.ndarray, m1: np.ndarray, free: np.ndarray):
+        """elastic.py ``vertex_gradients``: ∂(W_b + W_t)/∂(x_{j−1}, x_j, x_{j+1})
+        and ∂/∂(θ_{j−1}, θ_j) at every valid vertex j that a free node can reach
+        (zero elsewhere)."""
+        grad_prev, grad_mid, grad_next = np.zeros((self.n, 3)), np.zeros((self.n, 3)), np.zeros((self.n, 3))
+        grad_theta = np.zeros((self.n, 2))
+        j = self.vertices
+        fr = free != 0
+        needed = fr[j - 1] | fr[j] | fr[j + 1] | ((j >= 2) & fr[np.maximum(j - 2, 0)])  # vertex_needed
+        j = j[needed]
+        if j.size == 0:
+            return grad_prev, grad_mid, grad_next, grad_theta
+        e0 = x[j] - x[j - 1]
+        e1 = x[j + 1] - x[j]
+        len0, len1 = length(e0), length(e1)
+        t0, t1 = e0 / col(len0), e1 / col(len1)
+        a0, a1 = m1[j - 1], m1[j]
+        w = cross(t0, t1)
+        c = dot(t0, t1)
+        phi, psi, chi = angle_factors(length(w), c)
+        kappa = col(psi) * w
+        K0 = material_curvature(kappa, t0, a0)
+        K1 = material_curvature(kappa, t1, a1)
+        dK0 = K0 - self.rest_K0[j]
+        dK1 = K1 - self.rest_K1[j]
+        half_kb = 0.5 * self.k_bend[j]
+        # g = ∂W_b/∂κ
+        g = col(half_kb) * (col(dK0[:, 0]) * a0 + col(dK0[:, 1]) * cross(t0, a0)
+                            + col(dK1[:, 0]) * a1 + col(dK1[:, 1]) * cross(t1, a1))
+        gw = dot(g, w)
+        dE_dt0 = col(psi) * cross(t1, g) - col(chi * gw) * t1
+        dE_dt1 = col(psi) * cross(g, t0) - col(chi * gw) * t0
+
+        kt_dtau = self.k_twist[j] * (vertex_twist(t0, a0, t1, a1) - self.rest_twist[j])
+        kb_der = col(2.0 / (1.0 + c)) * w  # DER's curvature binormal: the reference-twist drag
+        dE_de0 = (dE_dt0 - col(dot(dE_dt0, t0)) * t0) / col(len0) + col(0.5 * kt_dtau / len0) * kb_der
+        dE_de1 = (dE_dt1 - col(dot(dE_dt1, t1)) * t1) / col(len1) + col(0.5 * kt_dtau / len1) * kb_der
+
+        grad_prev[j] = -dE_de0
+        grad_mid[j] = dE_de0 - dE_de1
+        grad_next[j] = dE_de1
+        grad_theta[j, 0] = half_kb * (dK0[:, 0] * K0[:, 1] - dK0[:, 1] * K0[:, 0]) - kt_dtau
+        grad_theta[j, 1] = half_kb * (dK1[:, 0] * K1[:, 1] - dK1[:, 1] * K1[:, 0]) + kt_dtau
+        return grad_prev, grad_mid, grad_next, grad_theta
+
+    def stretch_forces(self, x: np.ndarray) -> np.ndarray:
+        """elastic.py ``stretch_force`` for every edge: force of edge i's spring
+        on node i (its negative on node i+1); zero for non-edges."""
+        f = np.zeros((self.n, 3))
+        i = self.edges
+        e = x[i + 1] - x[i]
+        edge_len = length(e)
+        f[i] = col(self.k_stretch[i] * (edge_len - self.rest_length[i]) / edge_len) * e
+        return f
+
+    def gather_forces(self, x: np.ndarray, free: np.ndarray, grads, contact_force: np.ndarray):
+        """elastic.py ``gather_forces``: total force per node, twisting torque per
+        edge and each free node's push share, summed in the kernel's order.
+        (Gradients of invalid vertices and forces of non-edges are zero, so the
+        kernel's validity tests reduce to plain shifts here.)"""
+        grad_prev, grad_mid, grad_next, grad_theta = grads
+        stretch = self.stretch_forces(x)
+        f = -grad_mid
+        f[1:] -= grad_next[:-1]
+        f[1:] -= stretch[:-1]
+        f[:-1] -= grad_prev[1:]
+        f[:-1] += stretch[:-1]
+        tq = -grad_theta[:, 1]
+        tq[:-1] -= grad_theta[1:, 0]
+        push_share = np.where(free != 0, dot(f, self.catheter_axis), 0.0)
+        return f + self.external + contact_force, tq, push_share
+
+    def compute_forces(self) -> None:
+        """Solver.compute_forces at the current state."""
+        self.contact_force = self.compute_contacts(self.x, self.free)
+        grads = self.vertex_gradients(self.x, self.m1, self.free)
+        self.force, self.torque, self.push_share = self.gather_forces(self.x, self.free, grads, self.contact_force)
+
+    # --- integration -------------------------------------------------------------
+    def catheter_point(self, depth: np.ndarray):
+        """integrate.py ``catheter_point``: points and unit directions (towards the
+        tip) on the catheter centerline at arc distance ``depth`` ≥ 0 behind the
+        tip; beyond the proximal end the first segment is extended. Walks the
+        polyline from the tip, all depths at once."""
+        path = self.catheter_path
+        remaining = depth.copy()
+        point = np.zeros((depth.size, 3))
+        direction = np.zeros((depth.size, 3))
+        pending = np.ones(depth.size, bool)
+        for k in range(path.shape[0] - 1, 0, -1):
+            seg = path[k] - path[k - 1]
+            seg_len = float(np.sqrt(seg @ seg))
+            unit = seg / seg_len
+            here = pending & ((remaining <= seg_len) | (k == 1))
+            point[here] = path[k] - col(remaining[here]) * unit
+            direction[here] = unit
+            pending &= ~here
+            remaining = np.where(pending, remaining - seg_len, remaining)
+        return point, direction
+
+    def damped_speed(self, speed: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """integrate.py ``damped_speed``: root s ≥ 0 of s + a (1 − e^(−s/k)) = speed,
+        by monotone Newton from the linearised root (6 iterations)."""
+        k = self.damping_k
+        s = speed / (1.0 + a / k)
+        for _ in range(DAMPING_NEWTON_ITERATIONS):
+            e = np.exp(-s / k)
+            s = s - (s + a * (1.0 - e) - speed) / (1.0 + a / k * e)
+        return np.where((a <= 0.0) | (speed <= 0.0), speed, np.maximum(s, 0.0))
+
+    def integrate_nodes(self, force: np.ndarray):
+        """integrate.py ``integrate_nodes``: advance the pusher, place nodes behind
+        the catheter tip on the centerline (moving with the pusher), hold clamped
+        nodes, and step the free ones: v* = v + dt F/m, implicit nonlinear damping
+        along v*, x' = x + dt v'."""
+        dt = self.dt
+        push_step = self.push_speed * dt
+        advance = self.advance + np.where(np.arange(self.coil_count) == self.active_coil, push_step, 0.0)
+        sigma = advance[self.coil_of] - self.arc_s
+        in_catheter = ~self.fixed & (sigma < 0.0)
+        dynamic = ~self.fixed & ~in_catheter
+
+        x = self.x.copy()  # clamped nodes stay put
+        v = np.zeros((self.n, 3))
+        free = dynamic.astype(np.int32)
+
+        inside = np.flatnonzero(in_catheter)
+        point, direction = self.catheter_point(-sigma[inside])
+        x[inside] = point
+        pushed = self.coil_of[inside] == self.active_coil
+        v[inside] = np.where(col(pushed), self.push_speed * direction, 0.0)
+
+        d = np.flatnonzero(dynamic)
+        v_star = self.v[d] + col(dt * self.inv_mass[d]) * force[d]
+        speed = length(v_star)
+        moving = speed > 0.0
+        damped = self.damped_speed(speed, dt * self.damping_c[d] * self.inv_mass[d])
+        v_new = np.where(col(moving), v_star * col(damped / np.where(moving, speed, 1.0)), v_star)
+        v[d] = v_new
+        x[d] = self.x[d] + dt * v_new
+        return x, v, free, advance
+
+    def update_frames(self, x_new: np.ndarray, free_new: np.ndarray):
+        """integrate.py ``update_frames``: transport each edge's director to its new
+        tangent, spin free edges (both nodes free) by their twist rate with linear
+        implicit twist damping ω' = (ω + dt T/J)/(1 + dt b/J), re-orthonormalise."""
+        dt = self.dt
+        m1 = self.m1.copy()  # non-edges keep their director
+        omega = np.zeros(self.n)
+        i = self.edges
+        t_old = normalize(self.x[i + 1] - self.x[i])
+        t_new = normalize(x_new[i + 1] - x_new[i])
+        m = transport(self.m1[i], t_old, t_new)
+        spins = (free_new[i] != 0) & (free_new[i + 1] != 0)
+        inv_j = self.inv_inertia[i]
+        w = (self.omega[i] + dt * self.torque[i] * inv_j) / (1.0 + dt * self.twist_damping[i] * inv_j)
+        w = np.where(spins, w, 0.0)
+        m = np.where(col(spins), rotate_about(m, t_new, w * dt), m)
+        m1[i] = director_normal(m, t_new)
+        omega[i] = w
+        return m1, omega
+
+    def step(self) -> None:
+        """Solver.step: forces at the current state, integrate_nodes,
+        update_frames, accumulate_push_force, time += dt."""
+        self.compute_forces()
+        x, v, free, advance = self.integrate_nodes(self.force)
+        m1, omega = self.update_frames(x, free)
+        total = float(np.sum(self.push_share))
+        self.push_accumulator[0] += total
+        self.push_accumulator[1] = max(self.push_accumulator[1], total)
+        self.x, self.v, self.free, self.advance, self.m1, self.omega = x, v, free, advance, m1, omega
+        self.time_s += self.dt
+
+    def run(self, steps: int) -> None:
+        for _ in range(int(steps)):
+            self.step()
+
+    def take_push_force(self, steps: int) -> tuple[float, float]:
+        """Solver.take_push_force: mean and largest step push force (µN) since the last call."""
+        total, largest = self.push_accumulator
+        self.push_accumulator[:] = 0.0
+        return float(total) / max(steps, 1), float(largest)
+
+    # --- measurements ------------------------------------------------------------
+    def elastic_energies(self):
+        """elastic.py ``elastic_energies``: per-edge stretching, per-vertex bending
+        and twisting energy (nJ), every edge/vertex whether free or not."""
+        x, m1 = self.x, self.m1
+        ws, wb, wt = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
+        i = self.edges
+        stretch = length(x[i + 1] - x[i]) - self.rest_length[i]
+        ws[i] = 0.5 * self.k_stretch[i] * stretch * stretch
+        j = self.vertices
+        t0 = normalize(x[j] - x[j - 1])
+        t1 = normalize(x[j + 1] - x[j])
+        w = cross(t0, t1)
+        phi, psi, chi = angle_factors(length(w), dot(t0, t1))
+        kappa = col(psi) * w
+        dK0 = material_curvature(kappa, t0, m1[j - 1]) - self.rest_K0[j]
+        dK1 = material_curvature(kappa, t1, m1[j]) - self.rest_K1[j]
+        wb[j] = 0.25 * self.k_bend[j] * (np.sum(dK0 * dK0, axis=1) + np.sum(dK1 * dK1, axis=1))
+        dtau = vertex_twist(t0, m1[j - 1], t1, m1[j]) - self.rest_twist[j]
+        wt[j] = 0.5 * self.k_twist[j] * dtau * dtau
+        return ws, wb, wt
+
+    def energies(self) -> dict[str, float]:
+        """Solver.energies: kinetic (free nodes, translation + edge spin),
+        stretching, bending and twisting energy, nJ."""
+        fr = self.free != 0
+        kinetic = np.where(fr, 0.5 * dot(self.v, self.v) / self.inv_mass
+                           + 0.5 * self.omega * self.omega / self.inv_inertia, 0.0)
+        ws, wb, wt = self.elastic_energies()
+        return {"kinetic_nJ": float(kinetic.sum()), "stretch_nJ": float(ws.sum()),
+                "bend_nJ": float(wb.sum()), "twist_nJ": float(wt.sum())}
+
+
+class _WallTwin:
+    """The closed wall in float64 (relative to the model's wall origin, as the
+    kernel stores it) with the pseudo-normals of its faces, edges and vertices."""
+
+    def __init__(self, wall):
+        self.origin = np.asarray(wall.origin, dtype=np.float64)
+        self.vertices = wall.vertices.numpy().astype(np.float64)  # relative to origin
+        self.faces = wall.faces.numpy().reshape(-1, 3).astype(np.int64)
+        tri = self.vertices[self.faces]  # (F, 3 corners, 3)
+        e0, e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], tri[:, 2] - tri[:, 1]
+        normal = cross(e0, e1)
+        # Warp's mesh query skips sliver faces with this test
+        sliver = length(normal) / (dot(e0, e0) + dot(e1, e1) + dot(e2, e2)) < 1.0e-6
+        self.candidates = np.flatnonzero(~sliver)
+        self.face_normal = normalize(normal)  # outward (faces wound with outward normals)
+        # angle-weighted vertex pseudo-normals: Σ over incident faces of corner angle × face normal
+        angle = np.zeros((len(self.faces), 3))
+        for corner in range(3):
+            to_next = normalize(tri[:, (corner + 1) % 3] - tri[:, corner])
+            to_prev = normalize(tri[:, (corner + 2) % 3] - tri[:, corner])
+            angle[:, corner] = np.arccos(np.clip(dot(to_next, to_prev), -1.0, 1.0))
+        self.vertex_normal = np.zeros_like(self.vertices)
+        np.add.at(self.vertex_normal, self.faces.ravel(),
+                  (angle[:, :, None] * self.face_normal[:, None, :]).reshape(-1, 3))
+        # edge pseudo-normals: sum of the two adjacent face normals; edge k of a face
+        # is the one opposite its corner k
+        opposite = np.stack([self.faces[:, [1, 2]], self.faces[:, [2, 0]], self.faces[:, [0, 1]]], axis=1)
+        keys = np.sort(opposite.reshape(-1, 2), axis=1)
+        _, edge_id = np.unique(keys, axis=0, return_inverse=True)
+        edge_id = edge_id.ravel()
+        edge_sum = np.zeros((edge_id.max() + 1, 3))
+        np.add.at(edge_sum, edge_id, np.repeat(self.face_normal, 3, axis=0))
+        self.edge_normal = edge_sum[edge_id].reshape(-1, 3, 3)  # (F, opposite corner, 3)
+
+    def closest(self, p: np.ndarray):
+        """Closest face, barycentric weights and feature for each point (brute
+        force over all candidate faces, in chunks of points)."""
+        faces = self.candidates
+        tri = self.vertices[self.faces[faces]]
+        face = np.zeros(len(p), np.int64)
+        bary = np.zeros((len(p), 3))
+        feature = np.zeros(len(p), np.int64)
+        rows = max(1, PAIR_CHUNK // max(faces.size, 1))
+        for first in range(0, len(p), rows):
+            q = p[first:first + rows, None, :]
+            u, v, w, feat = closest_point_to_triangle(tri[None, :, 0], tri[None, :, 1], tri[None, :, 2], q)
+            c = col(u) * tri[None, :, 0] + col(v) * tri[None, :, 1] + col(w) * tri[None, :, 2]
+            best = np.argmin(dot(q - c, q - c), axis=1)
+            k = np.arange(len(best))
+            face[first:first + rows] = faces[best]
+            bary[first:first + rows] = np.stack([u[k, best], v[k, best], w[k, best]], axis=1)
+            feature[first:first + rows] = feat[k, best]
+        return face, bary, feature
+
+    def pseudo_normal(self, face: np.ndarray, feature: np.ndarray) -> np.ndarray:
+        """Angle-weighted pseudo-normal (outward) of the feature of ``face`` that
+        holds the closest point: a vertex, an edge, or the face interior."""
+        n = self.face_normal[face].copy()
+        corner_of_vertex = {VERTEX_A: 0, VERTEX_B: 1, VERTEX_C: 2}
+        corner_opposite_edge = {EDGE_BC: 0, EDGE_AC: 1, EDGE_AB: 2}
+        for feat, corner in corner_of_vertex.items():
+            k = feature == feat
+            n[k] = self.vertex_normal[self.faces[face[k], corner]]
+        for feat, corner in corner_opposite_edge.items():
+            k = feature == feat
+            n[k] = self.edge_normal[face[k], corner]
+        return n
+
+    def query(self, p_abs: np.ndarray):
+        """contact.py ``wall_query``: signed distance (mm, > 0 inside the lumen) of
+        each point to the wall and the unit normal pointing into the lumen."""
+        p = p_abs - self.origin
+        face, bary, feature = self.closest(p)
+        tri = self.vertices[self.faces[face]]
+        closest = col(bary[:, 0]) * tri[:, 0] + col(bary[:, 1]) * tri[:, 1] + col(bary[:, 2]) * tri[:, 2]
+        delta = p - closest
+        dist = length(delta)
+        inside = dot(delta, self.pseudo_normal(face, feature)) <= 0.0  # not in front of the outward normal
+        apart = dist > 1.0e-12
+        unit = delta / col(np.where(apart, dist, 1.0))
+        inward = np.where(col(apart), np.where(col(inside), unit, -unit), -self.face_normal[face])
+        return np.where(inside, dist, -dist), inward

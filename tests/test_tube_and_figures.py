@@ -1,0 +1,181 @@
+"""Coil tube surfaces (STL/VTP for CFD) and the PNG run summary."""
+
+import math
+from dataclasses import fields
+from pathlib import Path
+
+import matplotlib.image
+import numpy as np
+import pytest
+import trimesh
+from matplotlib.figure import Figure
+from vtkmodules.util.numpy_support import vtk_to_numpy
+from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
+from warpcoil.deploy import Frame
+from warpcoil.recorder import figures, tube
+from warpcoil.recorder.figures import packing_percent, write_summary_png
+from warpcoil.recorder.tube import coil_tube_mesh, coils_tube_mesh, write_tube_stl, write_tube_vtp
+
+SIDES = 12
+POLYGON_FACTOR = SIDES * math.sin(2 * math.pi / SIDES) / (2 * math.pi)  # polygon / circle area
+
+
+def helix_mm(turns: float = 3.0, nodes: int = 240, radius_mm: float = 2.0, pitch_mm: float = 0.6) -> np.ndarray:
+    angle = np.linspace(0.0, 2 * np.pi * turns, nodes)
+    return np.column_stack([radius_mm * np.cos(angle), radius_mm * np.sin(angle), pitch_mm * angle / (2 * np.pi)])
+
+
+def distance_to_polyline_mm(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    a, b = polyline[:-1], polyline[1:]
+    ab = b - a
+    t = np.clip(np.einsum("psk,sk->ps", points[:, None] - a, ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=2).min(axis=1)
+
+
+def test_straight_tube_volume_and_closure():
+    length_mm, diameter_mm = 5.0, 0.3
+    line = np.column_stack([np.linspace(0, length_mm, 9), np.zeros(9), np.zeros(9)])
+    mesh = coil_tube_mesh(line, diameter_mm, SIDES)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume > 0.0  # outward winding
+    expected = math.pi * (diameter_mm / 2) ** 2 * length_mm * POLYGON_FACTOR
+    assert mesh.volume == pytest.approx(expected, rel=1e-9)
+
+
+def test_helix_tube_wall_at_wire_radius():
+    centerline, radius_mm = helix_mm(), 0.15
+    mesh = coil_tube_mesh(centerline, 2 * radius_mm, SIDES)
+    assert mesh.is_watertight and mesh.volume > 0.0
+    assert len(mesh.vertices) == len(centerline) * SIDES
+    tangents = np.diff(centerline, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    max_bend = np.arccos(np.einsum("ij,ij->i", tangents[:-1], tangents[1:]).min())
+    distance = distance_to_polyline_mm(mesh.vertices, centerline)
+    assert distance.min() == pytest.approx(radius_mm, rel=1e-9)
+    assert distance.max() <= radius_mm / math.cos(max_bend / 2) * (1 + 1e-9)  # mitre stretch
+
+
+def test_planar_tube_does_not_twist():
+    """Parallel transport along a curve in z = 0 keeps each polygon corner at one height."""
+    angle = np.linspace(0.0, 1.5 * np.pi, 50)
+    wiggly = np.column_stack([angle, np.sin(3 * angle), np.zeros_like(angle)])
+    rings = coil_tube_mesh(wiggly, 0.2, SIDES).vertices.reshape(len(angle), SIDES, 3)
+    np.testing.assert_allclose(rings[:, :, 2], np.broadcast_to(rings[0, :, 2], rings.shape[:2]), atol=1e-12)
+
+
+def test_sharp_bend_is_clamped_and_still_closed():
+    corner = np.array([[0.0, 0, 0], [1, 0, 0], [0.1, 0.1, 0]])  # ~170° turn
+    mesh = coil_tube_mesh(corner, 0.2, SIDES)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    corner_ring_mm = np.linalg.norm(mesh.vertices[SIDES : 2 * SIDES] - corner[1], axis=1)
+    assert corner_ring_mm.max() == pytest.approx(tube.MAX_MITRE_SCALE * 0.1, rel=1e-6)  # unclamped: ~11x
+
+
+def test_two_coils_two_closed_bodies():
+    mesh = coils_tube_mesh([helix_mm(), helix_mm(radius_mm=1.0) + [0, 0, 3]], [0.3, 0.254], SIDES)
+    assert mesh.is_watertight and mesh.volume > 0.0
+    assert mesh.euler_number == 4  # two closed genus-0 surfaces
+    coil_id = mesh.face_attributes["coil_id"]
+    assert np.array_equal(np.bincount(coil_id), [len(coil_tube_mesh(helix_mm(), 0.3).faces)] * 2)
+
+
+@pytest.fixture
+def two_coil_mesh() -> trimesh.Trimesh:
+    return coils_tube_mesh([helix_mm(nodes=60), helix_mm(nodes=40) + [5, 0, 0]], [0.3, 0.254], SIDES)
+
+
+def test_stl_round_trip(tmp_path: Path, two_coil_mesh: trimesh.Trimesh):
+    path = tmp_path / "coils.stl"
+    write_tube_stl(path, two_coil_mesh)
+    assert b"units mm" in path.read_bytes()[:80]
+    back = trimesh.load(path)
+    assert len(back.faces) == len(two_coil_mesh.faces)
+    assert back.volume == pytest.approx(two_coil_mesh.volume, rel=1e-5)
+    assert [p.name for p in tmp_path.iterdir()] == ["coils.stl"]
+
+
+def test_vtp_round_trip(tmp_path: Path, two_coil_mesh: trimesh.Trimesh):
+    path = tmp_path / "coils.vtp"
+    write_tube_vtp(path, two_coil_mesh)
+    reader = vtkXMLPolyDataReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    poly = reader.GetOutput()
+    assert poly.GetNumberOfCells() == len(two_coil_mesh.faces)
+    assert poly.GetNumberOfPoints() == len(two_coil_mesh.vertices)
+    coil_id = vtk_to_numpy(poly.GetCellData().GetArray("coil_id"))
+    assert np.array_equal(coil_id, two_coil_mesh.face_attributes["coil_id"])
+    assert poly.GetFieldData().GetAbstractArray("units").GetValue(0) == "mm"
+    assert [p.name for p in tmp_path.iterdir()] == ["coils.vtp"]
+
+
+def test_failed_tube_writes_leave_no_file(tmp_path: Path, two_coil_mesh: trimesh.Trimesh, monkeypatch):
+    def half_write(self: Path, data: bytes) -> int:
+        with open(self, "wb") as handle:
+            handle.write(data[: len(data) // 2])
+        raise OSError("disk full")
+
+    class FailingWriter:
+        def SetFileName(self, name: str) -> None:
+            Path(name).write_text("<VTKFile")
+
+        def SetInputData(self, data) -> None:
+            pass
+
+        def Write(self) -> int:
+            return 0
+
+    monkeypatch.setattr(Path, "write_bytes", half_write)
+    monkeypatch.setattr(tube, "vtkXMLPolyDataWriter", FailingWriter)
+    with pytest.raises(OSError):
+        write_tube_stl(tmp_path / "coils.stl", two_coil_mesh)
+    with pytest.raises(OSError):
+        write_tube_vtp(tmp_path / "coils.vtp", two_coil_mesh)
+    assert list(tmp_path.iterdir()) == []
+
+
+def frames_to(deployed_mm: np.ndarray) -> list[Frame]:
+    zeros = {f.name: 0.0 for f in fields(Frame)}
+    return [Frame(**{**zeros, "deployed_length_mm": x, "push_force_uN": 50.0 * x, "push_force_max_uN": 60.0 * x})
+            for x in deployed_mm]
+
+
+def summary_inputs() -> dict:
+    wall = trimesh.creation.icosphere(subdivisions=3, radius=3.0)
+    angle = np.linspace(0.0, 1.0, 600)
+    polar, azimuth = np.arccos(1 - 2 * angle), 30 * np.pi * angle  # a spiral on a 2.8 mm sphere
+    coil = 2.8 * np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    return dict(wall_vertices_mm=wall.vertices, wall_faces=wall.faces, coils_mm=[coil, 0.5 * coil[:300]],
+                frames=frames_to(np.linspace(0.0, 150.0, 100)), wire_diameters_mm=[0.3, 0.254],
+                coil_boundaries_mm=[120.0], title="synthetic")
+
+
+def test_packing_percent_accumulates_per_coil():
+    area = [math.pi * 0.15**2, math.pi * 0.127**2]
+    percent = packing_percent(np.array([0.0, 60.0, 150.0]), 100.0, [0.3, 0.254], [120.0])
+    np.testing.assert_allclose(percent, [0.0, 60 * area[0], 120 * area[0] + 30 * area[1]])
+    np.testing.assert_allclose(packing_percent(np.array([10.0]), 100.0, [0.3, 0.254]), [10 * area[0]])
+    with pytest.raises(ValueError):
+        packing_percent(np.array([1.0]), 100.0, [0.3, 0.254, 0.2], [120.0])
+
+
+@pytest.mark.parametrize("sac_volume_mm3", [4 / 3 * math.pi * 27.0, None])
+def test_summary_png(tmp_path: Path, sac_volume_mm3: float | None):
+    path = tmp_path / "summary.png"
+    write_summary_png(path, sac_volume_mm3=sac_volume_mm3, **summary_inputs())
+    assert path.stat().st_size > 10_000
+    height, width = matplotlib.image.imread(path).shape[:2]
+    assert (width, height) == tuple(round(x * figures.DPI) for x in figures.FIGSIZE_IN)
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.png"]
+
+
+def test_failed_summary_leaves_no_file(tmp_path: Path, monkeypatch):
+    def half_save(self: Figure, fname, **kwargs) -> None:
+        Path(fname).write_bytes(b"\x89PNG partial")
+        raise RuntimeError("renderer crashed")
+
+    monkeypatch.setattr(Figure, "savefig", half_save)
+    with pytest.raises(RuntimeError):
+        write_summary_png(tmp_path / "summary.png", sac_volume_mm3=None, **summary_inputs())
+    assert list(tmp_path.iterdir()) == []
