@@ -21,9 +21,13 @@ SIDES = 12
 POLYGON_FACTOR = SIDES * math.sin(2 * math.pi / SIDES) / (2 * math.pi)  # polygon / circle area
 
 
-def helix_mm(turns: float = 3.0, nodes: int = 240, radius_mm: float = 2.0, pitch_mm: float = 0.6) -> np.ndarray:
+def helix_mm(
+    turns: float = 3.0, nodes: int = 240, radius_mm: float = 2.0, pitch_mm: float = 0.6
+) -> np.ndarray:
     angle = np.linspace(0.0, 2 * np.pi * turns, nodes)
-    return np.column_stack([radius_mm * np.cos(angle), radius_mm * np.sin(angle), pitch_mm * angle / (2 * np.pi)])
+    return np.column_stack(
+        [radius_mm * np.cos(angle), radius_mm * np.sin(angle), pitch_mm * angle / (2 * np.pi)]
+    )
 
 
 def distance_to_polyline_mm(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -137,15 +141,19 @@ def test_failed_tube_writes_leave_no_file(tmp_path: Path, two_coil_mesh: trimesh
 
 def frames_to(deployed_mm: np.ndarray) -> list[Frame]:
     zeros = {f.name: 0.0 for f in fields(Frame)}
-    return [Frame(**{**zeros, "deployed_length_mm": x, "push_force_uN": 50.0 * x, "push_force_max_uN": 60.0 * x})
-            for x in deployed_mm]
+    return [
+        Frame(**{**zeros, "deployed_length_mm": x, "push_force_uN": 50.0 * x, "push_force_max_uN": 60.0 * x})
+        for x in deployed_mm
+    ]
 
 
 def summary_inputs() -> dict:
     wall = trimesh.creation.icosphere(subdivisions=3, radius=3.0)
     angle = np.linspace(0.0, 1.0, 600)
     polar, azimuth = np.arccos(1 - 2 * angle), 30 * np.pi * angle  # a spiral on a 2.8 mm sphere
-    coil = 2.8 * np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    coil = 2.8 * np.column_stack(
+        [np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)]
+    )
     return dict(wall_vertices_mm=wall.vertices, wall_faces=wall.faces, coils_mm=[coil, 0.5 * coil[:300]],
                 frames=frames_to(np.linspace(0.0, 150.0, 100)), wire_diameters_mm=[0.3, 0.254],
                 coil_boundaries_mm=[120.0], title="synthetic")

@@ -40,7 +40,8 @@ def packing_percent(
     diameters = np.asarray(wire_diameters_mm[:1] if coil_boundaries_mm is None else wire_diameters_mm)
     boundaries = [] if coil_boundaries_mm is None else list(coil_boundaries_mm)
     if len(boundaries) != len(diameters) - 1:
-        raise ValueError(f"{len(diameters)} coils need {len(diameters) - 1} boundaries, got {len(boundaries)}")
+        raise ValueError(f"{len(diameters)} coils need {len(diameters) - 1} boundaries, "
+                         f"got {len(boundaries)}")
     starts = np.array([0.0, *boundaries])
     lengths = np.diff(np.r_[starts, np.inf])
     per_coil_mm = np.clip(np.asarray(deployed_mm, dtype=float)[:, None] - starts, 0.0, lengths)
@@ -57,7 +58,9 @@ def _view_box_mm(coils_mm: list[np.ndarray], wall_vertices_mm: np.ndarray) -> tu
     return low - pad, high + pad
 
 
-def _wall_triangles_mm(vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+def _wall_triangles_mm(
+    vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> np.ndarray:
     """(F,3,3) wall triangles wholly inside the view box, at most MAX_WALL_FACES of them."""
     triangles = vertices_mm[faces]
     triangles = triangles[np.all((triangles >= low) & (triangles <= high), axis=(1, 2))]
