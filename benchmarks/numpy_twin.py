@@ -17,9 +17,9 @@ not bit for bit.
 Differences in *method* (not in the model):
 
 * Coil–coil contact: brute force over all pairs of contact-pass edges (the
-  Warp kernel takes its candidates from a ``wp.HashGrid`` of edge
-  midpoints whose radius finds every pair within c0, so the set of pairs
-  that exert a force is the same).
+  Warp kernel takes its candidates from a ``wp.HashGrid`` of edge midpoints
+  and rejects most by bounding spheres; both filters keep every pair within
+  c0, so the set of pairs that exert a force is the same).
 * Coil–wall contact: brute force closest point over all wall triangles
   (Ericson's closest-point-on-triangle, as Warp's
   ``closest_point_to_triangle``), in float64. Warp's BVH query runs in
@@ -31,17 +31,21 @@ Differences in *method* (not in the model):
   angle-weighted pseudo-normal (Bærentzen & Aanæs 2005) of the feature that
   holds the closest point: the face normal inside a face, the sum of the two
   adjacent face normals on an edge, the angle-weighted vertex normal at a
-  vertex. Warp applies the same rule, with the feature decided to within
-  1e-3 of the mean edge length.
+  vertex (not ``trimesh.Trimesh.contains``, which also needs ``rtree``).
+  Warp's query applies the same rule, with the feature decided to within
+  1e-3 of the mean edge length. The twin always computes the exact distance
+  but then applies the kernel's search window (``wall_search_mm`` beyond the
+  contact range, with the per-node side cache), because that window decides
+  which nodes feel a force.
 
 Units: mm, g, s; forces µN, torques µN·mm, energies nJ.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from warpcoil.solver import WALL_SEARCH_MM
 
 # --- constants, identical to the kernels -----------------------------------------
 SMALL_ANGLE = 1.0e-4  # rod.py: SMALL_ANGLE (series for φ/sin φ below this)
@@ -210,11 +214,12 @@ class NumpyTwin:
     """
 
     def __init__(self, model, state, dt_s: float, push_speed_mm_s: float = 0.0, active_coil: int = -1,
-                 coil_contact: bool = True):
+                 coil_contact: bool = True, wall_search_mm: float = WALL_SEARCH_MM):
         self.dt = float(dt_s)
         self.push_speed = float(push_speed_mm_s)
         self.active_coil = int(active_coil)
         self.coil_contact = bool(coil_contact)
+        self.wall_search_mm = float(wall_search_mm)
 
         # static data, straight from the finalised Model
         self.n = model.node_count
@@ -249,6 +254,7 @@ class NumpyTwin:
         self.vertices = np.flatnonzero(vertex_valid)
 
         self.wall = None if model.wall is None else _WallTwin(model.wall)
+        self.wall_side = np.full(self.n, -1, np.int32)  # Solver._wall_side: 1 lumen, 0 outside, −1 unknown
 
         # state, copied once
         self.x = state.x.numpy().astype(np.float64)
@@ -263,6 +269,7 @@ class NumpyTwin:
         self.contact_force = np.zeros((self.n, 3))
         self.wall_force = np.zeros((self.n, 3))
         self.wall_distance = np.full(self.n, FAR_MM)
+        self.coil_contacts = np.zeros(self.n, np.int32)  # touching pairs per edge (counted from both edges)
         self.force = np.zeros((self.n, 3))
         self.torque = np.zeros(self.n)
         self.push_share = np.zeros(self.n)
@@ -271,56 +278,78 @@ class NumpyTwin:
     # --- forces ----------------------------------------------------------------
     def wall_contact(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
         """contact.py ``wall_contact``: the law of the gap (signed centre distance
-        − d/2) along the inward wall normal, on each free node."""
+        − d/2) along the inward wall normal, on each free node whose closest face
+        lies within the search reach r + c0 + wall_search_mm (any distance while
+        the node's side is unknown). Updates the side cache; the reported centre
+        distance is ± the reach when no face is that close, +FAR in the catheter."""
         force = np.zeros((self.n, 3))
         self.wall_distance = np.full(self.n, FAR_MM)
+        self.wall_side[free == 0] = -1
         nodes = np.flatnonzero(free != 0)
-        if nodes.size:
-            signed, inward = self.wall.query(x[nodes])
-            magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0)
-            force[nodes] = col(magnitude) * inward
-            self.wall_distance[nodes] = signed
+        if nodes.size == 0:
+            return force
+        side = self.wall_side[nodes]
+        reach = np.where(side < 0, FAR_MM, self.node_radius[nodes] + self.c0 + self.wall_search_mm)
+        signed, inward = self.wall.query(x[nodes])
+        found = np.abs(signed) < reach  # the BVH query finds faces strictly within its max_dist
+        magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0)
+        force[nodes] = np.where(col(found), col(magnitude) * inward, 0.0)
+        self.wall_side[nodes] = np.where(found, (signed > 0.0).astype(np.int32), side)
+        self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
         return force
 
-    def coil_contact_forces(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
-        """contact.py ``coil_contact``: segment–segment contact between every pair
-        (a, b) of contact-pass edges that are not bonded neighbours; node i gets
-        its barycentric share of the force on its edges a = i−1 (share s) and
-        a = i (share 1 − s). Only free nodes receive force."""
-        force = np.zeros((self.n, 3))
+    def edge_contact(self, x: np.ndarray, free: np.ndarray):
+        """contact.py ``edge_contact``: segment–segment contact on every edge a in
+        the contact pass (it exists and has a free node) against every other such
+        edge b that is not a bonded neighbour (same coil, |a − b| ≤ exclusion):
+        the law of the surface gap between their closest points, along
+        p_a − p_b, split between a's start and end node by the barycentric
+        weight of p_a. Returns the per-edge (start, end) forces; also counts the
+        touching pairs per edge."""
+        force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
+        self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
         in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
         edges = np.flatnonzero(in_pass)
-        if edges.size < 2:
-            return force
-        rows_per_chunk = max(1, PAIR_CHUNK // edges.size)
+        rows_per_chunk = max(1, PAIR_CHUNK // max(edges.size, 1))
         for first in range(0, edges.size, rows_per_chunk):
             a = edges[first:first + rows_per_chunk, None]  # edge a: rows
             b = edges[None, :]  # edge b: columns
-            s, t = segment_closest_params(x[a], x[a + 1], x[b], x[b + 1])  # (A, B)
-            pa = x[a] + col(s) * (x[a + 1] - x[a])
-            pb = x[b] + col(t) * (x[b + 1] - x[b])
-            delta = pa - pb
+            pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
+            s, t = segment_closest_params(pa0, pa1, pb0, pb1)  # (A, B)
+            delta = pa0 + col(s) * (pa1 - pa0) - pb0 - col(t) * (pb1 - pb0)
             dist = length(delta)
             gap = dist - self.node_radius[a] - self.node_radius[b]
             bonded = (self.coil_of[a] == self.coil_of[b]) & (np.abs(b - a) <= self.exclusion)
             touching = ~bonded & (gap < self.c0) & (dist > 1.0e-12)
             scale = np.where(touching, contact_force_magnitude(gap, self.p0, self.c0)
                              / np.where(touching, dist, 1.0), 0.0)
-            f_ab = col(scale) * delta  # force on edge a from edge b, along pa − pb
+            f = col(scale) * delta  # force on edge a from edge b
             rows = edges[first:first + rows_per_chunk]
-            force[rows] += np.sum(col(1.0 - s) * f_ab, axis=1)  # node a: side 1, share 1 − s
-            force[rows + 1] += np.sum(col(s) * f_ab, axis=1)  # node a + 1: side 0, share s
-        force[free == 0] = 0.0
-        return force
+            force_start[rows] = np.sum(col(1.0 - s) * f, axis=1)
+            force_end[rows] = np.sum(col(s) * f, axis=1)
+            self.coil_contacts[rows] = np.sum(touching, axis=1)
+        return force_start, force_end
+
+    def gather_contact(self, free: np.ndarray, wall_force: np.ndarray, force_start: np.ndarray,
+                       force_end: np.ndarray) -> np.ndarray:
+        """contact.py ``gather_contact``: contact force on node i = wall force + (if
+        free) the start share of edge i and the end share of edge i − 1."""
+        f = wall_force.copy()
+        takes_start = (free != 0) & self.has_next
+        f[takes_start] += force_start[takes_start]
+        takes_end = np.zeros(self.n, bool)
+        takes_end[1:] = (free[1:] != 0) & self.has_next[:-1]
+        f[takes_end] += force_end[np.flatnonzero(takes_end) - 1]
+        return f
 
     def compute_contacts(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
         """Solver.compute_contacts: wall force + coil–coil force per node (µN)."""
         self.wall_force = self.wall_contact(x, free) if self.wall is not None else np.zeros((self.n, 3))
-        total = self.wall_force.copy()
-        if self.coil_contact:
-            total += self.coil_contact_forces(x, free)
-        return total
+        if not self.coil_contact:
+            return self.wall_force.copy()
+        force_start, force_end = self.edge_contact(x, free)
+        return self.gather_contact(free, self.wall_force, force_start, force_end)
 
     def vertex_gradients(self, x: np.ndarray, m1: np.ndarray, free: np.ndarray):
         """elastic.py ``vertex_gradients``: ∂(W_b + W_t)/∂(x_{j−1}, x_j, x_{j+1})

@@ -29,6 +29,10 @@ length_mm = 8.0
 [simulation]
 push_speed_mm_s = 100.0
 frame_interval_s = 0.005
+
+[output]
+png = true
+tube_mesh = true
 """
 
 
@@ -107,3 +111,17 @@ def test_unstable_step_is_refused_before_running(tmp_path, capsys):
     scene.write_text(SCENE.replace("frame_interval_s = 0.005", "frame_interval_s = 0.005\ndt_s = 1e-3"))
     assert main(["run", str(scene), "-o", str(tmp_path / "out"), "-q"]) == 2
     assert "stable bound" in capsys.readouterr().err
+
+
+def test_tube_mesh_and_picture_are_written(run_dir):
+    import trimesh
+    from matplotlib.image import imread
+
+    tube = trimesh.load_mesh(run_dir / "coils.stl")
+    assert tube.is_watertight
+    sides = 12
+    polygon = sides * np.sin(2 * np.pi / sides) / (2 * np.pi)
+    length = json.loads((run_dir / "result.json").read_text())["coil_length_mm"]
+    assert tube.volume == pytest.approx(np.pi * 0.14605**2 * length * polygon, rel=0.05)
+    assert (run_dir / "coils.vtp").stat().st_size > 1000
+    assert imread(run_dir / "summary.png").shape[:2] == (900, 1200)

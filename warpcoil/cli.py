@@ -46,9 +46,7 @@ def _run(args: argparse.Namespace) -> int:
     progress(None)
     if usd is not None:
         usd.close()
-    outputs.write_timeseries_csv(out / outputs.TIMESERIES_CSV, result.frames)
-    outputs.write_centerline_csv(out / outputs.CENTERLINE_CSV, result.positions_mm)
-    outputs.write_result_json(out / outputs.RESULT_JSON, result, {"scene": str(scene.source)})
+    outputs.write_run(out, scene, deployment, result, {"scene": str(scene.source)})
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "

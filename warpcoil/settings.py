@@ -91,7 +91,12 @@ class SimulationSettings:
 
 @dataclass(frozen=True)
 class OutputSettings:
+    """What a run writes besides result.json and the CSVs: the USD animation, a
+    PNG summary, and the coil surface as a closed tube mesh (STL + VTP) for CFD."""
+
     usd: bool = True
+    png: bool = False
+    tube_mesh: bool = False
 
 
 @dataclass(frozen=True)
