@@ -56,9 +56,9 @@ F_AT_7 = 7.0 * (1096.6331584284585 - 1.0)  # 7 (e^7 − 1)
 SLOPE_AT_7 = 8.0 * 1096.6331584284585 - 1.0  # 8 e^7 − 1
 FAR_MM = 1.0e6  # contact.py: FAR_MM
 DAMPING_NEWTON_ITERATIONS = 6  # integrate.py: damped_speed
-PAIR_CHUNK = 1 << 18
+PAIR_CHUNK = 1 << 18  # edge–edge / node–face pairs evaluated at once (bounds the memory)
 # features of a triangle abc that can hold a closest point (closest_point_to_triangle)
-VERTEX_A, VERTEX_B, VERTEX_C, EDGE_BC, EDGE_AC, EDGE_AB, FACE = range(7)  # contact pairs / node–face pairs evaluated at once (memory bound)
+VERTEX_A, VERTEX_B, VERTEX_C, EDGE_BC, EDGE_AC, EDGE_AB, FACE = range(7)
 
 
 # --- small vector helpers (row-wise over (..., 3) arrays) ---------------------------
@@ -172,7 +172,7 @@ def segment_closest_params(p1, q1, p2, q2):
 def closest_point_to_triangle(a, b, c, p):
     """Warp's native ``closest_point_to_triangle`` (Ericson §5.1.5), row-wise in
     float64: barycentric weights (u, v, w) of a, b, c of the point of triangle
-    abc closest to p, and the feature that holds it (one of FEATURES)."""
+    abc closest to p, and the feature that holds it (VERTEX_A … FACE)."""
     ab, ac, ap = b - a, c - a, p - a
     bp, cp = p - b, p - c
     d1, d2 = dot(ab, ap), dot(ac, ap)
@@ -298,37 +298,52 @@ class NumpyTwin:
         self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
         return force
 
+    def candidate_pairs(self, x: np.ndarray, edges: np.ndarray):
+        """Every ordered pair (a, b) of the given edges that are not bonded
+        neighbours (same coil, |a − b| ≤ exclusion) and whose bounding spheres
+        overlap: |mid_a − mid_b| < (½|e_a| + r_a + c0) + ½|e_b| + r_b, the
+        rejection test of contact.py ``edge_contact``, which keeps every pair
+        within c0. Brute force over all pairs (in chunks of rows); Warp first
+        narrows them with its hash grid of midpoints."""
+        mid = 0.5 * (x[edges] + x[edges + 1])  # contact.py edge_midpoints
+        half = 0.5 * length(x[edges + 1] - x[edges])
+        radius = self.node_radius[edges]
+        pairs_a, pairs_b = [edges[:0]], [edges[:0]]
+        rows_per_chunk = max(1, PAIR_CHUNK // max(edges.size, 1))
+        for first in range(0, edges.size, rows_per_chunk):
+            rows = slice(first, first + rows_per_chunk)
+            a, b = edges[rows, None], edges[None, :]
+            bonded = (self.coil_of[a] == self.coil_of[b]) & (np.abs(b - a) <= self.exclusion)
+            reach_a = half[rows, None] + radius[rows, None] + self.c0
+            near = length(mid[rows, None] - mid[None, :]) < reach_a + half[None, :] + radius[None, :]
+            ia, ib = np.nonzero(near & ~bonded)
+            pairs_a.append(edges[rows][ia])
+            pairs_b.append(edges[ib])
+        return np.concatenate(pairs_a), np.concatenate(pairs_b)
+
     def edge_contact(self, x: np.ndarray, free: np.ndarray):
         """contact.py ``edge_contact``: segment–segment contact on every edge a in
-        the contact pass (it exists and has a free node) against every other such
-        edge b that is not a bonded neighbour (same coil, |a − b| ≤ exclusion):
-        the law of the surface gap between their closest points, along
-        p_a − p_b, split between a's start and end node by the barycentric
-        weight of p_a. Returns the per-edge (start, end) forces; also counts the
-        touching pairs per edge."""
+        the contact pass (it exists and has a free node) against the other such
+        edges b near it (:meth:`candidate_pairs`): the law of the surface gap
+        between their closest points, along p_a − p_b, split between a's start
+        and end node by the barycentric weight of p_a. Returns the per-edge
+        (start, end) forces; counts each edge's touching pairs."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
         in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
-        edges = np.flatnonzero(in_pass)
-        rows_per_chunk = max(1, PAIR_CHUNK // max(edges.size, 1))
-        for first in range(0, edges.size, rows_per_chunk):
-            a = edges[first:first + rows_per_chunk, None]  # edge a: rows
-            b = edges[None, :]  # edge b: columns
-            pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
-            s, t = segment_closest_params(pa0, pa1, pb0, pb1)  # (A, B)
-            delta = pa0 + col(s) * (pa1 - pa0) - pb0 - col(t) * (pb1 - pb0)
-            dist = length(delta)
-            gap = dist - self.node_radius[a] - self.node_radius[b]
-            bonded = (self.coil_of[a] == self.coil_of[b]) & (np.abs(b - a) <= self.exclusion)
-            touching = ~bonded & (gap < self.c0) & (dist > 1.0e-12)
-            scale = np.where(touching, contact_force_magnitude(gap, self.p0, self.c0)
-                             / np.where(touching, dist, 1.0), 0.0)
-            f = col(scale) * delta  # force on edge a from edge b
-            rows = edges[first:first + rows_per_chunk]
-            force_start[rows] = np.sum(col(1.0 - s) * f, axis=1)
-            force_end[rows] = np.sum(col(s) * f, axis=1)
-            self.coil_contacts[rows] = np.sum(touching, axis=1)
+        a, b = self.candidate_pairs(x, np.flatnonzero(in_pass))
+        pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
+        s, t = segment_closest_params(pa0, pa1, pb0, pb1)
+        delta = pa0 + col(s) * (pa1 - pa0) - pb0 - col(t) * (pb1 - pb0)
+        dist = length(delta)
+        gap = dist - self.node_radius[a] - self.node_radius[b]
+        touching = (gap < self.c0) & (dist > 1.0e-12)
+        a, s, delta, dist, gap = a[touching], s[touching], delta[touching], dist[touching], gap[touching]
+        f = col(contact_force_magnitude(gap, self.p0, self.c0) / dist) * delta  # on edge a from edge b
+        np.add.at(force_start, a, col(1.0 - s) * f)
+        np.add.at(force_end, a, col(s) * f)
+        np.add.at(self.coil_contacts, a, 1)
         return force_start, force_end
 
     def gather_contact(self, free: np.ndarray, wall_force: np.ndarray, force_start: np.ndarray,
@@ -650,3 +665,50 @@ class _WallTwin:
         unit = delta / col(np.where(apart, dist, 1.0))
         inward = np.where(col(apart), np.where(col(inside), unit, -unit), -self.face_normal[face])
         return np.where(inside, dist, -dist), inward
+
+
+# --- timing ------------------------------------------------------------------------
+def time_reference_helix(steps: int = 1000, warp_steps: int = 20000, repeats: int = 3) -> list[dict]:
+    """Seconds per step of the twin and of the Warp Stepper (graph capture, chunks
+    of 100) on MODEL.md's reference helix (60 mm, 3 mm loops, pitch 0.6 mm)
+    released from straight, with and without coil contact (best of ``repeats``)."""
+    import time
+
+    import warpcoil as wc
+
+    builder = wc.ModelBuilder()
+    builder.add_coil(wc.CoilSpec(length_mm=60.0, loop_diameter_mm=3.0, pitch_mm=0.6))
+    model = builder.finalize()
+    straight = np.zeros((model.node_count, 3))
+    straight[:, 0] = model.arc_s.numpy()
+    rows = []
+    for coil_contact in (False, True):
+        solver = wc.Solver(model, coil_contact=coil_contact)
+        stepper = wc.Stepper(solver, wc.state_from_positions(model, straight), wc.Control.create(model), chunk=100)
+        stepper.run_chunk()  # compile, capture
+        warp_s = np.inf
+        for _ in range(repeats):
+            wc_state = stepper.run_chunk()
+            wc_state.x.numpy()  # synchronise
+            start = time.perf_counter()
+            for _ in range(warp_steps // stepper.chunk):
+                stepper.run_chunk()
+            stepper.state.x.numpy()
+            warp_s = min(warp_s, (time.perf_counter() - start) / warp_steps)
+        twin_s = np.inf
+        for _ in range(repeats):
+            twin = NumpyTwin(model, wc.state_from_positions(model, straight), solver.dt_s, coil_contact=coil_contact)
+            start = time.perf_counter()
+            twin.run(steps)
+            twin_s = min(twin_s, (time.perf_counter() - start) / steps)
+        rows.append({"coil_contact": coil_contact, "nodes": model.node_count, "device": str(model.device),
+                     "warp_us_per_step": 1e6 * warp_s, "twin_us_per_step": 1e6 * twin_s})
+    return rows
+
+
+if __name__ == "__main__":
+    for row in time_reference_helix():
+        print(f"coil contact {'on ' if row['coil_contact'] else 'off'} ({row['nodes']} nodes): "
+              f"Warp {row['device']} {row['warp_us_per_step']:8.1f} µs/step, "
+              f"NumPy twin {row['twin_us_per_step']:8.1f} µs/step, "
+              f"ratio {row['twin_us_per_step'] / row['warp_us_per_step']:5.1f}×")

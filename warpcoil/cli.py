@@ -88,6 +88,17 @@ def _validate(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.kind == "accuracy":
+        from .bench.accuracy import main as bench_main
+    else:
+        from .bench.stress import main as bench_main
+    repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
+    return bench_main(out, quick=args.quick, repeats=repeats)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="warpcoil", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -97,6 +108,13 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help=f"subset of: {', '.join(CASES)} (default: all)")
     validate.set_defaults(func=_validate)
+
+    bench = sub.add_parser("bench", help="benchmarks: run time against error, stress sweep")
+    bench.add_argument("kind", choices=["accuracy", "stress"])
+    bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
+    bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")
+    bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3; 1 with --quick)")
+    bench.set_defaults(func=_bench)
 
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
     run.add_argument("scene", help="scene TOML file")

@@ -154,7 +154,8 @@ def gradient_cases(seed: int = 0) -> list[CaseResult]:
 ELASTICA_DEFLECTION = {5.0: 0.713792}  # δ/L under a tip dead load, P L²/EI = 5 (Euler elastica)
 
 
-def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0) -> float:
+def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0,
+                          dt_safety: float = 0.5) -> float:
     """Tip deflection δ/L of a clamped straight coil under a transverse dead load
     P = load_parameter · EI / L² at the free end, damped to rest.
 
@@ -175,8 +176,8 @@ def cantilever_deflection(segments: int, load_parameter: float, length_mm: float
     load = load_parameter * spec.EI / length_mm**2
     builder.apply_force(0, -1, (0.0, -load, 0.0))
     model = builder.finalize()
-    stepper = Stepper(Solver(model, coil_contact=False), state_from_positions(model, rest), Control.create(model),
-                      chunk=1000)  # a bending straight beam cannot touch itself
+    stepper = Stepper(Solver(model, coil_contact=False, dt_safety=dt_safety), state_from_positions(model, rest),
+                      Control.create(model), chunk=1000)  # a bending straight beam cannot touch itself
     state, rested = stepper.run_to_rest(1e-10 * load * length_mm, max_steps=2_000_000, min_steps=20_000)
     if not rested:
         raise RuntimeError("cantilever did not come to rest")
@@ -203,8 +204,8 @@ def cantilever_cases(resolutions=(25, 50, 100)) -> list[CaseResult]:
 HELIX = dict(length_mm=60.0, loop_diameter_mm=3.0, pitch_mm=0.6)
 
 
-def _helix_spec() -> CoilSpec:
-    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", **HELIX)
+def _helix_spec(segment_length_mm: float | None = None) -> CoilSpec:
+    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", segment_length_mm=segment_length_mm, **HELIX)
 
 
 def _helix_rows(label: str, points: np.ndarray) -> list[CaseResult]:
@@ -222,9 +223,9 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
     return state.x.numpy()
 
 
-def helix_recovery() -> list[CaseResult]:
+def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = 0.5) -> list[CaseResult]:
     """A 60 mm helical coil started straight, free ends, damped to rest."""
-    spec = _helix_spec()
+    spec = _helix_spec(segment_length_mm)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
     builder.add_coil(spec)
     model = builder.finalize()
@@ -233,25 +234,26 @@ def helix_recovery() -> list[CaseResult]:
     straight[:, 0] = model.arc_s.numpy()
     # elastic only: a straight start is no physical state, and its whipping release
     # would tangle the coil through self-contact (free_release has contact on)
-    stepper = Stepper(Solver(model, coil_contact=False), state_from_positions(model, straight), Control.create(model),
-                      chunk=1000)
-    return _helix_rows("helix recovery", _settle(stepper, max_steps=1_000_000))
+    stepper = Stepper(Solver(model, coil_contact=False, dt_safety=dt_safety), state_from_positions(model, straight),
+                      Control.create(model), chunk=1000)
+    return _helix_rows("helix recovery", _settle(stepper, max_steps=4_000_000))
 
 
-def free_release(push_speed_mm_s: float = 100.0) -> list[CaseResult]:
+def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = 0.5,
+                 segment_length_mm: float | None = None) -> list[CaseResult]:
     """The helical coil packed in a straight catheter and pushed out into empty space."""
-    spec = _helix_spec()
+    spec = _helix_spec(segment_length_mm)
     settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
     control = Control.create(model, active_coil=0, push_speed_mm_s=push_speed_mm_s)
-    stepper = Stepper(Solver(model), packed_state(model), control, chunk=1000)
+    stepper = Stepper(Solver(model, dt_safety=dt_safety), packed_state(model), control, chunk=1000)
     coil_length = float(model.arc_s.numpy()[-1])
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
     control.set_active_coil(-1)  # detached: the pusher stops
-    return _helix_rows("free release", _settle(stepper, max_steps=stepper.steps + 1_000_000))
+    return _helix_rows("free release", _settle(stepper, max_steps=stepper.steps + 4_000_000))
 
 
 # --- energy ---------------------------------------------------------------------

@@ -1,0 +1,1 @@
+"""Benchmarks (`warpcoil bench accuracy|stress`): numbers for BENCHMARKS.md, not tests."""

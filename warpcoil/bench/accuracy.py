@@ -1,0 +1,237 @@
+"""`warpcoil bench accuracy`: run time against error for the knobs that trade one for the other.
+
+Cases and their references:
+
+* cantilever (P L²/EI = 5): tip deflection against the Euler elastica;
+* helix recovery and free release: loop diameter and pitch against the rest helix;
+* a deployment into the seed sphere (``--quick``: a 20 mm coil): its final shape
+  is chaotic, so it is compared with the finest setting through well-posed
+  quantities — radius of gyration, mean node distance from the sac centre,
+  fraction of the sac volume within d of the coil, and the distal tip's
+  trajectory over the first loop (RMS distance / loop diameter).
+
+Knobs: step size (dt_safety × the stable bound), push advance per step (push
+speed), segment length l0 ∈ {d/2, d, 2d}, mass scaling. Float64 only (the
+kernels are written in float64; float32 is not offered).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import validation
+from ..deploy import Deployment
+from ..scene import load_scene
+from ..recorder.atomic import write_text_atomic
+from .report import markdown_table, timed, write_report
+
+SEED_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "seed_sphere.toml"
+D = validation.REFERENCE_D_MM
+
+
+@dataclass
+class Row:
+    case: str
+    setting: str
+    default: bool
+    steps: int
+    wall_time_s: float
+    error: float
+    detail: str = ""
+    coarser_l0: bool = False  # l0 = d is the model's definition (MODEL.md): shown, not a Pareto candidate
+
+
+# --- validation cases --------------------------------------------------------------
+def cantilever_rows(quick: bool, repeats: int) -> list[Row]:
+    rows = []
+    for segments in (25, 50) if quick else (25, 50, 100):
+        for safety in (0.5, 0.9) if quick else (0.25, 0.5, 0.9):
+            deflection, t = timed(lambda: validation.cantilever_deflection(segments, 5.0, dt_safety=safety), repeats)
+            error = abs(deflection - validation.ELASTICA_DEFLECTION[5.0]) / validation.ELASTICA_DEFLECTION[5.0]
+            rows.append(Row("cantilever", f"{segments} segments, dt {safety} bound", segments == 50 and safety == 0.5,
+                            0, t, error))
+    return rows
+
+
+def _helix_error(results) -> float:
+    return max(r.error for r in results)
+
+
+def helix_rows(quick: bool, repeats: int) -> list[Row]:
+    rows = []
+    for factor in (1.0, 2.0) if quick else (0.5, 1.0, 2.0):
+        for safety in (0.5, 0.9) if quick else (0.25, 0.5, 0.9):
+            res, t = timed(lambda: validation.helix_recovery(segment_length_mm=factor * D, dt_safety=safety), repeats)
+            rows.append(Row("helix recovery", f"l0 {factor:g} d, dt {safety} bound", factor == 1.0 and safety == 0.5,
+                            0, t, _helix_error(res), f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm",
+                            coarser_l0=factor != 1.0))
+    return rows
+
+
+def release_rows(quick: bool, repeats: int) -> list[Row]:
+    rows = []
+    default_speed = 200.0 if quick else 100.0
+    for speed in (200.0,) if quick else (50.0, 100.0, 200.0):
+        for safety in (0.5, 0.9):
+            res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, dt_safety=safety), repeats)
+            rows.append(Row("free release", f"push {speed:g} mm/s, dt {safety} bound",
+                            speed == default_speed and safety == 0.5,
+                            0, t, _helix_error(res), f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
+    return rows
+
+
+# --- deployment ----------------------------------------------------------------------
+@dataclass
+class Shape:
+    """Well-posed measures of a deployed coil (mm, and a volume fraction)."""
+
+    gyration_mm: float
+    mean_centre_distance_mm: float
+    coverage: float
+    tip_track: np.ndarray  # (k, 3) distal tip at fixed deployed lengths over the first loop
+
+
+def _coverage(x: np.ndarray, radius_mm: float, spacing_mm: float) -> float:
+    """Fraction of the sphere of ``radius_mm`` (centred at 0) within d of the coil polyline."""
+    g = np.arange(-radius_mm, radius_mm + spacing_mm, spacing_mm)
+    pts = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    pts = pts[np.linalg.norm(pts, axis=1) < radius_mm]
+    a, b = x[:-1], x[1:]
+    ab = b - a
+    near = np.zeros(len(pts), bool)
+    for chunk in np.array_split(np.arange(len(pts)), max(1, len(pts) // 2000)):
+        p = pts[chunk][:, None, :]
+        s = np.clip(np.einsum("pkj,kj->pk", p - a, ab) / np.einsum("kj,kj->k", ab, ab), 0.0, 1.0)
+        dist = np.linalg.norm(p - (a + s[..., None] * ab), axis=2).min(axis=1)
+        near[chunk] = dist < D
+    return float(near.mean())
+
+
+def deploy_shape(scene, loop_length_mm: float, sac_radius_mm: float) -> tuple[Shape, int]:
+    deployment = Deployment(scene)
+    grid = np.linspace(0.5, loop_length_mm, 16)
+    track_len, track_x = [], []
+
+    def on_frame(frame, state):
+        if frame.deployed_length_mm <= loop_length_mm + 0.5:
+            track_len.append(frame.deployed_length_mm)
+            track_x.append(state.x.numpy()[0].copy())
+
+    result = deployment.run(on_frame)
+    if result.status != "completed":
+        raise RuntimeError(f"accuracy benchmark deployment ended {result.status}: {result.reason}")
+    x = result.positions_mm[0]
+    track = np.stack([np.interp(grid, track_len, np.asarray(track_x)[:, k]) for k in range(3)], axis=1)
+    shape = Shape(float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean())), float(np.linalg.norm(x, axis=1).mean()),
+                  _coverage(x, sac_radius_mm, D / 2), track)
+    return shape, result.steps
+
+
+def shape_error(shape: Shape, ref: Shape, loop_mm: float) -> tuple[float, str]:
+    rel = {
+        "Rg": abs(shape.gyration_mm - ref.gyration_mm) / ref.gyration_mm,
+        "centre": abs(shape.mean_centre_distance_mm - ref.mean_centre_distance_mm) / ref.mean_centre_distance_mm,
+        "coverage": abs(shape.coverage - ref.coverage) / ref.coverage,
+        "track": float(np.sqrt(((shape.tip_track - ref.tip_track) ** 2).sum(1).mean())) / loop_mm,
+    }
+    return max(rel.values()), ", ".join(f"{k} {v:.2%}" for k, v in rel.items())
+
+
+def deployment_rows(quick: bool, repeats: int) -> list[Row]:
+    base = load_scene(SEED_SCENE)
+    base = replace(base, output=replace(base.output, usd=False, png=False, tube_mesh=False))
+    case = "seed deployment"
+    if quick:  # the seed case at a third of its size: 20 mm of a 2 mm framing coil in a 2.5 mm sphere (16 %)
+        base = replace(base, coils=(replace(base.coils[0], length_mm=20.0, loop_diameter_mm=2.0),),
+                       wall=replace(base.wall, sphere_diameter_mm=2.5),
+                       catheter=replace(base.catheter, tip_mm=(0.0, 0.0, -0.95)))
+        case = "small seed deployment (20 mm in 2.5 mm)"
+    coil = base.coils[0]
+    loop_mm = math.pi * coil.loop_diameter_mm
+
+    def variant(dt_safety=0.5, push=50.0, l0_factor=1.0, mass_scale=1.0):
+        sim = replace(base.simulation, dt_safety=dt_safety, push_speed_mm_s=push, mass_scale=mass_scale)
+        return replace(base, simulation=sim, coils=(replace(coil, segment_length_mm=l0_factor * D),))
+
+    sac_radius = base.wall.sphere_diameter_mm / 2.0
+    reference, _ = deploy_shape(variant(dt_safety=0.25, push=50.0 if quick else 25.0), loop_mm, sac_radius)
+    settings = {
+        "default (dt 0.5 bound, push 50 mm/s, l0 d)": variant(),
+        "dt 0.9 bound": variant(dt_safety=0.9),
+        "push 200 mm/s": variant(push=200.0),
+        "mass scale 10": variant(mass_scale=10.0),
+    }
+    if not quick:
+        settings.update({"dt 0.25 bound": variant(dt_safety=0.25), "push 100 mm/s": variant(push=100.0),
+                         "mass scale 100": variant(mass_scale=100.0), "l0 2d": variant(l0_factor=2.0),
+                         "l0 d/2": variant(l0_factor=0.5)})
+    rows = []
+    for label, scene in settings.items():
+        (shape, steps), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius), repeats)
+        error, detail = shape_error(shape, reference, loop_mm)
+        rows.append(Row(case, label, label.startswith("default"), steps, t, error, detail,
+                        coarser_l0=label.startswith("l0")))
+    return rows
+
+
+# --- report ---------------------------------------------------------------------------
+def pareto_check(rows: list[Row]) -> str:
+    """Is the default on (or within 10 % of) the Pareto front of its case? Settings
+    that change l0 are not candidates: l0 = d defines the model (MODEL.md)."""
+    lines = []
+    for case in dict.fromkeys(r.case for r in rows):
+        case_rows = [r for r in rows if r.case == case]
+        default = next(r for r in case_rows if r.default)
+        better = [r for r in case_rows if not r.coarser_l0 and r.error <= default.error
+                  and r.wall_time_s < default.wall_time_s / 1.1]
+        verdict = "on the front (within 10 %)" if not better else \
+            "dominated by " + ", ".join(f"{r.setting} ({r.wall_time_s:.3g} s, error {r.error:.2e})" for r in better)
+        lines.append(f"- {case}: default {default.wall_time_s:.3g} s, error {default.error:.2e} — {verdict}")
+    return "\n".join(lines)
+
+
+def plot(rows: list[Row], path: Path) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..recorder.atomic import atomic_path
+
+    fig = Figure(figsize=(8, 5.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for case in dict.fromkeys(r.case for r in rows):
+        pts = [r for r in rows if r.case == case]
+        line, = ax.loglog([r.wall_time_s for r in pts], [max(r.error, 1e-7) for r in pts], "o", label=case)
+        d = next(r for r in pts if r.default)
+        ax.loglog([d.wall_time_s], [max(d.error, 1e-7)], "*", ms=16, color=line.get_color(), mec="k")
+    ax.set_xlabel("wall time (s, median)")
+    ax.set_ylabel("relative error")
+    ax.set_title("warpcoil: error against run time (stars: defaults)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+
+
+def main(out: Path, quick: bool, repeats: int) -> int:
+    rows: list[Row] = []
+    for part in (cantilever_rows, helix_rows, release_rows, deployment_rows):
+        new = part(quick, repeats)
+        rows.extend(new)
+        for r in new:
+            print(f"{r.case:28s} {r.setting:46s} {r.wall_time_s:8.2f} s  error {r.error:.2e}  {r.detail}", flush=True)
+    table = markdown_table(["case", "setting", "default", "steps", "wall time (s)", "error", "detail"],
+                           [[r.case, r.setting, "yes" if r.default else "", r.steps or "", r.wall_time_s, r.error,
+                             r.detail] for r in rows])
+    plot(rows, out / "accuracy.png")
+    command = f"warpcoil bench accuracy{' --quick' if quick else ''} --repeats {repeats}"
+    write_report(out / "accuracy.md", "Run time against error", command,
+                 [f"Median wall time of {repeats} run(s) per setting; errors are deterministic.", table,
+                  "## Defaults and the Pareto front\n\n" + pareto_check(rows), "![error against run time](accuracy.png)"])
+    write_text_atomic(out / "accuracy.json", json.dumps([asdict(r) for r in rows], indent=1))
+    return 0
