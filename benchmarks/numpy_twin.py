@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpcoil.solver import WALL_SEARCH_MM
+from warpcoil.solver import CATHETER_OBSTACLE_MM, WALL_SEARCH_MM
 
 # --- constants, identical to the kernels -----------------------------------------
 SMALL_ANGLE = 1.0e-4  # rod.py: SMALL_ANGLE (series for φ/sin φ below this)
@@ -327,11 +327,14 @@ class NumpyTwin:
         edges b near it (:meth:`candidate_pairs`): the law of the surface gap
         between their closest points, along p_a − p_b, split between a's start
         and end node by the barycentric weight of p_a. Returns the per-edge
-        (start, end) forces; counts each edge's touching pairs."""
+        (start, end) forces; counts each edge's touching pairs. Edges in the
+        catheter's last CATHETER_OBSTACLE_MM are obstacles (they take no force)."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
-        in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
+        sigma = self.advance[self.coil_of] - self.arc_s  # near_tip_in_catheter: the catheter's end as obstacle
+        obstacle = ~self.fixed & (sigma < 0.0) & (sigma > -CATHETER_OBSTACLE_MM)
+        in_pass = self.has_next & ((free != 0) | (free_next != 0) | obstacle)  # edge_in_contact_pass
         a, b = self.candidate_pairs(x, np.flatnonzero(in_pass))
         pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
         s, t = segment_closest_params(pa0, pa1, pb0, pb1)

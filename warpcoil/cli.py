@@ -93,6 +93,8 @@ def _bench(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.kind == "accuracy":
         from .bench.accuracy import main as bench_main
+    elif args.kind == "peers":
+        from .bench.peers import main as bench_main
     else:
         from .bench.stress import main as bench_main
     repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
@@ -110,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(func=_validate)
 
     bench = sub.add_parser("bench", help="benchmarks: run time against error, stress sweep")
-    bench.add_argument("kind", choices=["accuracy", "stress"])
+    bench.add_argument("kind", choices=["accuracy", "stress", "peers"])
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")
     bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3; 1 with --quick)")

@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from .kernels.contact import FAR_MM
 from .model import Model, ModelBuilder
-from .settings import Scene
-from .solver import Control, SimulationUnstable, Solver, Stepper
+from .settings import CatheterSpec, Scene
+from .solver import CATHETER_OBSTACLE_MM, Control, SimulationUnstable, Solver, Stepper
 from .state import State, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
@@ -72,6 +72,7 @@ class RunResult:
     final_twist_nJ: float
     final_stretch_nJ: float
     coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
+    regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
 
@@ -83,12 +84,48 @@ class RunResult:
         return d
 
 
-def build_model(scene: Scene, device=None) -> Model:
-    """Model from a scene: coils (pre-shapes), catheter, contact and the wall mesh."""
+@dataclass
+class Anatomy:
+    """The wall and, with a [neck], the sac it closes off; the catheter as placed."""
+
+    wall: object | None  # warpcoil.wall.WallMesh
+    sac: object | None  # warpcoil.sac.Sac
+    catheter: CatheterSpec
+
+    @property
+    def sac_volume_mm3(self) -> float | None:
+        if self.sac is not None:
+            return self.sac.volume_mm3
+        return self.wall.volume_mm3 if self.wall is not None else None
+
+
+def resolve_anatomy(scene: Scene) -> Anatomy:
+    """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
+    from . import sac as sacs
     from .wall import load_wall
 
     wall = load_wall(scene.wall) if scene.wall is not None else None
-    builder = ModelBuilder(catheter=scene.catheter, settings=scene.simulation, contact=scene.contact, wall=wall)
+    sac = None
+    if scene.neck is not None:
+        hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
+        if scene.neck.contour is not None:
+            neck = sacs.neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
+        else:
+            neck = sacs.neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
+                                        wall, sac_side_point_mm=hint)
+        sac = sacs.sac_from_neck(wall, neck)
+    catheter = scene.catheter
+    if catheter.placement == "neck":
+        tip, direction = sacs.catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+        catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
+    return Anatomy(wall=wall, sac=sac, catheter=catheter)
+
+
+def build_model(scene: Scene, device=None, anatomy: Anatomy | None = None) -> Model:
+    """Model from a scene: coils (pre-shapes), catheter, contact and the wall mesh."""
+    anatomy = anatomy or resolve_anatomy(scene)
+    builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
+                           wall=anatomy.wall)
     for coil in scene.coils:
         builder.add_coil(coil)
     return builder.finalize(device)
@@ -98,10 +135,11 @@ class Deployment:
     """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
     (if given) is called after every recorded frame with (frame, state)."""
 
-    def __init__(self, scene: Scene, device=None, model: Model | None = None):
+    def __init__(self, scene: Scene, device=None):
         self.scene = scene
         sim = scene.simulation
-        self.model = model or build_model(scene, device)
+        self.anatomy = resolve_anatomy(scene)
+        self.model = build_model(scene, device, self.anatomy)
         self.solver = Solver(self.model, dt_s=sim.dt_s, dt_safety=sim.dt_safety,
                              allow_unstable_dt=sim.allow_unstable_dt)
         steps = max(2, 2 * round(sim.frame_interval_s / self.solver.dt_s / 2))
@@ -110,11 +148,28 @@ class Deployment:
         self.coil_status: list[str] = []
         self.coil_lengths_mm = np.array([self.model.arc_s.numpy()[last] for last in self.model.coil_last])
         self.stored_energy_nJ = self._elastic(self.solver.energies(self.stepper.state))
+        self._pusher_work_nJ, self._last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
         self._radius = self.model.node_radius.numpy()
         self._segment = np.repeat([self.model.rest_length.numpy()[f] for f in self.model.coil_first],
                                   self.model.coil_last - self.model.coil_first + 1)
+
+    def _energy_budget_nJ(self, state: State, push_force_uN: float) -> float:
+        """Energy put into the coils so far (nJ): stored by packing, work of the pusher
+        (|mean push force| × advance, per frame), and the push-speed kinetic energy
+        each released node brings out."""
+        advance = float(np.clip(state.advance.numpy(), 0.0, self.coil_lengths_mm).sum())
+        self._pusher_work_nJ += abs(push_force_uN) * max(advance - self._last_advance_mm, 0.0)
+        self._last_advance_mm = advance
+        released = float((state.free.numpy() == 1) @ (1.0 / self.model.inv_mass.numpy()))
+        speed = self.scene.simulation.push_speed_mm_s
+        return self.stored_energy_nJ + self._pusher_work_nJ + 0.5 * released * speed**2 + 1.0
+
+    def _in_sac(self, points_mm: np.ndarray) -> np.ndarray:
+        from .sac import inside_sac
+
+        return inside_sac(self.anatomy.sac, points_mm)
 
     @staticmethod
     def _elastic(e: dict) -> float:
@@ -124,7 +179,7 @@ class Deployment:
     def measure(self, state: State, push: tuple[float, float]) -> Frame:
         """Frame quantities at ``state`` (contacts recomputed at this state)."""
         s, m = self.solver, self.model
-        energies = s.check_health(state)
+        energies = s.check_health(state, self._energy_budget_nJ(state, push[0]))
         s.compute_contacts(state, wall_search_mm=float(FAR_MM))  # exact distances for the report
         free = state.free.numpy() == 1
         advance = state.advance.numpy()
@@ -139,6 +194,8 @@ class Deployment:
             wall_contacts = int((gaps < c0).sum())
             max_wall_force = float(np.linalg.norm(s.wall_force.numpy()[free], axis=1).max())
             outside = float(self._segment[free][centre < 0.0].sum())
+        if self.anatomy.sac is not None and free.any():
+            outside = float(self._segment[free][~self._in_sac(state.x.numpy()[free])].sum())
         in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
         coil_gap = float(s.coil_gap.numpy()[in_pass].min()) if (s.coil_contact and free.any()) else np.inf
         return Frame(
@@ -151,13 +208,15 @@ class Deployment:
 
     # --- coil sequence -------------------------------------------------------------
     def _activate(self, coil: int) -> int:
-        """Hand the pusher to ``coil`` (its distal node at most 1 mm behind the tip);
-        −1 when none is left."""
+        """Hand the pusher to ``coil``; −1 when none is left. A waiting coil is moved
+        up the catheter to 1 mm behind the catheter's obstacle zone (a coil in that
+        zone is an obstacle; moving one into it in one jump could land it on coil
+        that lies there)."""
         if coil >= self.model.coil_count:
             self.control.set_active_coil(-1)
             return -1
         advance = self.stepper.state.advance.numpy()
-        advance[coil] = max(advance[coil], -COIL_GAP_MM)
+        advance[coil] = max(advance[coil], -(COIL_GAP_MM + CATHETER_OBSTACLE_MM))
         self.stepper.state.advance.assign(advance)
         self.control.set_active_coil(coil)
         self.coil_status[coil] = "pushing"
@@ -227,17 +286,24 @@ class Deployment:
         m, state = self.model, self.stepper.state
         last = frames[-1]
         deployed = last.deployed_length_mm
-        sac_volume = m.wall.volume_mm3 if m.wall is not None else None
+        sac_volume = self.anatomy.sac_volume_mm3
         deployed_each = np.clip(state.advance.numpy(), 0.0, self.coil_lengths_mm)
         volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in m.coils]) * deployed_each
         coil_volume = float(volumes.sum())
         density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
+        x = state.x.numpy()
+        free = state.free.numpy() == 1
+        outside = np.zeros(m.node_count, bool)
+        if self.anatomy.sac is not None:
+            outside[free] = ~self._in_sac(x[free])
+        elif m.wall is not None:
+            outside[free] = self.solver.wall_distance.numpy()[free] < 0.0
         coils = [dict(name=c.name, status=self.coil_status[k], wire_diameter_mm=c.d,
+                      length_outside_sac_mm=float(self._segment[m.node_slice(k)][outside[m.node_slice(k)]].sum()),
                       loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(self.coil_lengths_mm[k]),
                       deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
                       cumulative_packing_density=density(volumes[: k + 1].sum()))
                  for k, c in enumerate(m.coils)]
-        x = state.x.numpy()
         finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
         return RunResult(
             status=status, reason=reason, steps=self.stepper.steps, dt_s=self.solver.dt_s,
@@ -251,8 +317,24 @@ class Deployment:
             max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
             max_push_force_uN=max(f.push_force_uN for f in frames),
             stored_energy_nJ=self.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
-            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils, frames=frames,
+            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils, regions=self._regions(x),
+            frames=frames,
             positions_mm=[x[m.node_slice(c)] for c in range(m.coil_count)])
+
+
+    def _regions(self, x: np.ndarray) -> dict | None:
+        """Regional densities of the final coils (only where a neck defines the sac)."""
+        if self.anatomy.sac is None:
+            return None
+        from .sac import regional_density
+
+        m, r = self.model, self.scene.regions
+        coils = [x[m.node_slice(c)][self.stepper.state.free.numpy()[m.node_slice(c)] == 1]
+                 for c in range(m.coil_count)]
+        kept = [(pts, coil.d) for pts, coil in zip(coils, m.coils) if len(pts) >= 2]
+        density = regional_density(self.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
+                                   r.neck_band_mm, r.boundary_mm)
+        return {k: float(v) for k, v in asdict(density).items()}
 
 
 def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:

@@ -218,7 +218,7 @@ class ModelBuilder:
         mass = per_coil(lambda c: c.rho) * mean_len * s.mass_scale
         winding_r = per_coil(lambda c: 0.5 * (c.d - c.primary_wire_diameter_mm))
         inertia = mass * winding_r**2
-        damping_c = s.damping_uN_per_mm * mean_len
+        damping_c = s.damping_uN_per_mm * mean_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
         vertex_len = np.zeros(n)
         interior = np.zeros(n, bool)
         interior[1:-1] = (has_next[1:-1] == 1) & (has_next[:-2] == 1)

@@ -15,7 +15,16 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from .coil import SHAPES, CoilSpec
-from .settings import CatheterSpec, ContactSettings, OutputSettings, Scene, SimulationSettings, WallSpec
+from .settings import (
+    CatheterSpec,
+    ContactSettings,
+    NeckSpec,
+    OutputSettings,
+    RegionSettings,
+    Scene,
+    SimulationSettings,
+    WallSpec,
+)
 
 Vec3 = tuple[float, float, float]
 
@@ -45,6 +54,12 @@ def _positive(value: object, base: Path) -> float:
         raise _Invalid(f"must be a number, got {value!r}", "write a number without quotes, e.g. 1.0")
     if not (math.isfinite(value) and value > 0.0):
         raise _Invalid(f"must be a finite number > 0, got {value!r}", "give a positive value")
+    return float(value)
+
+
+def _finite(value: object, base: Path) -> float:
+    if not (_is_number(value) and math.isfinite(value)):
+        raise _Invalid(f"must be a finite number, got {value!r}", "write a number without quotes, e.g. 0.0")
     return float(value)
 
 
@@ -127,7 +142,18 @@ _CATHETER = {
     "tip": _Key(_vec3, "tip_mm"),
     "direction": _Key(_direction),
     "centerline": _Key(_polyline, "centerline_mm"),
+    "placement": _Key(_choice("explicit", "neck")),
+    "depth_mm": _Key(_finite),
+    "angle_deg": _Key(_finite),
+    "azimuth_deg": _Key(_finite),
 }
+_NECK = {
+    "contour": _Key(_existing_file),
+    "plane_point_mm": _Key(_vec3),
+    "plane_normal": _Key(_direction),
+    "sac_point_mm": _Key(_vec3),
+}
+_REGIONS = {"voxel_mm": _Key(_positive), "neck_band_mm": _Key(_positive), "boundary_mm": _Key(_positive)}
 _COIL = {
     "name": _Key(_text),
     "shape": _Key(_choice(*SHAPES)),
@@ -160,7 +186,7 @@ _SIMULATION = {
     "frame_interval_s": _Key(_positive),
 }
 _OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool)}
-_TABLES = ("wall", "catheter", "coil", "contact", "simulation", "output")
+_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
 
 
 def _unknown(key: str, known: Sequence[str]) -> str:
@@ -218,6 +244,14 @@ class _Reader:
 
     def catheter(self, document: dict[str, Any]) -> CatheterSpec:
         catheter = self.section(document, "catheter", _CATHETER, CatheterSpec)
+        if catheter.placement == "neck":
+            if "neck" not in document:
+                raise self.error("catheter.placement", "'neck' needs a [neck] table",
+                                 'add [neck] contour = "neck.vtk" (or plane_point_mm and plane_normal)')
+            for key in ("tip", "direction", "centerline"):
+                if key in document.get("catheter", {}):
+                    raise self.error(f"catheter.{key}", "is set by placement = 'neck'",
+                                     "remove it, or use placement = 'explicit'")
         line = catheter.centerline_mm
         if line is not None and math.dist(line[-1], catheter.tip_mm) > 1e-6:
             raise self.error(
@@ -226,6 +260,17 @@ class _Reader:
                 "end the centerline at catheter.tip",
             )
         return catheter
+
+    def neck(self, document: dict[str, Any]) -> NeckSpec:
+        if "wall" not in document:
+            raise self.error("neck", "a neck needs a [wall]", "add a [wall] table, or remove [neck]")
+        value = document["neck"]
+        neck = self.section(document, "neck", _NECK, NeckSpec)
+        plane = ("plane_point_mm" in value, "plane_normal" in value)
+        if (neck.contour is not None) == all(plane) or any(plane) != all(plane):
+            raise self.error("neck.contour / neck.plane_point_mm", "give either a contour or a plane",
+                             'contour = "neck.vtk", or both plane_point_mm = [x, y, z] and plane_normal = [x, y, z]')
+        return neck
 
     def wall(self, document: dict[str, Any]) -> WallSpec:
         value = document["wall"]
@@ -254,6 +299,8 @@ class _Reader:
             contact=self.section(document, "contact", _CONTACT, ContactSettings),
             simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
             output=self.section(document, "output", _OUTPUT, OutputSettings),
+            neck=self.neck(document) if "neck" in document else None,
+            regions=self.section(document, "regions", _REGIONS, RegionSettings),
             source=self.source,
         )
 

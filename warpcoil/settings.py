@@ -22,6 +22,10 @@ class CatheterSpec:
     tip_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
     centerline_mm: tuple[tuple[float, float, float], ...] | None = None
+    placement: str = "explicit"  # "explicit" (tip, direction) or "neck" (from the scene's [neck])
+    depth_mm: float = 0.5  # placement "neck": tip this far inside the neck centroid, along the sac axis
+    angle_deg: float = 0.0  # placement "neck": tilt of the direction from the sac axis (for sweeps)
+    azimuth_deg: float = 0.0  # placement "neck": direction of that tilt in the neck plane
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,30 @@ class WallSpec:
     sphere_diameter_mm: float | None = None
     center_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     repair: bool = False
+
+
+@dataclass(frozen=True)
+class NeckSpec:
+    """The aneurysm's neck (ostium): a contour on the wall (VTK polygon/polyline or
+    CSV/text x y z, mm) or a plane (point + normal). With it the sac is the wall
+    beyond the neck, closed by the ostium; without it the whole wall is the sac.
+    ``sac_point_mm``: optional point inside the sac, where the automatic side
+    choice needs help."""
+
+    contour: Path | None = None
+    plane_point_mm: tuple[float, float, float] | None = None
+    plane_normal: tuple[float, float, float] | None = None
+    sac_point_mm: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class RegionSettings:
+    """Regional packing densities on a voxel grid of the sac (docs/REGIONS.md);
+    None → defaults derived from the coils."""
+
+    voxel_mm: float | None = None
+    neck_band_mm: float | None = None
+    boundary_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -66,8 +94,9 @@ class SimulationSettings:
       recovery settles fastest near 5–10 µN/mm).
     * dt_s: step; None → dt_safety × the stable bound. A dt above the bound is
       refused unless allow_unstable_dt.
-    * mass_scale: node masses (and twist inertia) × this factor; a named
-      quasi-static speed-up, reported in results.
+    * mass_scale: node masses, twist inertia and damping × this factor: a named
+      quasi-static speed-up (the damped, first-order motion c·v ≈ F is kept;
+      only inertia grows), reported in results; BENCHMARKS.md shows its error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
@@ -109,4 +138,6 @@ class Scene:
     contact: ContactSettings = field(default_factory=ContactSettings)
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
     output: OutputSettings = field(default_factory=OutputSettings)
+    neck: NeckSpec | None = None
+    regions: RegionSettings = field(default_factory=RegionSettings)
     source: Path | None = None  # the TOML file it was read from

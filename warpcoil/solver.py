@@ -18,8 +18,10 @@ from .kernels import contact, elastic, integrate
 from .model import Model
 from .state import State, new_state_like
 
-SPEED_LIMIT_MM_S = 1.0e4  # 10 m/s: no coil moves this fast; a node that does has gone unstable
+SPEED_LIMIT_MM_S = 1.0e5  # 100 m/s: far beyond any whip of a released coil end; a node this fast has gone unstable
 WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a node ~1e-3 mm
+CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
+CATHETER_OBSTACLE_MM = 3.0  # the coil in the catheter's last 3 mm stands in for the catheter as an obstacle
 
 
 class UnstableStepError(ValueError):
@@ -49,7 +51,8 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> Ste
     * stretching: 2 (k_s,i-1 + k_s,i) / m_i (4 k_s/m for a uniform chain)
     * bending: 16 k_b / (m l̄²) (the squared second difference of a straight chain)
     * twisting: (4 k_t + k_b |K̄|²) / J
-    * contact: the contact law's slope at the design overlap / m (when given)
+    * contact: the contact law's slope at the design overlap (u = 3, h = −2 c0),
+      times CONTACTS_PER_NODE, / m (when given)
     """
     inv_m = model.inv_mass.numpy()
     has_next = model.has_next.numpy() == 1
@@ -105,8 +108,8 @@ class Solver:
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
         with_contact = coil_contact or model.wall is not None
-        # two nodes pressing on each other: relative stiffness 2k
-        contact_k = 2.0 * model.contact.stiffness_uN_mm() if with_contact else 0.0
+        # a node pressed from up to four sides (wall and coil), Gershgorin over its contacts
+        contact_k = CONTACTS_PER_NODE * model.contact.stiffness_uN_mm() if with_contact else 0.0
         self.bound = stable_step_bound(model, contact_k)
         self.dt_s = dt_safety * self.bound.dt_s if dt_s is None else float(dt_s)
         if self.dt_s > self.bound.dt_s and not allow_unstable_dt:
@@ -152,7 +155,8 @@ class Solver:
             wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
             self._grid.build(self._midpoints, c.query_radius_mm)
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, m.node_radius, self._grid.id, self._midpoints,
+                state.x, state.free, m.has_next, m.coil_of, state.advance, m.arc_s, m.fixed, CATHETER_OBSTACLE_MM,
+                m.node_radius, self._grid.id, self._midpoints,
                 c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
@@ -221,16 +225,25 @@ class Solver:
         self.push_accumulator.zero_()
         return float(total) / max(steps, 1), float(largest)
 
-    def check_health(self, state: State) -> dict[str, float]:
-        """Energies of ``state``; raises SimulationUnstable on NaN or runaway speed."""
+    def check_health(self, state: State, energy_budget_nJ: float | None = None) -> dict[str, float]:
+        """Energies of ``state``; raises SimulationUnstable on NaN, a runaway speed, or
+        (with ``energy_budget_nJ``: the energy put in so far, by packing and pushing)
+        kinetic + elastic energy above twice that budget — damping only removes
+        energy, so more than was put in means the integration is unstable."""
         e = self.energies(state)
         bad = int(self._unhealthy.numpy().sum())
         x = state.x.numpy()
+        problem = None
         if bad or not np.isfinite(x).all() or not all(math.isfinite(v) for v in e.values()):
+            problem = f"{bad} node(s) non-finite or faster than {SPEED_LIMIT_MM_S:.0e} mm/s"
+        elif energy_budget_nJ is not None and sum(e.values()) > 2.0 * energy_budget_nJ:
+            problem = (f"energy blow-up: kinetic + elastic {sum(e.values()):.4g} nJ > twice the energy put in "
+                       f"({energy_budget_nJ:.4g} nJ)")
+        if problem:
             raise SimulationUnstable(
-                f"{bad} node(s) non-finite or faster than {SPEED_LIMIT_MM_S:.0e} mm/s at t = {state.time_s:.6f} s "
-                f"(dt = {self.dt_s:.3e} s, bound {self.bound.dt_s:.3e} s set by {self.bound.limiting_term}): "
-                f"reduce simulation.dt_s / dt_safety, or soften the contact (contact.P0_uN, larger contact.c0_mm)")
+                f"{problem} at t = {state.time_s:.6f} s (dt = {self.dt_s:.3e} s, bound {self.bound.dt_s:.3e} s set "
+                f"by {self.bound.limiting_term}): reduce simulation.dt_s / dt_safety, or soften the contact "
+                f"(contact.P0_uN, larger contact.c0_mm)")
         return e
 
 

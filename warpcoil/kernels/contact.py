@@ -172,11 +172,27 @@ def segment_closest_params(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3
 
 
 @wp.func
-def edge_in_contact_pass(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), e: int) -> bool:
-    """Edge e takes part in coil contact when it exists and one of its nodes is free."""
+def near_tip_in_catheter(advance: wp.array(dtype=wp.float64), coil_of: wp.array(dtype=wp.int32),
+                         arc_s: wp.array(dtype=wp.float64), fixed: wp.array(dtype=wp.int32), i: int,
+                         zone_mm: wp.float64) -> bool:
+    """Node i is in the catheter, less than ``zone_mm`` behind the tip (and not parked)."""
+    sigma = advance[coil_of[i]] - arc_s[i]
+    return fixed[i] == 0 and sigma < wp.float64(0.0) and sigma > -zone_mm
+
+
+@wp.func
+def edge_in_contact_pass(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                         advance: wp.array(dtype=wp.float64), coil_of: wp.array(dtype=wp.int32),
+                         arc_s: wp.array(dtype=wp.float64), fixed: wp.array(dtype=wp.int32), e: int,
+                         zone_mm: wp.float64) -> bool:
+    """Edge e takes part in coil contact when it exists and one of its nodes is free,
+    or, as a fixed obstacle standing in for the catheter's end, when it lies in the
+    catheter within ``zone_mm`` of the tip (it receives no force: it is kinematic)."""
     if has_next[e] == 0:
         return False
-    return free[e] != 0 or free[e + 1] != 0
+    if free[e] != 0 or free[e + 1] != 0:
+        return True
+    return near_tip_in_catheter(advance, coil_of, arc_s, fixed, e, zone_mm)
 
 
 @wp.kernel
@@ -195,6 +211,10 @@ def edge_contact(
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
+    advance: wp.array(dtype=wp.float64),
+    arc_s: wp.array(dtype=wp.float64),
+    fixed: wp.array(dtype=wp.int32),
+    catheter_zone_mm: wp.float64,
     node_radius: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     mid: wp.array(dtype=wp.vec3d),
@@ -213,21 +233,22 @@ def edge_contact(
     midpoints), along (p_a − p_b)/|p_a − p_b|, split between a's start and end
     node by the barycentric weight of p_a. Edges of the same coil closer than
     ``exclusion`` along it are bonded neighbours and skipped. Each pair is
-    evaluated from both sides, so every edge writes only its own entries."""
+    evaluated from both sides, so every edge writes only its own entries. Edges
+    in the catheter's end zone are obstacles: free edges are pushed off them."""
     a = wp.tid()
     zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     f_start = zero
     f_end = zero
     gap_min = query_radius
     touching = int(0)
-    if edge_in_contact_pass(free, has_next, a):
+    if edge_in_contact_pass(free, has_next, advance, coil_of, arc_s, fixed, a, catheter_zone_mm):
         pa0 = x[a]
         pa1 = x[a + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], query_radius)
         b = int(0)
         while wp.hash_grid_query_next(query, b):
-            skip = not edge_in_contact_pass(free, has_next, b)
+            skip = not edge_in_contact_pass(free, has_next, advance, coil_of, arc_s, fixed, b, catheter_zone_mm)
             if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
                 skip = True
             if not skip:

@@ -1,0 +1,256 @@
+"""Neck, sac, inside tests and regional density on synthetic walls built here (no shared data)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from warpcoil.sac import (
+    NeckError,
+    Sac,
+    catheter_from_neck,
+    herniated_length_mm,
+    inside_sac,
+    neck_from_contour,
+    neck_from_plane,
+    neck_frame,
+    regional_density,
+    sac_from_neck,
+)
+from warpcoil.wall import WallMesh, sphere_wall
+
+RADIUS_MM = 5.0
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def cap_volume(radius_mm: float, height_mm: float) -> float:
+    return math.pi * height_mm**2 * (3.0 * radius_mm - height_mm) / 3.0
+
+
+def wall_of(mesh: trimesh.Trimesh) -> WallMesh:
+    if mesh.volume < 0.0:
+        mesh.invert()
+    return WallMesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32),
+                    float(mesh.volume), (), None)
+
+
+def revolution_wall(profile_rz: np.ndarray, sections: int = 64) -> WallMesh:
+    """Surface of revolution about z of a profile from the bottom pole (r = 0) to the top pole (r = 0)."""
+    rings = profile_rz[1:-1]
+    theta = 2.0 * np.pi * np.arange(sections) / sections
+    ring_xyz = np.stack((rings[:, :1] * np.cos(theta), rings[:, :1] * np.sin(theta),
+                         np.broadcast_to(rings[:, 1:], (len(rings), sections))), axis=2).reshape(-1, 3)
+    vertices = np.vstack(([0.0, 0.0, profile_rz[0, 1]], ring_xyz, [0.0, 0.0, profile_rz[-1, 1]]))
+    j = np.arange(sections)
+    ring = lambda k: 1 + k * sections + j  # noqa: E731
+    ring_next = lambda k: 1 + k * sections + (j + 1) % sections  # noqa: E731
+    faces = [np.column_stack((np.zeros(sections, dtype=int), ring_next(0), ring(0)))]
+    for k in range(len(rings) - 1):  # a handful of rings
+        faces.append(np.column_stack((ring(k), ring_next(k), ring_next(k + 1))))
+        faces.append(np.column_stack((ring(k), ring_next(k + 1), ring(k + 1))))
+    top = len(vertices) - 1
+    faces.append(np.column_stack((np.full(sections, top), ring(len(rings) - 1), ring_next(len(rings) - 1))))
+    mesh = trimesh.Trimesh(vertices, np.vstack(faces), process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    return wall_of(mesh)
+
+
+# terminal-type aneurysm: a flat-capped parent vessel (r 1.5, z -20 .. -2) under a sphere (R 3)
+SAC_R_MM, VESSEL_R_MM = 3.0, 1.5
+SAC_CENTRE_Z = -2.0 + math.sqrt(SAC_R_MM**2 - VESSEL_R_MM**2)
+NECK_Z = -1.9
+
+
+@pytest.fixture(scope="module")
+def vessel_wall() -> WallMesh:
+    vessel_z = np.arange(-20.0, -2.0, 0.4)
+    phi = np.linspace(math.asin(VESSEL_R_MM / SAC_R_MM), math.pi, 60)[:-1]
+    profile = np.vstack((
+        [[0.0, -20.0]],
+        np.column_stack((np.full(len(vessel_z), VESSEL_R_MM), vessel_z)),
+        np.column_stack((SAC_R_MM * np.sin(phi), SAC_CENTRE_Z - SAC_R_MM * np.cos(phi))),
+        [[0.0, SAC_CENTRE_Z + SAC_R_MM]],
+    ))
+    return revolution_wall(profile)
+
+
+@pytest.fixture(scope="module")
+def sphere() -> WallMesh:
+    return sphere_wall(2.0 * RADIUS_MM)
+
+
+@pytest.fixture(scope="module")
+def low_sac(sphere: WallMesh) -> Sac:
+    """Sphere R 5 with the neck plane at z = -3: the sac is the big side above."""
+    return sac_from_neck(sphere, neck_from_plane([0.0, 0.0, -3.0], UP, sphere))
+
+
+@pytest.fixture(scope="module")
+def small_sac() -> Sac:
+    """Sphere R 3 with the neck plane at z = -2 (sac above, 104.7 mm³), for the voxel tests."""
+    wall = sphere_wall(6.0)
+    return sac_from_neck(wall, neck_from_plane([0.0, 0.0, -2.0], UP, wall))
+
+
+def circle(radius_mm: float, z_mm: float, count: int = 200) -> np.ndarray:
+    t = 2.0 * np.pi * np.arange(count) / count
+    return np.column_stack((radius_mm * np.cos(t), radius_mm * np.sin(t), np.full(count, z_mm)))
+
+
+# --- neck and sac -------------------------------------------------------------------
+def test_plane_neck_on_sphere_gives_big_cap(low_sac: Sac) -> None:
+    neck = low_sac.neck
+    assert np.allclose(neck.normal, UP)
+    assert np.allclose(neck.centroid_mm, [0.0, 0.0, -3.0], atol=1e-3)
+    assert neck.area_mm2 == pytest.approx(math.pi * 4.0**2, rel=0.02)
+    assert low_sac.closed_surface.is_watertight and low_sac.closed_surface.volume > 0.0
+    assert low_sac.volume_mm3 == pytest.approx(cap_volume(RADIUS_MM, 8.0), rel=0.02)
+
+
+def test_plane_neck_near_the_top_points_down(sphere: WallMesh) -> None:
+    sac = sac_from_neck(sphere, neck_from_plane([0.0, 0.0, 3.0], UP, sphere))
+    assert np.allclose(sac.neck.normal, -UP)
+    assert sac.volume_mm3 == pytest.approx(cap_volume(RADIUS_MM, 8.0), rel=0.02)
+
+
+def test_sac_side_point_chooses_the_small_cap(sphere: WallMesh) -> None:
+    neck = neck_from_plane([0.0, 0.0, 3.0], -UP, sphere, sac_side_point_mm=[0.0, 0.0, 4.5])
+    assert np.allclose(neck.normal, UP)
+    assert sac_from_neck(sphere, neck).volume_mm3 == pytest.approx(cap_volume(RADIUS_MM, 2.0), rel=0.02)
+    with pytest.raises(NeckError, match="neither"):
+        neck_from_plane([0.0, 0.0, 3.0], UP, sphere, sac_side_point_mm=[0.0, 0.0, 9.0])
+
+
+def test_capped_parent_vessel_is_not_the_sac(vessel_wall: WallMesh) -> None:
+    """The vessel side is the larger volume but holds the flat inlet cap, so the sac is the dome."""
+    for normal in (UP, -UP):
+        sac = sac_from_neck(vessel_wall, neck_from_plane([0.0, 0.0, NECK_Z], normal, vessel_wall))
+        assert np.allclose(sac.neck.normal, UP)
+        expected = cap_volume(SAC_R_MM, SAC_R_MM + (SAC_CENTRE_Z - NECK_Z))
+        assert sac.volume_mm3 == pytest.approx(expected, rel=0.02)
+        assert vessel_wall.volume_mm3 - sac.volume_mm3 > sac.volume_mm3
+
+
+def test_plane_neck_takes_the_loop_nearest_the_point(sphere: WallMesh) -> None:
+    shifted = sphere.vertices_mm + [20.0, 0.0, 0.0]
+    two = WallMesh(np.vstack((sphere.vertices_mm, shifted)), np.vstack((sphere.faces, sphere.faces + len(shifted))),
+                   2.0 * sphere.volume_mm3, (), None)
+    sac = sac_from_neck(two, neck_from_plane([20.0, 0.0, -3.0], UP, two))
+    assert np.allclose(sac.neck.centroid_mm, [20.0, 0.0, -3.0], atol=1e-3)
+    assert sac.volume_mm3 == pytest.approx(cap_volume(RADIUS_MM, 8.0), rel=0.02)
+
+
+def test_contour_files_give_the_plane_sac(tmp_path: Path, sphere: WallMesh, low_sac: Sac) -> None:
+    ring = circle(4.0, -3.0)
+    csv = tmp_path / "neck.csv"
+    csv.write_text("x,y,z\n" + "\n".join(",".join(f"{c:.9f}" for c in p) for p in ring) + "\n")
+    vtk = tmp_path / "neck.vtk"
+    vtk.write_text(
+        "# vtk DataFile Version 3.0\nneck\nASCII\nDATASET POLYDATA\n"
+        f"POINTS {len(ring)} double\n" + "\n".join(" ".join(f"{c:.9f}" for c in p) for p in ring)
+        + f"\nPOLYGONS 1 {len(ring) + 1}\n{len(ring)} " + " ".join(map(str, range(len(ring)))) + "\n"
+    )
+    for path in (csv, vtk):
+        neck = neck_from_contour(path, sphere)
+        assert neck.contour_mm.shape == (200, 3)
+        assert np.allclose(neck.normal, UP)
+        assert neck.area_mm2 == pytest.approx(low_sac.neck.area_mm2, rel=0.01)
+        assert sac_from_neck(sphere, neck).volume_mm3 == pytest.approx(low_sac.volume_mm3, rel=0.01)
+
+
+ARC = circle(4.0, -3.0)[:60]
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "problem"),
+    [
+        ("missing.csv", None, "does not exist"),
+        ("neck.stl", "solid x\n", "unsupported"),
+        ("two_columns.csv", "1 2\n3 4\n5 6\n", "expected 3"),
+        ("far.csv", "\n".join(" ".join(map(str, p)) for p in circle(4.0, -3.0) + [100.0, 0.0, 0.0]), "from the wall"),
+        ("points_only.vtk", "# vtk DataFile Version 3.0\nn\nASCII\nDATASET POLYDATA\nPOINTS 1 double\n0 0 0\n",
+         "no polygon or polyline"),
+        ("arc.csv", "\n".join(" ".join(map(str, p)) for p in ARC), "segment 59"),
+        ("there_and_back.csv", "\n".join(" ".join(map(str, p)) for p in np.vstack((ARC, ARC[-2:0:-1]))),
+         "single piece"),
+    ],
+)
+def test_bad_contour_files_raise_neck_error_naming_the_file(
+    tmp_path: Path, sphere: WallMesh, name: str, text: str | None, problem: str
+) -> None:
+    path = tmp_path / name
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(NeckError, match=problem) as caught:
+        neck_from_contour(path, sphere)
+    assert str(path) in str(caught.value) and "fix:" in str(caught.value)
+
+
+# --- where things lie ------------------------------------------------------------------
+def test_inside_sac_above_and_below_the_neck(low_sac: Sac) -> None:
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, -2.5], [0.0, 0.0, 4.9], [0.0, 0.0, -3.5], [1.0, 0.0, -4.5],
+                       [0.0, 0.0, 5.5], [9.0, 0.0, 0.0]])
+    assert inside_sac(low_sac, points).tolist() == [True, True, True, False, False, False, False]
+
+
+def test_herniated_length_counts_the_parent_vessel_part(vessel_wall: WallMesh) -> None:
+    sac = sac_from_neck(vessel_wall, neck_from_plane([0.0, 0.0, NECK_Z], UP, vessel_wall))
+    z = np.arange(-6.0, 2.0, 0.1) + 0.05  # 41 nodes below the neck plane, 39 above
+    nodes = np.column_stack((np.full(len(z), 0.3), np.zeros(len(z)), z))
+    lengths = np.full(len(z), 0.1)
+    assert herniated_length_mm(sac, vessel_wall, nodes, lengths) == pytest.approx(4.1, abs=1e-9)
+    outside = nodes + [10.0, 0.0, 0.0]  # outside the lumen: not herniated
+    assert herniated_length_mm(sac, vessel_wall, outside, lengths) == 0.0
+
+
+def test_catheter_from_neck_tip_and_tilt(low_sac: Sac) -> None:
+    tip, direction = catheter_from_neck(low_sac, depth_mm=0.5)
+    assert np.allclose(tip, [0.0, 0.0, -2.5], atol=1e-3) and inside_sac(low_sac, tip[None])[0]
+    assert np.allclose(direction, UP)
+    e1, e2, n = neck_frame(low_sac.neck.normal)
+    for azimuth, towards in ((0.0, e1), (90.0, e2)):
+        _, tilted = catheter_from_neck(low_sac, angle_deg=30.0, azimuth_deg=azimuth)
+        assert math.degrees(math.acos(tilted @ n)) == pytest.approx(30.0)
+        assert tilted @ towards == pytest.approx(math.sin(math.radians(30.0)))
+
+
+# --- regional density -------------------------------------------------------------------
+D_MM = 0.3
+
+
+def test_coil_outside_the_sac_fills_nothing(small_sac: Sac) -> None:
+    far = np.array([[10.0, 0.0, 0.0], [12.0, 0.0, 0.0]])
+    result = regional_density(small_sac, [far], [D_MM])
+    assert (result.neck, result.boundary, result.core, result.total_voxel, result.neck_coverage) == (0, 0, 0, 0, 0)
+    assert (result.voxel_mm, result.neck_band_mm, result.boundary_mm) == pytest.approx((D_MM / 4, 4 * D_MM, 2 * D_MM))
+
+
+def test_straight_coil_through_the_core_counts_only_in_core(small_sac: Sac) -> None:
+    segment = np.array([[-1.0, 0.0, 0.5], [1.0, 0.0, 0.5]])
+    result = regional_density(small_sac, [segment], [D_MM])
+    assert result.core > 0.0 and result.neck == 0.0 and result.boundary == 0.0 and result.neck_coverage == 0.0
+
+
+def test_voxel_density_approaches_the_clinical_packing_density(small_sac: Sac) -> None:
+    """Nested helices 0.45 mm apart (no overlap): voxel total within 15 % of π(d/2)²L/V."""
+    t = np.linspace(0.0, 10.0 * 2.0 * np.pi, 1000)
+    coils = []
+    for radius in (0.5, 0.95, 1.4, 1.85):
+        coils.append(np.column_stack((radius * np.cos(t), radius * np.sin(t), -1.0 + 3.0 * t / t[-1])))
+    length = sum(np.linalg.norm(np.diff(c, axis=0), axis=1).sum() for c in coils)
+    result = regional_density(small_sac, coils, [D_MM] * len(coils))
+    clinical = math.pi * (D_MM / 2) ** 2 * length / small_sac.volume_mm3
+    assert result.total_voxel == pytest.approx(clinical, rel=0.15)
+
+
+def test_coil_mat_across_the_ostium_covers_the_neck(small_sac: Sac) -> None:
+    rows = np.arange(-3.0, 3.0 + 1e-9, 0.15)
+    ends = np.where(np.arange(len(rows)) % 2 == 0, -3.0, 3.0)
+    mat = np.column_stack((np.column_stack((ends, -ends)).ravel(), np.repeat(rows, 2), np.full(2 * len(rows), -1.95)))
+    result = regional_density(small_sac, [mat], [D_MM])
+    assert result.neck_coverage >= 0.999
+    assert result.neck > 0.0 and result.core == 0.0
