@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpcoil.solver import CATHETER_OBSTACLE_MM, WALL_SEARCH_MM
+from warpcoil.solver import WALL_SEARCH_MM
 
 # --- constants, identical to the kernels -----------------------------------------
 SMALL_ANGLE = 1.0e-4  # rod.py: SMALL_ANGLE (series for φ/sin φ below this)
@@ -298,27 +298,26 @@ class NumpyTwin:
         self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
         return force
 
-    def candidate_pairs(self, x: np.ndarray, edges: np.ndarray):
-        """Every ordered pair (a, b) of the given edges that are not bonded
-        neighbours (same coil, |a − b| ≤ exclusion) and whose bounding spheres
-        overlap: |mid_a − mid_b| < (½|e_a| + r_a + c0) + ½|e_b| + r_b, the
+    def candidate_pairs(self, x: np.ndarray, edges: np.ndarray, others: np.ndarray):
+        """Every ordered pair (a, b), a from ``edges`` and b from ``others``, that are
+        not bonded neighbours (same coil, |a − b| ≤ exclusion) and whose bounding
+        spheres overlap: |mid_a − mid_b| < (½|e_a| + r_a + c0) + ½|e_b| + r_b, the
         rejection test of contact.py ``edge_contact``, which keeps every pair
         within c0. Brute force over all pairs (in chunks of rows); Warp first
         narrows them with its hash grid of midpoints."""
-        mid = 0.5 * (x[edges] + x[edges + 1])  # contact.py edge_midpoints
-        half = 0.5 * length(x[edges + 1] - x[edges])
-        radius = self.node_radius[edges]
+        mid = 0.5 * (x[:-1] + x[1:])  # contact.py edge_midpoints (edge e: mid[e])
+        half = 0.5 * length(x[1:] - x[:-1])
         pairs_a, pairs_b = [edges[:0]], [edges[:0]]
-        rows_per_chunk = max(1, PAIR_CHUNK // max(edges.size, 1))
+        rows_per_chunk = max(1, PAIR_CHUNK // max(others.size, 1))
         for first in range(0, edges.size, rows_per_chunk):
-            rows = slice(first, first + rows_per_chunk)
-            a, b = edges[rows, None], edges[None, :]
+            rows = edges[first:first + rows_per_chunk]
+            a, b = rows[:, None], others[None, :]
             bonded = (self.coil_of[a] == self.coil_of[b]) & (np.abs(b - a) <= self.exclusion)
-            reach_a = half[rows, None] + radius[rows, None] + self.c0
-            near = length(mid[rows, None] - mid[None, :]) < reach_a + half[None, :] + radius[None, :]
+            reach_a = half[a] + self.node_radius[a] + self.c0
+            near = length(mid[a] - mid[b]) < reach_a + half[b] + self.node_radius[b]
             ia, ib = np.nonzero(near & ~bonded)
-            pairs_a.append(edges[rows][ia])
-            pairs_b.append(edges[ib])
+            pairs_a.append(rows[ia])
+            pairs_b.append(others[ib])
         return np.concatenate(pairs_a), np.concatenate(pairs_b)
 
     def edge_contact(self, x: np.ndarray, free: np.ndarray):
@@ -328,14 +327,14 @@ class NumpyTwin:
         between their closest points, along p_a − p_b, split between a's start
         and end node by the barycentric weight of p_a. Returns the per-edge
         (start, end) forces; counts each edge's touching pairs. Edges in the
-        catheter's last CATHETER_OBSTACLE_MM are obstacles (they take no force)."""
+        catheter are obstacles (they take no force)."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
-        sigma = self.advance[self.coil_of] - self.arc_s  # near_tip_in_catheter: the catheter's end as obstacle
-        obstacle = ~self.fixed & (sigma < 0.0) & (sigma > -CATHETER_OBSTACLE_MM)
-        in_pass = self.has_next & ((free != 0) | (free_next != 0) | obstacle)  # edge_in_contact_pass
-        a, b = self.candidate_pairs(x, np.flatnonzero(in_pass))
+        fixed_next = np.append(self.fixed[1:], True)
+        in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
+        obstacle = in_pass | (self.has_next & ~self.fixed & ~fixed_next)  # edge_is_obstacle: also in the catheter
+        a, b = self.candidate_pairs(x, np.flatnonzero(in_pass), np.flatnonzero(obstacle))
         pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
         s, t = segment_closest_params(pa0, pa1, pb0, pb1)
         delta = pa0 + col(s) * (pa1 - pa0) - pb0 - col(t) * (pb1 - pb0)
@@ -486,7 +485,8 @@ class NumpyTwin:
         along v*, x' = x + dt v'."""
         dt = self.dt
         push_step = self.push_speed * dt
-        advance = self.advance + np.where(np.arange(self.coil_count) == self.active_coil, push_step, 0.0)
+        pushed_coils = (self.active_coil >= 0) & (np.arange(self.coil_count) >= self.active_coil)
+        advance = self.advance + np.where(pushed_coils, push_step, 0.0)  # integrate.py coil_advance
         sigma = advance[self.coil_of] - self.arc_s
         in_catheter = ~self.fixed & (sigma < 0.0)
         dynamic = ~self.fixed & ~in_catheter
@@ -498,7 +498,7 @@ class NumpyTwin:
         inside = np.flatnonzero(in_catheter)
         point, direction = self.catheter_point(-sigma[inside])
         x[inside] = point
-        pushed = self.coil_of[inside] == self.active_coil
+        pushed = pushed_coils[self.coil_of[inside]]
         v[inside] = np.where(col(pushed), self.push_speed * direction, 0.0)
 
         d = np.flatnonzero(dynamic)

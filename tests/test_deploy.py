@@ -65,3 +65,39 @@ def test_a_jam_ends_that_coil_and_the_next_one_goes_on():
     inside = state.free.numpy()[sl] == 0
     assert inside.any() and np.all(deployment.model.fixed.numpy()[sl][inside] == 1)
     assert np.all(np.linalg.norm(state.x.numpy()[state.free.numpy() == 1], axis=1) < R_SAC)
+
+
+def test_a_neck_defines_the_sac_places_the_catheter_and_gives_regional_densities():
+    """A plane neck near the bottom of a spherical wall: the sac is the part above it
+    (its volume the sphere minus the cap below), the catheter tip sits on the sac
+    axis just inside the neck, and the run reports regional densities."""
+    from warpcoil.deploy import Deployment
+    from warpcoil.settings import NeckSpec
+
+    z_neck = -1.2
+    scene = wc.Scene(
+        coils=(wc.CoilSpec(shape="helix", length_mm=6.0, loop_diameter_mm=2.5, pitch_mm=0.6),),
+        catheter=wc.CatheterSpec(placement="neck", depth_mm=0.3),
+        wall=wc.WallSpec(sphere_diameter_mm=2 * R_SAC),
+        neck=NeckSpec(plane_point_mm=(0.0, 0.0, z_neck), plane_normal=(0.0, 0.0, 1.0)),
+        simulation=wc.SimulationSettings(push_speed_mm_s=100.0, frame_interval_s=0.005),
+    )
+    deployment = Deployment(scene)
+    cap_height = R_SAC + z_neck
+    cap = math.pi * cap_height**2 * (3 * R_SAC - cap_height) / 3
+    sphere = 4 / 3 * math.pi * R_SAC**3
+    assert deployment.anatomy.sac_volume_mm3 == pytest.approx(sphere - cap, rel=0.02)
+    tip = np.asarray(deployment.anatomy.catheter.tip_mm)
+    assert np.allclose(tip, (0.0, 0.0, z_neck + 0.3), atol=0.02)
+    assert np.allclose(deployment.anatomy.catheter.direction, (0.0, 0.0, 1.0), atol=1e-6)
+    result = deployment.run()
+    assert result.status == COMPLETED, result.reason
+    assert result.packing_density == pytest.approx(
+        math.pi * (D / 2) ** 2 * result.coil_length_mm / deployment.anatomy.sac_volume_mm3)
+    regions = result.regions
+    assert set(regions) >= {"neck", "boundary", "core", "total_voxel", "neck_coverage"}
+    assert 0.0 <= regions["neck_coverage"] <= 1.0
+    assert regions["total_voxel"] == pytest.approx(result.packing_density, rel=0.3)
+    x = result.positions_mm[0]
+    above = x[:, 2] > z_neck
+    assert result.length_outside_sac_mm == pytest.approx(0.2921 * np.count_nonzero(~above), abs=0.3)

@@ -254,3 +254,37 @@ def test_unreadable_file(tmp_path: Path, make) -> None:
 
 def test_scene_error_is_a_value_error() -> None:
     assert issubclass(SceneError, ValueError)
+
+
+def test_neck_and_catheter_placement_keys(tmp_path):
+    from warpcoil.scene import load_scene
+
+    neck_file = tmp_path / "neck.csv"
+    neck_file.write_text("1,0,0\n0,1,0\n-1,0,0\n0,-1,0\n")
+    scene_file = tmp_path / "neck.toml"
+    scene_file.write_text(
+        '[wall]\nsphere_diameter_mm = 3.0\n[neck]\ncontour = "neck.csv"\n'
+        '[catheter]\nplacement = "neck"\ndepth_mm = 0.4\nangle_deg = 10.0\nazimuth_deg = 90.0\n'
+        '[[coil]]\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 5.0\n'
+        '[regions]\nvoxel_mm = 0.05\n')
+    scene = load_scene(scene_file)
+    assert scene.neck.contour == neck_file.resolve()
+    assert (scene.catheter.placement, scene.catheter.depth_mm, scene.catheter.angle_deg) == ("neck", 0.4, 10.0)
+    assert scene.regions.voxel_mm == 0.05
+
+
+@pytest.mark.parametrize("text, key", [
+    ('[wall]\nsphere_diameter_mm = 3.0\n[catheter]\nplacement = "neck"\n', "catheter.placement"),
+    ('[wall]\nsphere_diameter_mm = 3.0\n[neck]\nplane_point_mm = [0, 0, 0]\n', "neck.contour / neck.plane_point_mm"),
+    ('[neck]\nplane_point_mm = [0, 0, 0]\nplane_normal = [0, 0, 1]\n', "neck"),
+    ('[wall]\nsphere_diameter_mm = 3.0\n[neck]\nplane_point_mm = [0, 0, 0]\nplane_normal = [0, 0, 1]\n'
+     '[catheter]\nplacement = "neck"\ntip = [0, 0, 0]\n', "catheter.tip"),
+])
+def test_neck_errors_name_the_key(tmp_path, text, key):
+    from warpcoil.scene import SceneError, load_scene
+
+    scene_file = tmp_path / "bad.toml"
+    scene_file.write_text(text + '[[coil]]\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 5.0\n')
+    with pytest.raises(SceneError, match="bad.toml") as info:
+        load_scene(scene_file)
+    assert key in str(info.value)

@@ -18,11 +18,11 @@ import numpy as np
 from .kernels.contact import FAR_MM
 from .model import Model, ModelBuilder
 from .settings import CatheterSpec, Scene
-from .solver import CATHETER_OBSTACLE_MM, Control, SimulationUnstable, Solver, Stepper
+from .solver import Control, SimulationUnstable, Solver, Stepper
 from .state import State, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
-COIL_GAP_MM = 1.0  # the next coil waits this far behind the tip
+COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 
 
 @dataclass
@@ -208,16 +208,11 @@ class Deployment:
 
     # --- coil sequence -------------------------------------------------------------
     def _activate(self, coil: int) -> int:
-        """Hand the pusher to ``coil``; −1 when none is left. A waiting coil is moved
-        up the catheter to 1 mm behind the catheter's obstacle zone (a coil in that
-        zone is an obstacle; moving one into it in one jump could land it on coil
-        that lies there)."""
+        """Hand the pusher to ``coil`` (it was pushed along behind the previous one);
+        −1 when none is left."""
         if coil >= self.model.coil_count:
             self.control.set_active_coil(-1)
             return -1
-        advance = self.stepper.state.advance.numpy()
-        advance[coil] = max(advance[coil], -(COIL_GAP_MM + CATHETER_OBSTACLE_MM))
-        self.stepper.state.advance.assign(advance)
         self.control.set_active_coil(coil)
         self.coil_status[coil] = "pushing"
         return coil

@@ -21,7 +21,6 @@ from .state import State, new_state_like
 SPEED_LIMIT_MM_S = 1.0e5  # 100 m/s: far beyond any whip of a released coil end; a node this fast has gone unstable
 WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a node ~1e-3 mm
 CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
-CATHETER_OBSTACLE_MM = 3.0  # the coil in the catheter's last 3 mm stands in for the catheter as an obstacle
 
 
 class UnstableStepError(ValueError):
@@ -155,8 +154,7 @@ class Solver:
             wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
             self._grid.build(self._midpoints, c.query_radius_mm)
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, state.advance, m.arc_s, m.fixed, CATHETER_OBSTACLE_MM,
-                m.node_radius, self._grid.id, self._midpoints,
+                state.x, state.free, m.has_next, m.coil_of, m.fixed, m.node_radius, self._grid.id, self._midpoints,
                 c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

@@ -172,27 +172,24 @@ def segment_closest_params(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3
 
 
 @wp.func
-def near_tip_in_catheter(advance: wp.array(dtype=wp.float64), coil_of: wp.array(dtype=wp.int32),
-                         arc_s: wp.array(dtype=wp.float64), fixed: wp.array(dtype=wp.int32), i: int,
-                         zone_mm: wp.float64) -> bool:
-    """Node i is in the catheter, less than ``zone_mm`` behind the tip (and not parked)."""
-    sigma = advance[coil_of[i]] - arc_s[i]
-    return fixed[i] == 0 and sigma < wp.float64(0.0) and sigma > -zone_mm
+def edge_in_contact_pass(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), e: int) -> bool:
+    """Edge e feels coil contact when it exists and one of its nodes is free."""
+    if has_next[e] == 0:
+        return False
+    return free[e] != 0 or free[e + 1] != 0
 
 
 @wp.func
-def edge_in_contact_pass(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
-                         advance: wp.array(dtype=wp.float64), coil_of: wp.array(dtype=wp.int32),
-                         arc_s: wp.array(dtype=wp.float64), fixed: wp.array(dtype=wp.int32), e: int,
-                         zone_mm: wp.float64) -> bool:
-    """Edge e takes part in coil contact when it exists and one of its nodes is free,
-    or, as a fixed obstacle standing in for the catheter's end, when it lies in the
-    catheter within ``zone_mm`` of the tip (it receives no force: it is kinematic)."""
+def edge_is_obstacle(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                     fixed: wp.array(dtype=wp.int32), e: int) -> bool:
+    """Edge e can be touched: it exists and is free, or it lies in the catheter,
+    where it stands in for the catheter (kinematic: it takes no force). Parked
+    (withdrawn) and clamped edges cannot be touched."""
     if has_next[e] == 0:
         return False
     if free[e] != 0 or free[e + 1] != 0:
         return True
-    return near_tip_in_catheter(advance, coil_of, arc_s, fixed, e, zone_mm)
+    return fixed[e] == 0 and fixed[e + 1] == 0
 
 
 @wp.kernel
@@ -211,10 +208,7 @@ def edge_contact(
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
-    advance: wp.array(dtype=wp.float64),
-    arc_s: wp.array(dtype=wp.float64),
     fixed: wp.array(dtype=wp.int32),
-    catheter_zone_mm: wp.float64,
     node_radius: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     mid: wp.array(dtype=wp.vec3d),
@@ -234,21 +228,21 @@ def edge_contact(
     node by the barycentric weight of p_a. Edges of the same coil closer than
     ``exclusion`` along it are bonded neighbours and skipped. Each pair is
     evaluated from both sides, so every edge writes only its own entries. Edges
-    in the catheter's end zone are obstacles: free edges are pushed off them."""
+    in the catheter stand in for the catheter: free edges are pushed off them."""
     a = wp.tid()
     zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     f_start = zero
     f_end = zero
     gap_min = query_radius
     touching = int(0)
-    if edge_in_contact_pass(free, has_next, advance, coil_of, arc_s, fixed, a, catheter_zone_mm):
+    if edge_in_contact_pass(free, has_next, a):
         pa0 = x[a]
         pa1 = x[a + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], query_radius)
         b = int(0)
         while wp.hash_grid_query_next(query, b):
-            skip = not edge_in_contact_pass(free, has_next, advance, coil_of, arc_s, fixed, b, catheter_zone_mm)
+            skip = not edge_is_obstacle(free, has_next, fixed, b)
             if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
                 skip = True
             if not skip:

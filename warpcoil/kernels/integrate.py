@@ -56,8 +56,11 @@ def catheter_point(path: wp.array(dtype=wp.vec3d), depth: wp.float64):
 @wp.func
 def coil_advance(advance: wp.array(dtype=wp.float64), active_coil: wp.array(dtype=wp.int32),
                  coil: int, push_step: wp.float64) -> wp.float64:
+    """The pusher drives the active coil and the coils waiting behind it in the
+    catheter (so the next one arrives at the tip as the active one detaches)."""
     a = advance[coil]
-    if coil == active_coil[0]:
+    active = active_coil[0]
+    if active >= 0 and coil >= active:
         a = a + push_step
     return a
 
@@ -98,7 +101,7 @@ def integrate_nodes(
     if sigma < F64_0:
         p, direction = catheter_point(catheter_path, -sigma)
         x_out[i] = p
-        if c == active_coil[0]:
+        if active_coil[0] >= 0 and c >= active_coil[0]:
             v_out[i] = push_speed * direction
         else:
             v_out[i] = zero
