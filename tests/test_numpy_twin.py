@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from test_contact import crossing_pair
 import pytest
 
 import warpcoil as wc
@@ -90,28 +91,8 @@ def test_push_out_of_the_catheter(bent, push_speed_mm_s):
     assert np.allclose(twin_push, warp_push, rtol=1e-9, atol=0.0)
 
 
-def crossing_pair(speed_mm_s):
-    """tests/test_contact.py::crossing_pair: coil A along x at z = 0.6 falls onto
-    coil B along y at z = 0, a node of B under the middle of an edge of A. Undamped."""
-    n = 9
-    s = (np.arange(n) - n // 2) * D
-    a = np.stack([s, np.zeros(n), np.full(n, 0.6)], axis=1)
-    b = np.stack([np.full(n, D / 2), s, np.zeros(n)], axis=1)
-    spec = wc.CoilSpec(length_mm=(n - 1) * D, segment_length_mm=D)
-    builder = wc.ModelBuilder(settings=wc.SimulationSettings(damping_uN_per_mm=0.0))
-    builder.add_coil(spec, a)
-    builder.add_coil(spec, b)
-    model = builder.finalize()
-    state = wc.rest_state(model)
-    v = np.zeros((2 * n, 3))
-    v[:n, 2] = -speed_mm_s
-    v[n:, 2] = +speed_mm_s
-    state.v.assign(v)
-    return model, state
-
-
 def test_coil_coil_contact():
-    model, state = crossing_pair(200.0)
+    model, state, _ = crossing_pair(200.0)
     state, solver, twin, largest = run_both(model, state, 200)
     assert largest > model.contact.p0_uN  # pressed past zero clearance
     assert np.array_equal(solver.coil_contacts.numpy(), twin.coil_contacts)

@@ -52,7 +52,7 @@ from vtkmodules.vtkIOLegacy import vtkPolyDataReader
 from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
 
 from .preshape import PreshapeError, read_centerline
-from .wall import WallMesh
+from .wall import WallMesh, component_labels
 
 CAP_MIN_VALENCE = 10  # a capped open end: a fan of at least this many triangles around one hub vertex
 CAP_MAX_WARP = 0.02  # ... whose ring lies within this fraction of its diameter of a plane
@@ -424,9 +424,9 @@ def _wall_sides(wall: WallMesh, loop: np.ndarray, source: Path | None) -> np.nda
     if not band.any():
         raise _error(source, "the neck contour does not touch the wall", "give a contour lying on the wall")
     adjacency = mesh.face_adjacency
-    body = _component_labels(adjacency, count)
+    body = component_labels(adjacency, count)
     in_body = np.isin(body, body[band])
-    free = _component_labels(adjacency[~band[adjacency].any(axis=1)], count)
+    free = component_labels(adjacency[~band[adjacency].any(axis=1)], count)
 
     near = np.flatnonzero(in_body & (face_gap <= 3.0 * longest[band].max()))
     centres = mesh.triangles_center[near]
@@ -447,7 +447,7 @@ def _wall_sides(wall: WallMesh, loop: np.ndarray, source: Path | None) -> np.nda
     area = mesh.area_faces
     for s in (1, -1):  # one connected piece per side: stray islands join the other side
         members = side == s
-        label = _component_labels(adjacency[members[adjacency].all(axis=1)], count)
+        label = component_labels(adjacency[members[adjacency].all(axis=1)], count)
         main = np.bincount(label[members], weights=area[members], minlength=count).argmax()
         side[members & (label != main)] = -s
     return side
@@ -535,20 +535,6 @@ def _points(points_mm: np.ndarray) -> np.ndarray:
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3) in mm, got {points.shape}")
     return points
-
-
-def _component_labels(edges: np.ndarray, count: int) -> np.ndarray:
-    """Connected-component label (lowest node) of each of ``count`` nodes joined by ``edges`` (E, 2)."""
-    labels = np.arange(count)
-    while True:
-        low = labels[edges].min(axis=1) if len(edges) else np.zeros(0, dtype=np.int64)
-        hooked = labels.copy()
-        np.minimum.at(hooked, edges[:, 0], low)
-        np.minimum.at(hooked, edges[:, 1], low)
-        hooked = hooked[hooked]
-        if np.array_equal(hooked, labels):
-            return labels
-        labels = hooked
 
 
 def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

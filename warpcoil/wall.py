@@ -181,14 +181,14 @@ def _clean(mesh: trimesh.Trimesh) -> list[str]:
     return notes
 
 
-def _component_labels(edges: np.ndarray, count: int) -> np.ndarray:
+def component_labels(edges: np.ndarray, count: int) -> np.ndarray:
     """Connected-component label of each of ``count`` nodes joined by ``edges`` (E, 2).
 
     Min-label propagation with pointer jumping; the label is a node of the component.
     """
     labels = np.arange(count)
     while True:
-        low = labels[edges].min(axis=1)
+        low = labels[edges].min(axis=1) if len(edges) else np.zeros(0, dtype=np.int64)
         hooked = labels.copy()
         np.minimum.at(hooked, edges[:, 0], low)
         np.minimum.at(hooked, edges[:, 1], low)
@@ -224,7 +224,7 @@ def _orient(mesh: trimesh.Trimesh, path: Path) -> list[str]:
             np.column_stack((2 * face_a + 1, 2 * face_b + 1 - same_direction)),
         ]
     )
-    labels = _component_labels(links, 2 * len(mesh.faces)).reshape(-1, 2)
+    labels = component_labels(links, 2 * len(mesh.faces)).reshape(-1, 2)
     if (labels[:, 0] == labels[:, 1]).any():
         raise _error(path, "cannot be wound consistently (non-orientable surface)", "export a closed lumen surface")
     flip = labels[:, 1] < labels[:, 0]
@@ -237,7 +237,7 @@ def _orient(mesh: trimesh.Trimesh, path: Path) -> list[str]:
 def _cap_holes(mesh: trimesh.Trimesh, path: Path, repair: bool) -> str:
     """Close each boundary loop with a fan of triangles from the loop's centroid."""
     boundary = mesh.edges[group_rows(mesh.edges_sorted, require_count=1)]  # directed as in their faces
-    loop_of_vertex = _component_labels(boundary, len(mesh.vertices))
+    loop_of_vertex = component_labels(boundary, len(mesh.vertices))
     loop_ids, loop_of_edge = np.unique(loop_of_vertex[boundary[:, 0]], return_inverse=True)
     holes = _plural(len(loop_ids), "hole")
     if not repair:

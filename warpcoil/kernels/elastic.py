@@ -47,6 +47,18 @@ def vertex_needed(free: wp.array(dtype=wp.int32), j: int) -> bool:
     return needed
 
 
+@wp.func
+def vertex_strains(x: wp.array(dtype=wp.vec3d), m1: wp.array(dtype=wp.vec3d), j: int):
+    """Material curvatures (in the frames of edges j-1 and j) and twist at vertex j."""
+    t0 = wp.normalize(x[j] - x[j - 1])
+    t1 = wp.normalize(x[j + 1] - x[j])
+    w = wp.cross(t0, t1)
+    phi, psi, chi = angle_factors(wp.length(w), wp.dot(t0, t1))
+    kappa = psi * w
+    return (material_curvature(kappa, t0, m1[j - 1]), material_curvature(kappa, t1, m1[j]),
+            vertex_twist(t0, m1[j - 1], t1, m1[j]))
+
+
 @wp.kernel
 def vertex_gradients(
     x: wp.array(dtype=wp.vec3d),
@@ -191,15 +203,11 @@ def elastic_energies(
         stretch = wp.length(x[i + 1] - x[i]) - rest_length[i]
         ws = wp.float64(0.5) * k_stretch[i] * stretch * stretch
     if vertex_valid(has_next, i):
-        t0 = wp.normalize(x[i] - x[i - 1])
-        t1 = wp.normalize(x[i + 1] - x[i])
-        w = wp.cross(t0, t1)
-        phi, psi, chi = angle_factors(wp.length(w), wp.dot(t0, t1))
-        kappa = psi * w
-        dK0 = material_curvature(kappa, t0, m1[i - 1]) - rest_K0[i]
-        dK1 = material_curvature(kappa, t1, m1[i]) - rest_K1[i]
+        K0, K1, tau = vertex_strains(x, m1, i)
+        dK0 = K0 - rest_K0[i]
+        dK1 = K1 - rest_K1[i]
         wb = wp.float64(0.25) * k_bend[i] * (wp.dot(dK0, dK0) + wp.dot(dK1, dK1))
-        dtau = vertex_twist(t0, m1[i - 1], t1, m1[i]) - rest_twist[i]
+        dtau = tau - rest_twist[i]
         wt = wp.float64(0.5) * k_twist[i] * dtau * dtau
     stretch_energy[i] = ws
     bend_energy[i] = wb
@@ -222,11 +230,7 @@ def rest_strains(
         rest_K1[j] = wp.vec2d(F64_0, F64_0)
         rest_twist[j] = F64_0
         return
-    t0 = wp.normalize(x[j] - x[j - 1])
-    t1 = wp.normalize(x[j + 1] - x[j])
-    w = wp.cross(t0, t1)
-    phi, psi, chi = angle_factors(wp.length(w), wp.dot(t0, t1))
-    kappa = psi * w
-    rest_K0[j] = material_curvature(kappa, t0, m1[j - 1])
-    rest_K1[j] = material_curvature(kappa, t1, m1[j])
-    rest_twist[j] = vertex_twist(t0, m1[j - 1], t1, m1[j])
+    K0, K1, tau = vertex_strains(x, m1, j)
+    rest_K0[j] = K0
+    rest_K1[j] = K1
+    rest_twist[j] = tau
