@@ -23,6 +23,7 @@ from .state import State, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
+REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
 
 
 @dataclass
@@ -151,6 +152,9 @@ class Deployment:
         self._pusher_work_nJ, self._last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
+        total_mass_g = float((1.0 / self.model.inv_mass.numpy()).sum())
+        self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
+                                       else 0.5 * total_mass_g * REST_SPEED_MM_S**2)
         self._radius = self.model.node_radius.numpy()
         self._segment = np.repeat([self.model.rest_length.numpy()[f] for f in self.model.coil_first],
                                   self.model.coil_last - self.model.coil_first + 1)
@@ -267,7 +271,7 @@ class Deployment:
             elif active >= 0 and stepper.state.advance.numpy()[active] >= self.coil_lengths_mm[active]:
                 self.coil_status[active] = "detached"
                 active = self._activate(active + 1)
-            if active < 0 and frame.kinetic_nJ < sim.rest_kinetic_energy_nJ:
+            if active < 0 and frame.kinetic_nJ < self.rest_kinetic_energy_nJ:
                 if self.jam_reasons:
                     status, reason = JAMMED, "; ".join(self.jam_reasons) + "; then at rest"
                 else:

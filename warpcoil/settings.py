@@ -100,7 +100,8 @@ class SimulationSettings:
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
-      is below this.
+      is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
+      i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
     * max_time_s: simulated time limit (status "timeout"); None → push time + 2 s.
     * frame_interval_s: interval between recorded frames.
     """
@@ -113,7 +114,7 @@ class SimulationSettings:
     allow_unstable_dt: bool = False
     mass_scale: float = 1.0
     jam_force_uN: float = 1.0e5
-    rest_kinetic_energy_nJ: float = 1.0e-3
+    rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None
     frame_interval_s: float = 0.01
 
