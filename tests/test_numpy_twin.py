@@ -74,8 +74,8 @@ def test_free_helix_released_from_straight():
 
 @pytest.mark.parametrize("bent, push_speed_mm_s", [(False, 100.0), (True, 1000.0)])
 def test_push_out_of_the_catheter(bent, push_speed_mm_s):
-    """At 100 mm/s 400 steps push out one segment; at 1 m/s through a bent
-    catheter (the polyline walk of catheter_point) eight nodes leave it."""
+    """At 100 mm/s 400 steps push out a few segments; at 1 m/s through a bent
+    catheter (the polyline walk of catheter_point) at least eight nodes leave it."""
     catheter = None
     if bent:
         catheter = wc.CatheterSpec(tip_mm=(0.0, 0.0, 0.0),
@@ -83,7 +83,8 @@ def test_push_out_of_the_catheter(bent, push_speed_mm_s):
     model = helix_model(catheter)
     state, solver, twin, _ = run_both(model, wc.packed_state(model), 400, push_speed_mm_s=push_speed_mm_s,
                                       active_coil=0)
-    assert twin.free.sum() == (8 if bent else 1)
+    out = int((model.arc_s.numpy() <= twin.advance[0]).sum())  # nodes past the tip
+    assert twin.free.sum() == out and out >= (8 if bent else 1)
     assert np.allclose(twin.advance, state.advance.numpy(), rtol=0.0, atol=1e-12)
     assert_agree(state, solver, twin, 1e-9)
     warp_push, twin_push = solver.take_push_force(400), twin.take_push_force(400)
@@ -103,7 +104,7 @@ def test_wall_contact():
     """A straight 5-node coil inside a 3.5 mm sphere thrown at the wall. Warp's
     BVH finds the closest point in float32, so the two agree to ~1e-7."""
     n = 5
-    builder = wc.ModelBuilder(wall=sphere_wall(3.5))
+    builder = wc.ModelBuilder(wall=sphere_wall(3.5), settings=wc.SimulationSettings(mass_scale=1.0))
     x = np.stack([(np.arange(n) - n // 2) * D + 0.13, np.full(n, 0.21), np.full(n, 1.35)], axis=1)
     builder.add_coil(wc.CoilSpec(length_mm=(n - 1) * D, segment_length_mm=D), x)
     model = builder.finalize()

@@ -10,6 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
+DEFAULT_DT_SAFETY = 0.9  # fraction of the stable bound; on the run-time/error Pareto front (BENCHMARKS.md)
+DEFAULT_MASS_SCALE = 1.0  # true inertia; mass scaling is opt-in (it changes a free release: BENCHMARKS.md)
+
+
 @dataclass(frozen=True)
 class CatheterSpec:
     """Microcatheter: a tube ending at ``tip_mm`` and pointing along ``direction``.
@@ -92,11 +96,12 @@ class SimulationSettings:
       and ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
-    * dt_s: step; None → dt_safety × the stable bound. A dt above the bound is
-      refused unless allow_unstable_dt.
-    * mass_scale: node masses, twist inertia and damping × this factor: a named
-      quasi-static speed-up (the damped, first-order motion c·v ≈ F is kept;
-      only inertia grows), reported in results; BENCHMARKS.md shows its error.
+    * dt_s: step; None → dt_safety (default 0.9) × the stable bound. A dt above
+      the bound is refused unless allow_unstable_dt.
+    * mass_scale: node masses, twist inertia and damping × this factor (default 1,
+      true inertia): a named quasi-static speed-up (the damped, first-order motion
+      c·v ≈ F is kept; only inertia grows, and the stable step grows by √scale),
+      reported in results; BENCHMARKS.md shows what it does to the error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
@@ -110,9 +115,9 @@ class SimulationSettings:
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
     dt_s: float | None = None
-    dt_safety: float = 0.5
+    dt_safety: float = DEFAULT_DT_SAFETY
     allow_unstable_dt: bool = False
-    mass_scale: float = 1.0
+    mass_scale: float = DEFAULT_MASS_SCALE
     jam_force_uN: float = 1.0e5
     rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None

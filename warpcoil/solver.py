@@ -16,6 +16,7 @@ import warp as wp
 
 from .kernels import contact, elastic, integrate
 from .model import Model
+from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
 
 SPEED_LIMIT_MM_S = 1.0e5  # 100 m/s: far beyond any whip of a released coil end; a node this fast has gone unstable
@@ -96,11 +97,11 @@ class Control:
 class Solver:
     """Elastic forces, catheter kinematics and time integration for one Model.
 
-    ``dt_s`` None → ``dt_safety`` × the stable bound. A larger dt than the bound
+    ``dt_s`` None → ``dt_safety`` (default 0.9) × the stable bound. A larger dt than the bound
     raises :class:`UnstableStepError` unless ``allow_unstable_dt``.
     """
 
-    def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = 0.5,
+    def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM):
         self.model = model

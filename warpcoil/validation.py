@@ -18,7 +18,7 @@ from .coil import CoilSpec
 from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
-from .settings import CatheterSpec, SimulationSettings
+from .settings import DEFAULT_DT_SAFETY, CatheterSpec, SimulationSettings
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -155,7 +155,7 @@ ELASTICA_DEFLECTION = {5.0: 0.713792}  # δ/L under a tip dead load, P L²/EI = 
 
 
 def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0,
-                          dt_safety: float = 0.5) -> float:
+                          dt_safety: float = DEFAULT_DT_SAFETY) -> float:
     """Tip deflection δ/L of a clamped straight coil under a transverse dead load
     P = load_parameter · EI / L² at the free end, damped to rest.
 
@@ -223,7 +223,7 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
     return state.x.numpy()
 
 
-def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = 0.5) -> list[CaseResult]:
+def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY) -> list[CaseResult]:
     """A 60 mm helical coil started straight, free ends, damped to rest."""
     spec = _helix_spec(segment_length_mm)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
@@ -239,11 +239,11 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = 0.
     return _helix_rows("helix recovery", _settle(stepper, max_steps=4_000_000))
 
 
-def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = 0.5,
-                 segment_length_mm: float | None = None) -> list[CaseResult]:
+def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
+                 segment_length_mm: float | None = None, mass_scale: float = 1.0) -> list[CaseResult]:
     """The helical coil packed in a straight catheter and pushed out into empty space."""
     spec = _helix_spec(segment_length_mm)
-    settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s)
+    settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s, mass_scale=mass_scale)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
