@@ -45,15 +45,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from warpcoil.solver import WALL_SEARCH_MM
+from warpcoil.solver import WALL_SEARCH_MM, contact_linear_onset
 
 # --- constants, identical to the kernels -----------------------------------------
 SMALL_ANGLE = 1.0e-4  # rod.py: SMALL_ANGLE (series for φ/sin φ below this)
 ANTIPARALLEL_COS = -0.999999999  # rod.py: transport's half-turn branch
 E_MINUS_1 = 1.718281828459045  # contact.py
-U_LINEAR = 7.0
-F_AT_7 = 7.0 * (1096.6331584284585 - 1.0)  # 7 (e^7 − 1)
-SLOPE_AT_7 = 8.0 * 1096.6331584284585 - 1.0  # 8 e^7 − 1
 FAR_MM = 1.0e6  # contact.py: FAR_MM
 DAMPING_NEWTON_ITERATIONS = 6  # integrate.py: damped_speed
 PAIR_CHUNK = 1 << 18  # edge–edge / node–face pairs evaluated at once (bounds the memory)
@@ -139,13 +136,15 @@ def vertex_twist(t0: np.ndarray, m1_0: np.ndarray, t1: np.ndarray, m1_1: np.ndar
 
 
 # --- contact law and geometry (kernels/contact.py) -----------------------------------
-def contact_force_magnitude(h: np.ndarray, p0: float, c0: float) -> np.ndarray:
-    """contact.py ``contact_force_magnitude``: |F| (µN) at clearance h (mm)."""
+def contact_force_magnitude(h: np.ndarray, p0: float, c0: float, u_linear: float = 7.0) -> np.ndarray:
+    """contact.py ``contact_force_magnitude``: |F| (µN) at clearance h (mm), the
+    exponential turning into its tangent line at ``u_linear``."""
     h = np.asarray(h, dtype=np.float64)
     u = 1.0 - h / c0
-    exponential = p0 / E_MINUS_1 * u * (np.exp(np.minimum(u, U_LINEAR)) - 1.0)
-    linear = p0 / E_MINUS_1 * (F_AT_7 + SLOPE_AT_7 * (u - U_LINEAR))
-    return np.where(h >= c0, 0.0, np.where(u < U_LINEAR, exponential, linear))
+    exponential = p0 / E_MINUS_1 * u * (np.exp(np.minimum(u, u_linear)) - 1.0)
+    e = np.exp(u_linear)
+    linear = p0 / E_MINUS_1 * (u_linear * (e - 1.0) + (e * (1.0 + u_linear) - 1.0) * (u - u_linear))
+    return np.where(h >= c0, 0.0, np.where(u < u_linear, exponential, linear))
 
 
 def segment_closest_params(p1, q1, p2, q2):
@@ -246,6 +245,7 @@ class NumpyTwin:
         self.node_radius = model.node_radius.numpy()
         c = model.contact
         self.p0, self.c0, self.exclusion = float(c.p0_uN), float(c.c0_mm), int(c.exclusion_edges)
+        self.u_linear = contact_linear_onset(model, self.dt)  # solver.py: the law's linear onset for this step
 
         # topology: edge i joins nodes i, i+1; vertex j joins edges j-1, j (rod.py edge_valid/vertex_valid)
         self.edges = np.flatnonzero(self.has_next)
@@ -292,7 +292,7 @@ class NumpyTwin:
         reach = np.where(side < 0, FAR_MM, self.node_radius[nodes] + self.c0 + self.wall_search_mm)
         signed, inward = self.wall.query(x[nodes])
         found = np.abs(signed) < reach  # the BVH query finds faces strictly within its max_dist
-        magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0)
+        magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0, self.u_linear)
         force[nodes] = np.where(col(found), col(magnitude) * inward, 0.0)
         self.wall_side[nodes] = np.where(found, (signed > 0.0).astype(np.int32), side)
         self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
@@ -342,7 +342,7 @@ class NumpyTwin:
         gap = dist - self.node_radius[a] - self.node_radius[b]
         touching = (gap < self.c0) & (dist > 1.0e-12)
         a, s, delta, dist, gap = a[touching], s[touching], delta[touching], dist[touching], gap[touching]
-        f = col(contact_force_magnitude(gap, self.p0, self.c0) / dist) * delta  # on edge a from edge b
+        f = col(contact_force_magnitude(gap, self.p0, self.c0, self.u_linear) / dist) * delta  # on edge a from edge b
         np.add.at(force_start, a, col(1.0 - s) * f)
         np.add.at(force_end, a, col(s) * f)
         np.add.at(self.coil_contacts, a, 1)

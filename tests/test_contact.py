@@ -44,16 +44,16 @@ def test_wall_gap_sign_and_normal_inside_and_outside_the_sac():
     assert np.allclose(normals, -directions[touching], atol=0.06)  # pushes back into the sac
     assert np.all(np.linalg.norm(force[~touching], axis=1) == 0.0)
     # magnitude from the one contact law
-    f = wp_law(gap[touching], model.contact.p0_uN, c0)
+    f = wp_law(gap[touching], model.contact.p0_uN, c0, solver.contact_u_linear)
     assert np.allclose(np.linalg.norm(force[touching], axis=1), f, rtol=1e-9)
 
 
-def wp_law(h, p0, c0):
+def wp_law(h, p0, c0, u_linear):
     import warp as wp
 
     out = wp.zeros(len(h), dtype=wp.float64)
     k = wp.zeros(len(h), dtype=wp.float64)
-    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), p0, c0, out, k])
+    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), p0, c0, u_linear, out, k])
     return out.numpy()
 
 

@@ -121,7 +121,9 @@ def test_contact_law_matches_the_kernel():
 
     c0 = 0.03
     h = np.linspace(-10 * c0, 2 * c0, 97)
-    force = wp.zeros(len(h), dtype=wp.float64)
-    stiffness = wp.zeros(len(h), dtype=wp.float64)
-    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), 1.0e3, c0, force, stiffness])
-    assert np.allclose(contact_force_magnitude(h, 1.0e3, c0), force.numpy(), rtol=1e-14, atol=0.0)
+    for u_linear in (7.0, 3.4):  # MODEL.md's onset, and an earlier one as a solver may choose
+        force = wp.zeros(len(h), dtype=wp.float64)
+        stiffness = wp.zeros(len(h), dtype=wp.float64)
+        wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), 1.0e3, c0, u_linear, force,
+                                                        stiffness])
+        assert np.allclose(contact_force_magnitude(h, 1.0e3, c0, u_linear), force.numpy(), rtol=1e-14, atol=0.0)

@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from .kernels import contact, elastic, integrate
-from .model import Model
+from .model import CONTACT_DESIGN_OVERLAP_U, Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
 
@@ -79,6 +79,25 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> Ste
     return StepBound(dt_s=2.0 / omega[name], limiting_term=name, omega_rad_s=omega)
 
 
+def contact_linear_onset(model: Model, dt_s: float) -> float:
+    """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
+    MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
+    step dt can integrate for the lightest node pressed from CONTACTS_PER_NODE
+    sides (k_max = m (2/dt)² / CONTACTS_PER_NODE). Never below the design overlap
+    u = 3 that the step bound already covers. Up to it the law is exact; past it
+    the force keeps growing along the law's tangent, so deep overlaps in an
+    overpacked sac stay stable instead of blowing up."""
+    m_min = 1.0 / float(model.inv_mass.numpy().max())
+    k_max = m_min * (2.0 / dt_s) ** 2 / CONTACTS_PER_NODE
+    low, high = CONTACT_DESIGN_OVERLAP_U, 7.0
+    if model.contact.stiffness_uN_mm(high) <= k_max:
+        return high
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if model.contact.stiffness_uN_mm(mid) <= k_max else (low, mid)
+    return low
+
+
 @dataclass
 class Control:
     """What drives the model from outside: which coil the pusher moves, how fast."""
@@ -117,6 +136,7 @@ class Solver:
                 f"dt = {self.dt_s:.3e} s exceeds the stable bound {self.bound.dt_s:.3e} s set by "
                 f"{self.bound.limiting_term}; use a smaller simulation.dt_s (or leave it unset for "
                 f"dt_safety × bound), a larger simulation.mass_scale, or set allow_unstable_dt")
+        self.contact_u_linear = contact_linear_onset(model, self.dt_s)
         n, dev = model.node_count, model.device
         zeros = lambda dtype: wp.zeros(n, dtype=dtype, device=dev)  # noqa: E731
         self.grad_prev, self.grad_mid, self.grad_next = zeros(wp.vec3d), zeros(wp.vec3d), zeros(wp.vec3d)
@@ -149,14 +169,15 @@ class Solver:
             w = m.wall
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.node_radius, w.mesh.id, w.vertices, w.faces, wp.vec3d(*w.origin),
-                c.p0_uN, c.c0_mm, self.wall_search_mm if wall_search_mm is None else wall_search_mm, self._wall_side,
+                c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self.wall_search_mm if wall_search_mm is None else wall_search_mm, self._wall_side,
                 self.wall_force, self.wall_distance])
         if self.coil_contact:
             wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
             self._grid.build(self._midpoints, c.query_radius_mm)
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.coil_of, m.fixed, m.node_radius, self._grid.id, self._midpoints,
-                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self._edge_force_start,
+                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
                 state.free, m.has_next, self.wall_force, self._edge_force_start, self._edge_force_end,

@@ -53,7 +53,8 @@ def contact_law(p0_uN: float = 1.0e3, c0_mm: float = 0.1 * REFERENCE_D_MM) -> li
     h = np.array([0.0, -6.0 * c0_mm, -6.0 * c0_mm - eps, -6.0 * c0_mm + eps, c0_mm, 2.0 * c0_mm, c0_mm - eps])
     f = wp.zeros(len(h), dtype=wp.float64)
     k = wp.zeros(len(h), dtype=wp.float64)
-    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), p0_uN, c0_mm, f, k])
+    wp.launch(contact.evaluate_law, len(h), inputs=[wp.array(h, dtype=wp.float64), p0_uN, c0_mm,
+                                                    float(contact.U_LINEAR), f, k])
     f, k = f.numpy(), k.numpy()
     jump = abs(f[2] - f[3]) / f[1]
     kink = abs(k[2] - k[3]) / k[1]

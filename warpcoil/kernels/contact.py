@@ -14,41 +14,43 @@ import warp as wp
 
 E_MINUS_1 = wp.constant(wp.float64(1.718281828459045))
 U_LINEAR = wp.constant(wp.float64(7.0))
-F_AT_7 = wp.constant(wp.float64(7.0 * (1096.6331584284585 - 1.0)))  # 7 (e^7 − 1)
-SLOPE_AT_7 = wp.constant(wp.float64(8.0 * 1096.6331584284585 - 1.0))  # 8 e^7 − 1
 
 
 @wp.func
-def contact_force_magnitude(h: wp.float64, p0: wp.float64, c0: wp.float64) -> wp.float64:
-    """|F| (µN) at clearance h (mm) for force P0 (µN) at zero clearance and onset c0 (mm)."""
+def contact_force_magnitude(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
+    """|F| (µN) at clearance h (mm) for force P0 (µN) at zero clearance and onset c0 (mm).
+
+    ``u_linear`` is where the exponential gives way to its tangent line: 7 in
+    MODEL.md; a solver may start it earlier (see Solver.contact_u_linear) so the
+    law's stiffness never exceeds what its explicit step can integrate."""
     if h >= c0:
         return wp.float64(0.0)
     u = wp.float64(1.0) - h / c0
-    if u < U_LINEAR:
+    if u < u_linear:
         return p0 / E_MINUS_1 * u * (wp.exp(u) - wp.float64(1.0))
-    return p0 / E_MINUS_1 * (F_AT_7 + SLOPE_AT_7 * (u - U_LINEAR))
+    e = wp.exp(u_linear)
+    return p0 / E_MINUS_1 * (u_linear * (e - wp.float64(1.0)) + (e * (wp.float64(1.0) + u_linear) - wp.float64(1.0))
+                             * (u - u_linear))
 
 
 @wp.func
-def contact_stiffness(h: wp.float64, p0: wp.float64, c0: wp.float64) -> wp.float64:
+def contact_stiffness(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
     """−d|F|/dh (µN/mm): the law's local stiffness."""
     if h >= c0:
         return wp.float64(0.0)
-    u = wp.float64(1.0) - h / c0
-    if u < U_LINEAR:
-        return p0 / (E_MINUS_1 * c0) * (wp.exp(u) * (wp.float64(1.0) + u) - wp.float64(1.0))
-    return p0 / (E_MINUS_1 * c0) * SLOPE_AT_7
+    u = wp.min(wp.float64(1.0) - h / c0, u_linear)
+    return p0 / (E_MINUS_1 * c0) * (wp.exp(u) * (wp.float64(1.0) + u) - wp.float64(1.0))
 
 
 @wp.kernel
 def evaluate_law(
-    h: wp.array(dtype=wp.float64), p0: wp.float64, c0: wp.float64,
+    h: wp.array(dtype=wp.float64), p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
     force: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
 ):
     """The law and its stiffness at each clearance (for validation and the step bound)."""
     i = wp.tid()
-    force[i] = contact_force_magnitude(h[i], p0, c0)
-    stiffness[i] = contact_stiffness(h[i], p0, c0)
+    force[i] = contact_force_magnitude(h[i], p0, c0, u_linear)
+    stiffness[i] = contact_stiffness(h[i], p0, c0, u_linear)
 
 
 # --- coil–wall -----------------------------------------------------------------
@@ -103,6 +105,7 @@ def wall_contact(
     origin: wp.vec3d,
     p0: wp.float64,
     c0: wp.float64,
+    u_linear: wp.float64,
     search_mm: wp.float64,
     inside: wp.array(dtype=wp.int32),
     force: wp.array(dtype=wp.vec3d),
@@ -135,7 +138,7 @@ def wall_contact(
                 inside[i] = 1
             else:
                 inside[i] = 0
-            f = contact_force_magnitude(signed - node_radius[i], p0, c0) * inward
+            f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
     else:
         inside[i] = -1
     force[i] = f
@@ -216,6 +219,7 @@ def edge_contact(
     exclusion: int,
     p0: wp.float64,
     c0: wp.float64,
+    u_linear: wp.float64,
     force_start: wp.array(dtype=wp.vec3d),
     force_end: wp.array(dtype=wp.vec3d),
     min_gap: wp.array(dtype=wp.float64),
@@ -256,7 +260,7 @@ def edge_contact(
                     gap = dist - node_radius[a] - node_radius[b]
                     gap_min = wp.min(gap_min, gap)
                     if gap < c0 and dist > wp.float64(1.0e-12):
-                        f = (contact_force_magnitude(gap, p0, c0) / dist) * delta
+                        f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
                         f_start = f_start + (wp.float64(1.0) - st[0]) * f
                         f_end = f_end + st[0] * f
                         touching += 1
