@@ -246,6 +246,7 @@ class NumpyTwin:
         c = model.contact
         self.p0, self.c0, self.exclusion = float(c.p0_uN), float(c.c0_mm), int(c.exclusion_edges)
         self.u_linear = contact_linear_onset(model, self.dt)  # solver.py: the law's linear onset for this step
+        self.fold_span = int(c.fold_span)
 
         # topology: edge i joins nodes i, i+1; vertex j joins edges j-1, j (rod.py edge_valid/vertex_valid)
         self.edges = np.flatnonzero(self.has_next)
@@ -438,7 +439,26 @@ class NumpyTwin:
         tq = -grad_theta[:, 1]
         tq[:-1] -= grad_theta[1:, 0]
         push_share = np.where(free != 0, dot(f, self.catheter_axis), 0.0)
-        return f + self.external + contact_force, tq, push_share
+        return f + self.external + contact_force + self.fold_forces(x, free), tq, push_share
+
+    def fold_forces(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """elastic.py ``fold_force``: free node i against nodes i ± 2·span of its coil
+        (joined by 2·span edges), the contact law of |x_i − x_j| − d."""
+        span = 2 * self.fold_span
+        f = np.zeros_like(x)
+        i = np.arange(self.n - span)
+        joined = np.ones(i.size, bool)
+        for k in range(span):
+            joined &= self.has_next[i + k]
+        i = i[joined]
+        j = i + span
+        delta = x[i] - x[j]
+        dist = length(delta)
+        gap = dist - self.node_radius[i] - self.node_radius[j]
+        pair = col(contact_force_magnitude(gap, self.p0, self.c0, self.u_linear) / np.maximum(dist, 1e-300)) * delta
+        np.add.at(f, i, pair)
+        np.add.at(f, j, -pair)
+        return np.where(col(free != 0), f, 0.0)
 
     def compute_forces(self) -> None:
         """Solver.compute_forces at the current state."""

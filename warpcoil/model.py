@@ -61,6 +61,7 @@ class ContactModel:
     p0_uN: float
     c0_mm: float
     exclusion_edges: int  # same-coil edges this close along the coil never touch (bonded neighbours)
+    fold_span: int  # nodes i and i ± 2·fold_span repel when a coil folds sharply (about 2d apart at rest)
     query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0
 
     def stiffness_uN_mm(self, u: float = CONTACT_DESIGN_OVERLAP_U) -> float:
@@ -239,6 +240,7 @@ class ModelBuilder:
         contact_model = ContactModel(
             p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
             exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
+            fold_span=max(1, int(math.ceil(float(d.max()) / float(edge_len[has_next == 1].mean()) - 1e-6))),
             query_radius_mm=longest + float(d.max()) + c0)
 
         arr = lambda v, t: wp.array(v, dtype=t, device=device)  # noqa: E731

@@ -15,13 +15,14 @@ import numpy as np
 import warp as wp
 
 from .kernels import contact, elastic, integrate
-from .model import CONTACT_DESIGN_OVERLAP_U, Model
+from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
 
 SPEED_LIMIT_MM_S = 1.0e5  # 100 m/s: far beyond any whip of a released coil end; a node this fast has gone unstable
 WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a node ~1e-3 mm
 CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
+CONTACTS_AT_ONSET = 8  # ... and in a dense pack, for where the contact law turns linear
 
 
 class UnstableStepError(ValueError):
@@ -82,16 +83,18 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> Ste
 def contact_linear_onset(model: Model, dt_s: float) -> float:
     """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
     MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
-    step dt can integrate for the lightest node pressed from CONTACTS_PER_NODE
-    sides (k_max = m (2/dt)² / CONTACTS_PER_NODE). Never below the design overlap
-    u = 3 that the step bound already covers. Up to it the law is exact; past it
-    the force keeps growing along the law's tangent, so deep overlaps in an
-    overpacked sac stay stable instead of blowing up."""
+    step dt can integrate for the lightest node pressed from CONTACTS_AT_ONSET
+    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET); never below u = 2 (h = −c0).
+    Up to it the law is exact; past it the force keeps growing along the law's
+    tangent, so deep overlaps in an overpacked sac stay stable instead of blowing
+    up. For the default coil and step it is u ≈ 2.8 (|F| ≈ 24 P0)."""
     m_min = 1.0 / float(model.inv_mass.numpy().max())
-    k_max = m_min * (2.0 / dt_s) ** 2 / CONTACTS_PER_NODE
-    low, high = CONTACT_DESIGN_OVERLAP_U, 7.0
+    k_max = m_min * (2.0 / dt_s) ** 2 / CONTACTS_AT_ONSET
+    low, high = 2.0, 7.0
     if model.contact.stiffness_uN_mm(high) <= k_max:
         return high
+    if model.contact.stiffness_uN_mm(low) >= k_max:
+        return low
     for _ in range(60):
         mid = 0.5 * (low + high)
         low, high = (mid, high) if model.contact.stiffness_uN_mm(mid) <= k_max else (low, mid)
@@ -194,7 +197,8 @@ class Solver:
             m.rest_twist, self.grad_prev, self.grad_mid, self.grad_next, self.grad_theta])
         wp.launch(elastic.gather_forces, n, device=dev, inputs=[
             state.x, state.free, m.has_next, m.k_stretch, m.rest_length, self.grad_prev, self.grad_mid,
-            self.grad_next, self.grad_theta, m.external, self.contact_force, wp.vec3d(*m.catheter_axis),
+            self.grad_next, self.grad_theta, m.external, self.contact_force, m.node_radius, m.contact.fold_span,
+            m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, wp.vec3d(*m.catheter_axis),
             self.force, self.torque, self.push_share])
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:

@@ -45,7 +45,7 @@ from ..deploy import COIL_GAP_MM, build_model
 from ..model import Model, ModelBuilder
 from ..recorder.atomic import write_text_atomic
 from ..scene import load_scene
-from ..settings import SimulationSettings
+from ..settings import DEFAULT_DT_SAFETY, SimulationSettings
 from ..solver import Control, Solver, Stepper
 from ..state import State, new_state_like, packed_state, state_from_positions
 from .report import markdown_table, timed, write_report
@@ -97,7 +97,7 @@ class Window:
     note: str = ""
 
 
-def helix_window(dt_safety: float = 0.5, segments: int | None = None) -> Window:
+def helix_window(dt_safety: float = DEFAULT_DT_SAFETY, segments: int | None = None) -> Window:
     """validation.helix_recovery's coil and solver, started straight (``segments``:
     None for the model's l0 = d, else L/segments)."""
     length = validation.HELIX["length_mm"]
@@ -246,7 +246,7 @@ class HelixRow:
         return max(self.diameter_error, self.pitch_error)
 
 
-def warpcoil_helix_recovery(dt_safety: float = 0.5, segments: int | None = None) -> tuple[list, int]:
+def warpcoil_helix_recovery(dt_safety: float = DEFAULT_DT_SAFETY, segments: int | None = None) -> tuple[list, int]:
     """validation.helix_recovery (same model, solver, chunk, rest test and fit),
     also returning its step count."""
     window = helix_window(dt_safety, segments)
@@ -265,7 +265,7 @@ def warpcoil_helix_rows(settings: list[tuple[int | None, float]], repeats: int) 
         (res, steps), t = timed(lambda: warpcoil_helix_recovery(safety, segments), repeats)
         solver = helix_window(safety, segments).solver
         n = solver.model.node_count - 1
-        default = segments is None and safety == 0.5
+        default = segments is None and safety == DEFAULT_DT_SAFETY
         label = f"l0 d ({n} segments)" if segments is None else f"{n} segments (l0 {60.0 / n:.2f} mm)"
         rows.append(HelixRow("warpcoil", f"{label}, dt {safety:g} bound{' (default)' if default else ''}",
                              n, solver.dt_s, solver.bound.dt_s, steps, t, res[0].result, res[1].result,
@@ -362,7 +362,8 @@ def main(out: Path, quick: bool, repeats: int) -> int:
     # 2. PyElastica
     reason = ph.unavailable_reason()
     pe: dict = {"available": reason is None}
-    warp_settings = [(None, 0.5), (50, 0.9)] if quick else [(None, 0.5), (None, 0.9), (50, 0.5), (50, 0.9)]
+    warp_settings = [(None, DEFAULT_DT_SAFETY), (50, 0.9)] if quick else [(None, DEFAULT_DT_SAFETY), (None, 0.5),
+                                                                          (50, 0.5), (50, 0.9)]
     warp_rows = warpcoil_helix_rows(warp_settings, repeats)
     for r in warp_rows:
         print(f"helix {r.code:10s} {r.setting:34s} {r.wall_time_s:7.2f} s  D err {r.diameter_error:.2e}  "

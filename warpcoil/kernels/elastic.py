@@ -21,6 +21,7 @@ identical results on CPU and CUDA.
 
 import warp as wp
 
+from .contact import contact_force_magnitude
 from .rod import (
     F64_0,
     F64_1,
@@ -132,6 +133,43 @@ def stretch_force(x: wp.array(dtype=wp.vec3d), k_stretch: wp.array(dtype=wp.floa
     return (k_stretch[i] * (length - rest_length[i]) / length) * e
 
 
+@wp.func
+def bonded_span(has_next: wp.array(dtype=wp.int32), i: int, span: int) -> bool:
+    """Nodes i and i + span are joined by ``span`` edges of one coil."""
+    if i < 0 or i + span >= has_next.shape[0]:
+        return False
+    joined = bool(True)
+    for k in range(span):
+        if has_next[i + k] == 0:
+            joined = False
+    return joined
+
+
+@wp.func
+def fold_force(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
+               node_radius: wp.array(dtype=wp.float64), i: int, span: int, p0: wp.float64, c0: wp.float64,
+               u_linear: wp.float64) -> wp.vec3d:
+    """Neighbouring windings: node i against nodes i ± 2·span along its coil with
+    the contact law of the gap |x_i − x_j| − d. At rest they are about 2d apart
+    (no force); the force appears only when the coil folds sharply (over ~113° at
+    l0 = d), so a vertex cannot fold back onto itself, where the curvature of the
+    angle form is singular. Bonded neighbours are otherwise out of contact."""
+    f = wp.vec3d(F64_0, F64_0, F64_0)
+    for side in range(2):
+        j = i + 2 * span
+        first = i
+        if side == 1:
+            j = i - 2 * span
+            first = j
+        if bonded_span(has_next, first, 2 * span):
+            delta = x[i] - x[j]
+            dist = wp.length(delta)
+            if dist > wp.float64(1.0e-12):
+                gap = dist - node_radius[i] - node_radius[j]
+                f = f + (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+    return f
+
+
 @wp.kernel
 def gather_forces(
     x: wp.array(dtype=wp.vec3d),
@@ -145,6 +183,11 @@ def gather_forces(
     grad_theta: wp.array(dtype=wp.vec2d),
     external: wp.array(dtype=wp.vec3d),
     contact: wp.array(dtype=wp.vec3d),
+    node_radius: wp.array(dtype=wp.float64),
+    fold_span: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
     push_axis: wp.vec3d,
     force: wp.array(dtype=wp.vec3d),
     torque: wp.array(dtype=wp.float64),
@@ -171,10 +214,12 @@ def gather_forces(
         if edge_valid(has_next, i):
             f = f + stretch_force(x, k_stretch, rest_length, i)
     share = F64_0
+    fold = wp.vec3d(F64_0, F64_0, F64_0)
     if free[i] != 0:
         share = wp.dot(f, push_axis)
+        fold = fold_force(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     push_share[i] = share
-    force[i] = f + external[i] + contact[i]
+    force[i] = f + external[i] + contact[i] + fold
     torque[i] = tq
 
 
