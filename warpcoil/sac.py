@@ -45,14 +45,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from trimesh.grouping import group_rows
-from vtkmodules.util.misc import calldata_type
 from vtkmodules.util.numpy_support import vtk_to_numpy
-from vtkmodules.vtkCommonCore import VTK_STRING, vtkCommand
-from vtkmodules.vtkIOLegacy import vtkPolyDataReader
-from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
 
 from .preshape import PreshapeError, read_centerline
-from .wall import WallMesh, component_labels
+from .wall import WallMesh, component_labels, read_vtk_polydata
 
 CAP_MIN_VALENCE = 10  # a capped open end: a fan of at least this many triangles around one hub vertex
 CAP_MAX_WARP = 0.02  # ... whose ring lies within this fraction of its diameter of a plane
@@ -274,20 +270,10 @@ def _read_contour(path: Path) -> np.ndarray:
 
 def _read_vtk_contour(path: Path) -> np.ndarray:
     """Points of the first polygon (else polyline) cell of a VTK PolyData file."""
-    reader = vtkXMLPolyDataReader() if path.suffix.lower() == ".vtp" else vtkPolyDataReader()
-    messages: list[str] = []
-
-    @calldata_type(VTK_STRING)
-    def collect(_caller: object, _event: str, message: str) -> None:
-        messages.append(message.strip().rsplit("): ", 1)[-1])
-
-    reader.AddObserver(vtkCommand.ErrorEvent, collect)  # observers also keep VTK from printing
-    reader.AddObserver(vtkCommand.WarningEvent, collect)
-    reader.SetFileName(str(path))
-    reader.Update()
-    if messages:
-        raise _error(path, f"cannot be read as VTK PolyData ({messages[0]})", "check or re-export the neck file")
-    data = reader.GetOutput()
+    try:
+        data = read_vtk_polydata(path)
+    except ValueError as exc:
+        raise _error(path, f"cannot be read as VTK PolyData ({exc})", "check or re-export the neck file") from None
     for cells in (data.GetPolys(), data.GetLines()):
         if cells.GetNumberOfCells() > 0:
             offsets = vtk_to_numpy(cells.GetOffsetsArray())

@@ -129,32 +129,45 @@ def _read_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 
-def _read_vtk(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Legacy or XML VTK PolyData; polygons triangulated, line and vertex cells dropped."""
+def read_vtk_polydata(path: Path, triangulate: bool = False):
+    """Legacy ``.vtk`` or XML ``.vtp`` PolyData read with VTK (``triangulate``:
+    polygons split into triangles, line and vertex cells dropped). VTK's errors
+    and warnings are collected instead of printed and raised as one ValueError."""
     if path.suffix.lower() == ".vtp":
         reader = vtkXMLPolyDataReader()
         if not reader.CanReadFile(str(path)):
-            raise _error(path, "is not a VTK XML PolyData file", "export the surface as .vtp PolyData")
+            raise ValueError("not a VTK XML PolyData file")
     else:
         reader = vtkPolyDataReader()
-    triangulate = vtkTriangleFilter()
-    triangulate.PassVertsOff()
-    triangulate.PassLinesOff()
-    triangulate.SetInputConnection(reader.GetOutputPort())
+    last = reader
+    if triangulate:
+        last = vtkTriangleFilter()
+        last.PassVertsOff()
+        last.PassLinesOff()
+        last.SetInputConnection(reader.GetOutputPort())
     messages: list[str] = []
 
     @calldata_type(VTK_STRING)
     def collect(_caller: object, _event: str, message: str) -> None:
         messages.append(message.strip().rsplit("): ", 1)[-1])
 
-    for algorithm in (reader, triangulate):  # observers also keep VTK from printing
+    for algorithm in {reader, last}:  # observers also keep VTK from printing
         algorithm.AddObserver(vtkCommand.ErrorEvent, collect)
         algorithm.AddObserver(vtkCommand.WarningEvent, collect)
     reader.SetFileName(str(path))
-    triangulate.Update()
+    last.Update()
     if messages:
-        raise _error(path, f"cannot be read as VTK PolyData ({messages[0]})", "check or re-export the file")
-    surface = triangulate.GetOutput()
+        raise ValueError(messages[0])
+    return last.GetOutput()
+
+
+def _read_vtk(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Legacy or XML VTK PolyData; polygons triangulated, line and vertex cells dropped."""
+    try:
+        surface = read_vtk_polydata(path, triangulate=True)
+    except ValueError as exc:
+        raise _error(path, f"cannot be read as VTK PolyData ({exc})", "check or re-export the file as PolyData") \
+            from None
     if surface.GetNumberOfPolys() == 0:  # (then it may have no points array either)
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     vertices = vtk_to_numpy(surface.GetPoints().GetData())
