@@ -165,3 +165,29 @@ def test_limited_wall_search_gives_the_same_run_as_the_full_search():
         assert touched > 0.0
     assert np.array_equal(results[0], results[1])
     assert np.isfinite(results[0]).all()
+
+
+def test_a_sharp_fold_is_pushed_open_by_the_neighbouring_windings():
+    """Bonded neighbours never touch, but nodes i and i + 2 of a coil folded back on
+    itself (170° at one vertex) repel with the contact law of |x_i − x_j| − d."""
+    l0 = D
+    half = np.radians(5.0)  # half the 10° between the two arms: a 170° turn at node 2
+    x = np.array([[-2 * l0 * np.sin(half), -2 * l0 * np.cos(half), 0.0],
+                  [-l0 * np.sin(half), -l0 * np.cos(half), 0.0],
+                  [0.0, 0.0, 0.0],
+                  [l0 * np.sin(half), -l0 * np.cos(half), 0.0],
+                  [2 * l0 * np.sin(half), -2 * l0 * np.cos(half), 0.0]])
+    straight = np.stack([np.arange(5) * l0, np.zeros(5), np.zeros(5)], axis=1)
+    builder = wc.ModelBuilder()
+    builder.add_coil(wc.CoilSpec(length_mm=4 * l0, segment_length_mm=l0), straight)
+    model = builder.finalize()
+    solver = wc.Solver(model, coil_contact=False)
+    state = wc.state_from_positions(model, x)
+    solver.compute_forces(state)
+    force = solver.force.numpy()
+    apart = (x[1] - x[3]) / np.linalg.norm(x[1] - x[3])
+    gap = np.linalg.norm(x[1] - x[3]) - D
+    law = wp_law(np.array([gap]), model.contact.p0_uN, model.contact.c0_mm, solver.contact_u_linear)[0]
+    assert model.contact.fold_span == 1
+    assert force[1] @ apart >= law > 100 * model.contact.p0_uN
+    assert force[3] @ -apart >= law
