@@ -101,3 +101,26 @@ def test_a_neck_defines_the_sac_places_the_catheter_and_gives_regional_densities
     x = result.positions_mm[0]
     above = x[:, 2] > z_neck
     assert result.length_outside_sac_mm == pytest.approx(0.2921 * np.count_nonzero(~above), abs=0.3)
+
+
+def test_a_frame_that_goes_unstable_is_redone_with_half_the_step(monkeypatch):
+    """Force the first health check to fail: the run restarts that frame with half
+    the step, reports it, and completes."""
+    from warpcoil.solver import SimulationUnstable, Solver
+
+    real = Solver.check_health
+    calls = {"n": 0}
+
+    def flaky(self, state, energy_budget_nJ=None):
+        calls["n"] += 1
+        if calls["n"] == 2:  # the first frame after the start
+            raise SimulationUnstable("forced for the test at t = 0")
+        return real(self, state, energy_budget_nJ)
+
+    monkeypatch.setattr(Solver, "check_health", flaky)
+    deployment = Deployment(two_coil_scene())
+    dt = deployment.solver.dt_s
+    result = deployment.run()
+    assert result.status == COMPLETED, result.reason
+    assert len(result.step_reductions) == 1 and "step halved" in result.step_reductions[0]
+    assert result.dt_s == pytest.approx(dt / 2)

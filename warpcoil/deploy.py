@@ -19,10 +19,11 @@ from .kernels.contact import FAR_MM
 from .model import Model, ModelBuilder
 from .settings import CatheterSpec, Scene
 from .solver import Control, SimulationUnstable, Solver, Stepper
-from .state import State, packed_state
+from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
+MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
 
 
@@ -74,6 +75,7 @@ class RunResult:
     final_stretch_nJ: float
     coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
     regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
+    step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
 
@@ -235,6 +237,21 @@ class Deployment:
         m.has_next.assign(has_next)
         m.fixed.assign(fixed)
 
+    def _halve_step(self, snapshot: State, why: str) -> Stepper:
+        """Go back to the frame's start with half the step (and a new captured graph).
+        The step bound is linear; dense contact (several deep overlaps on one node)
+        can be stiffer, and then the frame is redone rather than lost. Not done for
+        a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
+        self._steps_done += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
+        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True)
+        self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
+                                    f"step halved to {solver.dt_s:.3e} s")
+        start = new_state_like(self.model)
+        start.copy_from(snapshot)
+        self.solver = solver
+        self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
+        return self.stepper
+
     # --- the run ---------------------------------------------------------------
     def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
         sim = self.scene.simulation
@@ -242,6 +259,8 @@ class Deployment:
         frames: list[Frame] = []
         self.coil_status = ["waiting"] * self.model.coil_count
         self.jam_reasons: list[str] = []
+        self.step_reductions: list[str] = []
+        self._steps_done = 0
         active = self._activate(0)
         status, reason = TIMEOUT, f"simulated time reached max_time_s = {self.max_time_s:g} s"
         started = time.perf_counter()
@@ -249,11 +268,16 @@ class Deployment:
         frames.append(first)
         if on_frame:
             on_frame(first, stepper.state)
+        snapshot = new_state_like(self.model)
         while stepper.state.time_s < self.max_time_s:
+            snapshot.copy_from(stepper.state)
             try:
                 stepper.run_chunk()
                 frame = self.measure(stepper.state, self.solver.take_push_force(stepper.chunk))
             except SimulationUnstable as error:
+                if not sim.allow_unstable_dt and len(self.step_reductions) < MAX_STEP_HALVINGS:
+                    stepper = self._halve_step(snapshot, error.reason)
+                    continue
                 status, reason = FAILED, error.reason
                 break
             frames.append(frame)
@@ -305,7 +329,7 @@ class Deployment:
                  for k, c in enumerate(m.coils)]
         finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
         return RunResult(
-            status=status, reason=reason, steps=self.stepper.steps, dt_s=self.solver.dt_s,
+            status=status, reason=reason, steps=self._steps_done + self.stepper.steps, dt_s=self.solver.dt_s,
             step_bound_s=self.solver.bound.dt_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
             simulated_time_s=state.time_s, coil_length_mm=float(self.coil_lengths_mm.sum()),
             deployed_length_mm=deployed, sac_volume_mm3=sac_volume,
@@ -317,6 +341,7 @@ class Deployment:
             max_push_force_uN=max(f.push_force_uN for f in frames),
             stored_energy_nJ=self.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
             final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils, regions=self._regions(x),
+            step_reductions=list(self.step_reductions),
             frames=frames,
             positions_mm=[x[m.node_slice(c)] for c in range(m.coil_count)])
 
