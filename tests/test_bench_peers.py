@@ -18,16 +18,20 @@ from warpcoil.metrics import fit_helix
 numpy_twin, ph = peers.import_benchmarks()
 
 
+def assert_agrees(row, tolerance):
+    a = row.agreement
+    assert a["free_equal"] and a["time_equal"]
+    assert a["position_rel"] <= tolerance
+    assert a["director_abs"] <= peers.DIRECTOR_FACTOR * tolerance
+    assert a["energy_rel"] <= tolerance
+    assert row.agrees
+
+
 def test_twin_agrees_with_warp_on_the_free_helix():
     row = peers.compare_twin(numpy_twin, peers.helix_window(), steps=400, repeats=1,
                              tolerance=peers.HELIX_TOLERANCE, chunk=100, warp_repeats=1)
     assert row.max_displacement_mm > 1e-3  # the coil is whipping out of straight: a real check
-    a = row.agreement
-    assert a["free_equal"] and a["time_equal"]
-    assert a["position_rel"] <= peers.HELIX_TOLERANCE
-    assert a["director_abs"] <= peers.DIRECTOR_FACTOR * peers.HELIX_TOLERANCE
-    assert a["energy_rel"] <= peers.HELIX_TOLERANCE
-    assert row.agrees
+    assert_agrees(row, peers.HELIX_TOLERANCE)
 
 
 def test_twin_agrees_with_warp_in_the_seed_deployment():
@@ -36,12 +40,7 @@ def test_twin_agrees_with_warp_in_the_seed_deployment():
                              warp_repeats=1)
     assert row.twin_max_wall_contacts >= 1  # the wall pass exerts a force in this window
     assert row.max_displacement_mm > 1e-4
-    a = row.agreement
-    assert a["free_equal"] and a["time_equal"]
-    assert a["position_rel"] <= peers.SEED_TOLERANCE
-    assert a["director_abs"] <= peers.DIRECTOR_FACTOR * peers.SEED_TOLERANCE
-    assert a["energy_rel"] <= peers.SEED_TOLERANCE
-    assert row.agrees
+    assert_agrees(row, peers.SEED_TOLERANCE)
 
 
 def _needs_pyelastica():

@@ -150,7 +150,8 @@ class Deployment:
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control, chunk=steps)
         self.coil_status: list[str] = []
         self.coil_lengths_mm = np.array([self.model.arc_s.numpy()[last] for last in self.model.coil_last])
-        self.stored_energy_nJ = self._elastic(self.solver.energies(self.stepper.state))
+        packed = self.solver.energies(self.stepper.state)
+        self.stored_energy_nJ = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         self._pusher_work_nJ, self._last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
@@ -176,10 +177,6 @@ class Deployment:
         from .sac import inside_sac
 
         return inside_sac(self.anatomy.sac, points_mm)
-
-    @staticmethod
-    def _elastic(e: dict) -> float:
-        return e["bend_nJ"] + e["twist_nJ"] + e["stretch_nJ"]
 
     # --- measurement ---------------------------------------------------------
     def measure(self, state: State, push: tuple[float, float]) -> Frame:

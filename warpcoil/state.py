@@ -28,9 +28,6 @@ class State:
             wp.copy(getattr(self, name), getattr(other, name))
         self.time_s = other.time_s
 
-    def positions(self) -> np.ndarray:
-        return self.x.numpy()
-
 
 def _free_flags(model: Model, advance: np.ndarray) -> np.ndarray:
     coil_of = model.coil_of.numpy()

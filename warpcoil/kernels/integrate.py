@@ -186,16 +186,10 @@ def place_on_catheter(
     catheter_path: wp.array(dtype=wp.vec3d),
     x: wp.array(dtype=wp.vec3d),
 ):
-    """Packed positions: node i at catheter coordinate σ = advance − s_i (σ ≤ 0
-    inside; σ > 0 is placed on the tip's extension)."""
+    """Packed positions: node i at depth −σ = s_i − advance behind the tip (σ ≤ 0)."""
     i = wp.tid()
-    sigma = advance[coil_of[i]] - arc_s[i]
-    if sigma <= F64_0:
-        p, direction = catheter_point(catheter_path, -sigma)
-        x[i] = p
-    else:
-        p, direction = catheter_point(catheter_path, F64_0)
-        x[i] = p + sigma * direction
+    p, direction = catheter_point(catheter_path, arc_s[i] - advance[coil_of[i]])
+    x[i] = p
 
 
 @wp.kernel

@@ -67,14 +67,6 @@ def angle_factors(s: wp.float64, c: wp.float64):
 
 
 @wp.func
-def curvature_vector(t0: wp.vec3d, t1: wp.vec3d) -> wp.vec3d:
-    """κ = φ (t0 × t1)/|t0 × t1| (rad), the rotation vector from t0 to t1."""
-    w = wp.cross(t0, t1)
-    phi, psi, chi = angle_factors(wp.length(w), wp.dot(t0, t1))
-    return psi * w
-
-
-@wp.func
 def material_curvature(kappa: wp.vec3d, t: wp.vec3d, m1: wp.vec3d) -> wp.vec2d:
     """Components of κ in the material frame (m1, m2 = t × m1) of one edge."""
     return wp.vec2d(wp.dot(kappa, m1), wp.dot(kappa, wp.cross(t, m1)))
