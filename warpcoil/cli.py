@@ -1,4 +1,4 @@
-"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil validate``.
+"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``.
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out.
@@ -46,7 +46,7 @@ def _run(args: argparse.Namespace) -> int:
     progress(None)
     if usd is not None:
         usd.close()
-    outputs.write_run(out, scene, deployment, result, {"scene": str(scene.source)})
+    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source)})
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
@@ -71,6 +71,38 @@ def _progress(deployment, quiet: bool):
         bar.set_postfix_str(f"push {frame.push_force_uN:8.1f} µN, t = {frame.time_s:.3f} s", refresh=True)
 
     return update
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from .model import EnsembleError
+    from .preshape import PreshapeError
+    from .scene import SceneError
+    from .solver import UnstableStepError
+    from .sweep import SweepError, parse_vary, run_sweep
+    from .wall import WallError
+
+    out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
+    try:
+        varies = [parse_vary(v) for v in args.vary]
+        out.mkdir(parents=True, exist_ok=True)
+        bar = None
+        if not args.quiet:
+            from tqdm import tqdm
+            bar = tqdm(unit="deployment", desc="sweep")
+
+        def progress(done, total):
+            bar.total = total
+            bar.update(done - bar.n)
+
+        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None)
+        if bar:
+            bar.close()
+    except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError) as error:
+        print(f"warpcoil sweep: {error}", file=sys.stderr)
+        return 2
+    print((out / "summary.md").read_text())
+    codes = {EXIT_FOR_STATUS[m.result.status] for m in todo}
+    return 1 if 1 in codes else max(codes)
 
 
 def _validate(args: argparse.Namespace) -> int:
@@ -118,6 +150,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3; 1 with --quick)")
     bench.set_defaults(func=_bench)
 
+    sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary")
+    sweep.add_argument("scene", help="scene TOML file")
+    sweep.add_argument("--vary", action="append", required=True, metavar="KEY=START:STOP:STEP|A,B,C",
+                       help="a scene key to vary, e.g. catheter.angle_deg=0:30:5 or coil.length_mm=40,50 (repeat "
+                            "for a product)")
+    sweep.add_argument("-o", "--output", help="output folder (default out/<scene name>_sweep)")
+    sweep.add_argument("--device", help="Warp device, e.g. cpu or cuda:0 (default Warp's)")
+    sweep.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    sweep.set_defaults(func=_sweep)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")

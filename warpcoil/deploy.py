@@ -11,14 +11,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
 from .kernels.contact import FAR_MM
-from .model import Model, ModelBuilder
+from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .settings import CatheterSpec, Scene
-from .solver import Control, SimulationUnstable, Solver, Stepper
+from .solver import Control, Solver, Stepper
 from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
@@ -124,107 +124,188 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
     return Anatomy(wall=wall, sac=sac, catheter=catheter)
 
 
-def build_model(scene: Scene, device=None, anatomy: Anatomy | None = None) -> Model:
-    """Model from a scene: coils (pre-shapes), catheter, contact and the wall mesh."""
-    anatomy = anatomy or resolve_anatomy(scene)
+def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
+    """:func:`resolve_anatomy` for each scene; scenes with the same wall and neck
+    share one wall mesh and sac (read and cut once, one BVH on the device)."""
+    from .sac import catheter_from_neck
+
+    shared: dict[tuple, Anatomy] = {}
+    anatomies = []
+    for scene in scenes:
+        key = (repr(scene.wall), repr(scene.neck))
+        if key not in shared:
+            shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
+        base = shared[key]
+        catheter = scene.catheter
+        if catheter.placement == "neck":
+            tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+            catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
+        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter))
+    return anatomies
+
+
+def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
+    """The builder of a scene's world: coils (pre-shapes), catheter, contact and wall."""
     builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
                            wall=anatomy.wall)
     for coil in scene.coils:
         builder.add_coil(coil)
-    return builder.finalize(device)
+    return builder
 
 
-class Deployment:
-    """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
-    (if given) is called after every recorded frame with (frame, state)."""
+def build_model(scene: Scene, device=None, anatomy: Anatomy | None = None) -> Model:
+    """Model from a scene: coils (pre-shapes), catheter, contact and the wall mesh."""
+    return model_builder(scene, anatomy or resolve_anatomy(scene)).finalize(device)
 
-    def __init__(self, scene: Scene, device=None):
-        self.scene = scene
+
+class Member:
+    """One deployment's bookkeeping inside an ensemble (world ``world`` of the
+    model): its coil sequence, energy budget, frames and, once it ends, its result."""
+
+    def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, stored_energy_nJ: float):
         sim = scene.simulation
-        self.anatomy = resolve_anatomy(scene)
-        self.model = build_model(scene, device, self.anatomy)
-        self.solver = Solver(self.model, dt_s=sim.dt_s, dt_safety=sim.dt_safety,
-                             allow_unstable_dt=sim.allow_unstable_dt)
-        steps = max(2, 2 * round(sim.frame_interval_s / self.solver.dt_s / 2))
-        self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=sim.push_speed_mm_s)
-        self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control, chunk=steps)
-        self.coil_status: list[str] = []
-        self.coil_lengths_mm = np.array([self.model.arc_s.numpy()[last] for last in self.model.coil_last])
-        packed = self.solver.energies(self.stepper.state)
-        self.stored_energy_nJ = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
-        self._pusher_work_nJ, self._last_advance_mm = 0.0, 0.0
-        push_time = float(self.coil_lengths_mm.sum() + self.model.coil_count) / sim.push_speed_mm_s
+        self.world, self.scene, self.anatomy = world, scene, anatomy
+        self.nodes = model.world_nodes(world)
+        self.coils = model.world_coils(world)
+        arc_s = model.arc_s.numpy()
+        self.coil_lengths_mm = np.array([arc_s[model.coil_last[c]] for c in self.coils])
+        self.stored_energy_nJ = stored_energy_nJ
+        self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
+        push_time = float(self.coil_lengths_mm.sum() + len(self.coils)) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
-        total_mass_g = float((1.0 / self.model.inv_mass.numpy()).sum())
+        self.mass_g = 1.0 / model.inv_mass.numpy()[self.nodes]
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
-                                       else 0.5 * total_mass_g * REST_SPEED_MM_S**2)
-        self._radius = self.model.node_radius.numpy()
-        self._segment = np.repeat([self.model.rest_length.numpy()[f] for f in self.model.coil_first],
-                                  self.model.coil_last - self.model.coil_first + 1)
+                                       else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
+        self.radius = model.node_radius.numpy()[self.nodes]
+        rest_length = model.rest_length.numpy()
+        self.segment = np.repeat([rest_length[model.coil_first[c]] for c in self.coils],
+                                 model.coil_last[self.coils.start:self.coils.stop]
+                                 - model.coil_first[self.coils.start:self.coils.stop] + 1)
+        self.coil_status = ["waiting"] * len(self.coils)
+        self.jam_reasons: list[str] = []
+        self.frames: list[Frame] = []
+        self.active = -1  # local index of the pushed coil
+        self.steps = 0
+        self.result: RunResult | None = None
 
-    def _energy_budget_nJ(self, state: State, push_force_uN: float) -> float:
+    def energy_budget_nJ(self, advance: np.ndarray, free: np.ndarray, push_force_uN: float) -> float:
         """Energy put into the coils so far (nJ): stored by packing, work of the pusher
         (|mean push force| × advance, per frame), and the push-speed kinetic energy
         each released node brings out."""
-        advance = float(np.clip(state.advance.numpy(), 0.0, self.coil_lengths_mm).sum())
-        self._pusher_work_nJ += abs(push_force_uN) * max(advance - self._last_advance_mm, 0.0)
-        self._last_advance_mm = advance
-        released = float((state.free.numpy() == 1) @ (1.0 / self.model.inv_mass.numpy()))
+        deployed = float(np.clip(advance, 0.0, self.coil_lengths_mm).sum())
+        self.pusher_work_nJ += abs(push_force_uN) * max(deployed - self.last_advance_mm, 0.0)
+        self.last_advance_mm = deployed
+        released = float((free == 1) @ self.mass_g)
         speed = self.scene.simulation.push_speed_mm_s
-        return self.stored_energy_nJ + self._pusher_work_nJ + 0.5 * released * speed**2 + 1.0
+        return self.stored_energy_nJ + self.pusher_work_nJ + 0.5 * released * speed**2 + 1.0
 
-    def _in_sac(self, points_mm: np.ndarray) -> np.ndarray:
+    def in_sac(self, points_mm: np.ndarray) -> np.ndarray:
         from .sac import inside_sac
 
         return inside_sac(self.anatomy.sac, points_mm)
 
+
+@dataclass
+class Snapshot:
+    """Host copies of the solver arrays a frame's measurement reads (all worlds)."""
+
+    time_s: float
+    x: np.ndarray
+    free: np.ndarray
+    advance: np.ndarray
+    wall_distance: np.ndarray
+    wall_force: np.ndarray
+    coil_gap: np.ndarray
+    coil_contacts: np.ndarray
+
+
+class Ensemble:
+    """Deployments of several scenes advanced by one set of launches (one world
+    each), frame by frame; ``run()`` returns one RunResult per scene, each equal
+    to what a single run of that scene gives. ``on_frame(member, frame, state)``
+    (if given) is called after every recorded frame of every member.
+
+    The scenes must give the same step (dt, and the contact law's linear onset)
+    and frame length; :func:`ensemble_groups` splits a sweep into such groups.
+    A member that goes unstable is stopped and, after the others, run alone
+    (where its step can be halved, as a single run's would be)."""
+
+    def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None):
+        self.scenes = list(scenes)
+        if not self.scenes:
+            raise ValueError("an ensemble needs at least one scene")
+        self.device = device
+        self.anatomies = list(anatomies) if anatomies is not None else resolve_anatomies(self.scenes)
+        self.model = finalize_ensemble([model_builder(s, a) for s, a in zip(self.scenes, self.anatomies)], device)
+        sims = [s.simulation for s in self.scenes]
+        steps = world_steps(self.model, self.scenes)
+        if len(set(steps)) > 1:
+            raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
+                                f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+        first = sims[0]
+        self.solver = Solver(self.model, dt_s=first.dt_s, dt_safety=first.dt_safety,
+                             allow_unstable_dt=first.allow_unstable_dt)
+        self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
+        self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
+                               chunk=steps[0][2])
+        packed, _ = self.solver.world_energies(self.stepper.state)
+        stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
+        self.members = [Member(w, s, a, self.model, float(stored[w]))
+                        for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
+        self.step_reductions: list[str] = []
+        self._steps_before = 0  # steps of chunks dropped by a step halving
+        self._work_before = (0.0, 0.0)  # a single run's pusher work and advance at the last frame
+
     # --- measurement ---------------------------------------------------------
-    def measure(self, state: State, push: tuple[float, float]) -> Frame:
-        """Frame quantities at ``state`` (contacts recomputed at this state)."""
-        s, m = self.solver, self.model
-        energies = s.check_health(state, self._energy_budget_nJ(state, push[0]))
-        s.compute_contacts(state, wall_search_mm=float(FAR_MM))  # exact distances for the report
-        free = state.free.numpy() == 1
-        advance = state.advance.numpy()
-        deployed = float(np.clip(advance, 0.0, self.coil_lengths_mm).sum())
+    def _snapshot(self, state: State) -> Snapshot:
+        s = self.solver
+        s.compute_contacts(state, wall_search_mm=float(FAR_MM), running=self.control.running)  # exact distances
+        arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
+        return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
+
+    def _measure(self, member: Member, snap: Snapshot, energies: dict, push: tuple[float, float]) -> Frame:
+        """Frame quantities of one member at the snapshot."""
+        w, sl, m = member.world, member.nodes, self.model
+        free = snap.free[sl] == 1
+        advance = snap.advance[member.coils.start:member.coils.stop]
+        deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
         c0 = m.contact.c0_mm
         wall_gap = np.inf
         wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
-        if m.wall is not None and free.any():
-            centre = s.wall_distance.numpy()[free]
-            gaps = centre - self._radius[free]
+        if m.world_walls[w] is not None and free.any():
+            centre = snap.wall_distance[sl][free]
+            gaps = centre - member.radius[free]
             wall_gap = float(gaps.min())
             wall_contacts = int((gaps < c0).sum())
-            max_wall_force = float(np.linalg.norm(s.wall_force.numpy()[free], axis=1).max())
-            outside = float(self._segment[free][centre < 0.0].sum())
-        if self.anatomy.sac is not None and free.any():
-            outside = float(self._segment[free][~self._in_sac(state.x.numpy()[free])].sum())
+            max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
+            outside = float(member.segment[free][centre < 0.0].sum())
+        if member.anatomy.sac is not None and free.any():
+            outside = float(member.segment[free][~member.in_sac(snap.x[sl][free])].sum())
         in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
-        coil_gap = float(s.coil_gap.numpy()[in_pass].min()) if (s.coil_contact and free.any()) else np.inf
+        coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (self.solver.coil_contact and free.any()) else np.inf
         return Frame(
-            time_s=state.time_s, deployed_length_mm=deployed, push_force_uN=push[0], push_force_max_uN=push[1],
-            kinetic_nJ=energies["kinetic_nJ"], bend_nJ=energies["bend_nJ"], twist_nJ=energies["twist_nJ"],
-            stretch_nJ=energies["stretch_nJ"], wall_contacts=wall_contacts,
-            coil_contacts=int(s.coil_contacts.numpy().sum()) // 2 if s.coil_contact else 0,
+            time_s=snap.time_s, deployed_length_mm=deployed, push_force_uN=float(push[0]),
+            push_force_max_uN=float(push[1]), kinetic_nJ=float(energies["kinetic_nJ"][w]),
+            bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
+            stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
+            coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
             max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
             length_outside_sac_mm=outside)
 
     # --- coil sequence -------------------------------------------------------------
-    def _activate(self, coil: int) -> int:
-        """Hand the pusher to ``coil`` (it was pushed along behind the previous one);
-        −1 when none is left."""
-        if coil >= self.model.coil_count:
-            self.control.set_active_coil(-1)
-            return -1
-        self.control.set_active_coil(coil)
-        self.coil_status[coil] = "pushing"
-        return coil
+    def _activate(self, member: Member, coil: int) -> None:
+        """Hand the member's pusher to its coil ``coil`` (pushed along behind the
+        previous one); none when no coil is left."""
+        member.active = coil if coil < len(member.coils) else -1
+        self.control.set_active_coil(member.active, world=member.world)
+        if member.active >= 0:
+            member.coil_status[coil] = "pushing"
 
-    def _retract(self, coil: int) -> None:
+    def _retract(self, member: Member, coil: int) -> None:
         """A jammed coil: its part still in the catheter is withdrawn (cut off at the
         tip and parked, out of every pass); the deployed part stays and is detached."""
         m = self.model
-        sl = m.node_slice(coil)
+        sl = m.node_slice(member.coils.start + coil)
         inside = np.flatnonzero(self.stepper.state.free.numpy()[sl] == 0) + sl.start
         if inside.size == 0:
             return
@@ -234,12 +315,12 @@ class Deployment:
         m.has_next.assign(has_next)
         m.fixed.assign(fixed)
 
-    def _halve_step(self, snapshot: State, why: str) -> Stepper:
+    def _halve_step(self, snapshot: State, why: str) -> None:
         """Go back to the frame's start with half the step (and a new captured graph).
         The step bound is linear; dense contact (several deep overlaps on one node)
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
-        self._steps_done += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
+        self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
         solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
@@ -247,115 +328,213 @@ class Deployment:
         start.copy_from(snapshot)
         self.solver = solver
         self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
-        return self.stepper
+
+    def _restore(self, member: Member, snapshot: State) -> None:
+        """Put a stopped member's nodes back to the frame's start (finite values)."""
+        state, sl, coils = self.stepper.state, member.nodes, slice(member.coils.start, member.coils.stop)
+        for name in ("x", "v", "m1", "omega", "free"):
+            now, then = getattr(state, name).numpy(), getattr(snapshot, name).numpy()
+            now[sl] = then[sl]
+            getattr(state, name).assign(now)
+        advance = state.advance.numpy()
+        advance[coils] = snapshot.advance.numpy()[coils]
+        state.advance.assign(advance)
 
     # --- the run ---------------------------------------------------------------
-    def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
-        sim = self.scene.simulation
-        stepper = self.stepper
-        frames: list[Frame] = []
-        self.coil_status = ["waiting"] * self.model.coil_count
-        self.jam_reasons: list[str] = []
-        self.step_reductions: list[str] = []
-        self._steps_done = 0
-        active = self._activate(0)
-        status, reason = TIMEOUT, f"simulated time reached max_time_s = {self.max_time_s:g} s"
-        started = time.perf_counter()
-        first = self.measure(stepper.state, (0.0, 0.0))
-        frames.append(first)
-        if on_frame:
-            on_frame(first, stepper.state)
-        snapshot = new_state_like(self.model)
-        while stepper.state.time_s < self.max_time_s:
-            snapshot.copy_from(stepper.state)
-            try:
-                stepper.run_chunk()
-                frame = self.measure(stepper.state, self.solver.take_push_force(stepper.chunk))
-            except SimulationUnstable as error:
-                if not sim.allow_unstable_dt and len(self.step_reductions) < MAX_STEP_HALVINGS:
-                    stepper = self._halve_step(snapshot, error.reason)
-                    continue
-                status, reason = FAILED, error.reason
-                break
-            frames.append(frame)
-            if on_frame:
-                on_frame(frame, stepper.state)
-            if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
-                self.coil_status[active] = JAMMED
-                deployed = float(np.clip(stepper.state.advance.numpy()[active], 0.0, self.coil_lengths_mm[active]))
-                self.jam_reasons.append(
-                    f"coil {active} ({self.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
-                    f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
-                    f"{self.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
-                self._retract(active)
-                active = self._activate(active + 1)
-            elif active >= 0 and stepper.state.advance.numpy()[active] >= self.coil_lengths_mm[active]:
-                self.coil_status[active] = "detached"
-                active = self._activate(active + 1)
-            if active < 0 and frame.kinetic_nJ < self.rest_kinetic_energy_nJ:
-                if self.jam_reasons:
-                    status, reason = JAMMED, "; ".join(self.jam_reasons) + "; then at rest"
-                else:
-                    status, reason = COMPLETED, "all coils detached and at rest"
-                break
-        if status in (TIMEOUT, FAILED) and self.jam_reasons:
-            reason = reason + "; earlier: " + "; ".join(self.jam_reasons)
-        return self._result(status, reason, frames, time.perf_counter() - started)
+    def _finish(self, member: Member, status: str, reason: str, started: float) -> None:
+        if status in (TIMEOUT, FAILED) and member.jam_reasons:
+            reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
+        member.steps = self._steps_before + self.stepper.steps
+        member.result = self._result(member, status, reason, time.perf_counter() - started)
+        self.control.stop(member.world)
 
-    def _result(self, status: str, reason: str, frames: list[Frame], wall_time_s: float) -> RunResult:
-        m, state = self.model, self.stepper.state
+    def _advance_member(self, member: Member, frame: Frame, started: float) -> None:
+        """After a frame: jam, detach and next coil, rest, timeout."""
+        sim = member.scene.simulation
+        state = self.stepper.state
+        active = member.active
+        coil = member.coils.start + active
+        if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
+            member.coil_status[active] = JAMMED
+            deployed = float(np.clip(state.advance.numpy()[coil], 0.0, member.coil_lengths_mm[active]))
+            member.jam_reasons.append(
+                f"coil {active} ({member.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
+                f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
+                f"{member.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
+            self._retract(member, active)
+            self._activate(member, active + 1)
+        elif active >= 0 and state.advance.numpy()[coil] >= member.coil_lengths_mm[active]:
+            member.coil_status[active] = "detached"
+            self._activate(member, active + 1)
+        if member.active < 0 and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
+            if member.jam_reasons:
+                self._finish(member, JAMMED, "; ".join(member.jam_reasons) + "; then at rest", started)
+            else:
+                self._finish(member, COMPLETED, "all coils detached and at rest", started)
+        elif state.time_s >= member.max_time_s:
+            self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s", started)
+
+    def _record(self, member: Member, frame: Frame, on_frame) -> None:
+        member.frames.append(frame)
+        if on_frame:
+            on_frame(member, frame, self.stepper.state)
+
+    def run(self, on_frame: Callable[[Member, Frame, State], None] | None = None) -> list[RunResult]:
+        started = time.perf_counter()
+        single = len(self.members) == 1
+        for member in self.members:
+            self._activate(member, 0)
+        state = self.stepper.state
+        energies, _ = self.solver.world_health(state)
+        snap = self._snapshot(state)
+        for member in self.members:
+            self._record(member, self._measure(member, snap, energies, (0.0, 0.0)), on_frame)
+            if state.time_s >= member.max_time_s:
+                self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
+                             started)
+        rerun: list[Member] = []
+        snapshot = new_state_like(self.model)
+        while any(m.result is None and m not in rerun for m in self.members):
+            snapshot.copy_from(self.stepper.state)
+            self.stepper.run_chunk()
+            state = self.stepper.state
+            push_mean, push_max = self.solver.take_push_force(self.stepper.chunk)
+            running = [m for m in self.members if m.result is None and m not in rerun]
+            advance, free = state.advance.numpy(), state.free.numpy()
+            budgets = np.zeros(self.model.world_count)
+            for m in running:
+                budgets[m.world] = m.energy_budget_nJ(advance[m.coils.start:m.coils.stop], free[m.nodes],
+                                                      push_mean[m.world])
+            energies, problems = self.solver.world_health(state, budgets)
+            unstable = [m for m in running if problems[m.world] is not None]
+            if unstable and single:
+                member = unstable[0]
+                if not member.scene.simulation.allow_unstable_dt and len(self.step_reductions) < MAX_STEP_HALVINGS:
+                    member.pusher_work_nJ, member.last_advance_mm = self._work_before
+                    self._halve_step(snapshot, problems[member.world])
+                    continue
+                self._finish(member, FAILED, problems[member.world], started)
+                break
+            for member in unstable:  # run alone afterwards, where its step can be halved
+                self.control.stop(member.world)
+                self._restore(member, snapshot)
+                rerun.append(member)
+            snap = self._snapshot(state)
+            for member in running:
+                if member in unstable:
+                    continue
+                frame = self._measure(member, snap, energies, (push_mean[member.world], push_max[member.world]))
+                self._record(member, frame, on_frame)
+                self._advance_member(member, frame, started)
+            if single:
+                self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
+        for member in rerun:
+            alone = Ensemble([member.scene], self.device, [member.anatomy])
+            forward = (lambda _m, frame, st, member=member: on_frame(member, frame, st)) if on_frame else None
+            result = alone.run(forward)[0]
+            member.frames, member.result = alone.members[0].frames, result
+        return [m.result for m in self.members]
+
+    def _result(self, member: Member, status: str, reason: str, wall_time_s: float) -> RunResult:
+        m, state, sl = self.model, self.stepper.state, member.nodes
+        frames = member.frames
         last = frames[-1]
-        deployed = last.deployed_length_mm
-        sac_volume = self.anatomy.sac_volume_mm3
-        deployed_each = np.clip(state.advance.numpy(), 0.0, self.coil_lengths_mm)
-        volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in m.coils]) * deployed_each
+        sac_volume = member.anatomy.sac_volume_mm3
+        advance = state.advance.numpy()[member.coils.start:member.coils.stop]
+        deployed_each = np.clip(advance, 0.0, member.coil_lengths_mm)
+        coil_specs = [m.coils[c] for c in member.coils]
+        volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in coil_specs]) * deployed_each
         coil_volume = float(volumes.sum())
         density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
-        x = state.x.numpy()
-        free = state.free.numpy() == 1
-        outside = np.zeros(m.node_count, bool)
-        if self.anatomy.sac is not None:
-            outside[free] = ~self._in_sac(x[free])
-        elif m.wall is not None:
-            outside[free] = self.solver.wall_distance.numpy()[free] < 0.0
-        coils = [dict(name=c.name, status=self.coil_status[k], wire_diameter_mm=c.d,
-                      length_outside_sac_mm=float(self._segment[m.node_slice(k)][outside[m.node_slice(k)]].sum()),
-                      loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(self.coil_lengths_mm[k]),
+        x = state.x.numpy()[sl].copy()  # the live state keeps changing (a CPU array's numpy() is a view)
+        free = state.free.numpy()[sl] == 1
+        outside = np.zeros(len(x), bool)
+        if member.anatomy.sac is not None:
+            outside[free] = ~member.in_sac(x[free])
+        elif m.world_walls[member.world] is not None:
+            outside[free] = self.solver.wall_distance.numpy()[sl][free] < 0.0
+        local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
+        coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
+                      length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
+                      loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(member.coil_lengths_mm[k]),
                       deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
                       cumulative_packing_density=density(volumes[: k + 1].sum()))
-                 for k, c in enumerate(m.coils)]
+                 for k, c in enumerate(coil_specs)]
         finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
         return RunResult(
-            status=status, reason=reason, steps=self._steps_done + self.stepper.steps, dt_s=self.solver.dt_s,
+            status=status, reason=reason, steps=member.steps, dt_s=self.solver.dt_s,
             step_bound_s=self.solver.bound.dt_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
-            simulated_time_s=state.time_s, coil_length_mm=float(self.coil_lengths_mm.sum()),
-            deployed_length_mm=deployed, sac_volume_mm3=sac_volume,
+            simulated_time_s=state.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
+            deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
             packing_density=coil_volume / sac_volume if sac_volume else None,
             length_outside_sac_mm=last.length_outside_sac_mm,
             min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
             min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
             max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
             max_push_force_uN=max(f.push_force_uN for f in frames),
-            stored_energy_nJ=self.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
-            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils, regions=self._regions(x),
-            step_reductions=list(self.step_reductions),
-            frames=frames,
-            positions_mm=[x[m.node_slice(c)] for c in range(m.coil_count)])
+            stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
+            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
+            regions=self._regions(member, x, free), step_reductions=list(self.step_reductions), frames=frames,
+            positions_mm=[x[s] for s in local])
 
-
-    def _regions(self, x: np.ndarray) -> dict | None:
+    def _regions(self, member: Member, x: np.ndarray, free: np.ndarray) -> dict | None:
         """Regional densities of the final coils (only where a neck defines the sac)."""
-        if self.anatomy.sac is None:
+        if member.anatomy.sac is None:
             return None
         from .sac import regional_density
 
-        m, r = self.model, self.scene.regions
-        coils = [x[m.node_slice(c)][self.stepper.state.free.numpy()[m.node_slice(c)] == 1]
-                 for c in range(m.coil_count)]
-        kept = [(pts, coil.d) for pts, coil in zip(coils, m.coils) if len(pts) >= 2]
-        density = regional_density(self.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
+        m, r, sl = self.model, member.scene.regions, member.nodes
+        coils = [(x[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start],
+                  free[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start], m.coils[c].d)
+                 for c in member.coils]
+        kept = [(pts[f], d) for pts, f, d in coils if f.sum() >= 2]
+        density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
                                    r.neck_band_mm, r.boundary_mm)
         return {k: float(v) for k, v in asdict(density).items()}
+
+
+def world_steps(model: Model, scenes: Sequence[Scene]) -> list[tuple[float, float, int]]:
+    """Per world: (dt_s, contact linear onset, steps per frame) as a single run of
+    its scene would take them."""
+    from .solver import CONTACTS_PER_NODE, contact_linear_onset, stable_step_bound
+
+    contact_k = CONTACTS_PER_NODE * model.contact.stiffness_uN_mm()
+    steps = []
+    for w, scene in enumerate(scenes):
+        sim = scene.simulation
+        nodes = model.world_nodes(w)
+        dt = sim.dt_s if sim.dt_s is not None else sim.dt_safety * stable_step_bound(model, contact_k, nodes).dt_s
+        steps.append((dt, contact_linear_onset(model, dt, nodes), max(2, 2 * round(sim.frame_interval_s / dt / 2))))
+    return steps
+
+
+def ensemble_groups(scenes: Sequence[Scene], device=None) -> list[list[int]]:
+    """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
+    step, contact onset, frame length, contact law, damping speed and mass scale)."""
+    anatomies = resolve_anatomies(scenes)
+    groups: dict[tuple, list[int]] = {}
+    for k, (scene, anatomy) in enumerate(zip(scenes, anatomies)):
+        model = finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
+        c = model.contact
+        key = (world_steps(model, [scene])[0], scene.simulation.allow_unstable_dt, c.p0_uN, c.c0_mm,
+               c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale)
+        groups.setdefault(key, []).append(k)
+    return list(groups.values())
+
+
+class Deployment(Ensemble):
+    """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
+    (if given) is called after every recorded frame with (frame, state)."""
+
+    def __init__(self, scene: Scene, device=None):
+        super().__init__([scene], device)
+        self.scene = scene
+        self.anatomy = self.anatomies[0]
+        self.coil_lengths_mm = self.members[0].coil_lengths_mm
+        self.stored_energy_nJ = self.members[0].stored_energy_nJ
+
+    def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
+        return super().run((lambda _member, frame, state: on_frame(frame, state)) if on_frame else None)[0]
 
 
 def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:
@@ -363,4 +542,5 @@ def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:
     return Deployment(scene, device).run(on_frame)
 
 
-__all__ = ["COMPLETED", "Deployment", "FAILED", "Frame", "JAMMED", "RunResult", "TIMEOUT", "build_model", "deploy"]
+__all__ = ["COMPLETED", "Deployment", "Ensemble", "FAILED", "Frame", "JAMMED", "RunResult", "TIMEOUT",
+           "build_model", "deploy", "ensemble_groups"]

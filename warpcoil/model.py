@@ -1,10 +1,14 @@
-"""Model: the static, device-ready description of the coils (and later the wall).
+"""Model: the static, device-ready description of the coils, catheter and wall.
 
 Built once by :class:`ModelBuilder` from :class:`~warpcoil.coil.CoilSpec` s
 and their rest centerlines; holds no time-dependent data (that is
 :class:`~warpcoil.state.State`). Nodes of all coils are stored back to back;
 edge i joins nodes i and i+1 when ``has_next[i]`` (the last node of a coil
 has no edge), vertex j is an interior node of a coil.
+
+A model may hold several independent *worlds* (ensemble members, each its own
+coils, catheter and wall, :func:`finalize_ensemble`): one set of launches
+advances them all, and nothing couples one world to another.
 
 Per-node mass is ``ρ l̄ · mass_scale`` with l̄ the coil's mean segment length;
 stiffnesses follow the coil: k_s = EA/l̄_i per edge, k_b = EI/l̄_j and
@@ -15,7 +19,7 @@ Twist inertia per edge: ``m r²`` with r the winding radius (d − d_w)/2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import warp as wp
@@ -115,16 +119,51 @@ class Model:
     rest_K0: wp.array
     rest_K1: wp.array
     rest_twist: wp.array
-    catheter_path: wp.array
-    catheter_axis: np.ndarray  # unit, towards the tip at the tip
+    catheter_path: wp.array  # every world's catheter centerline, proximal → tip, back to back
+    catheter_first: wp.array  # per world: its first catheter point
+    catheter_count: wp.array  # per world: its number of catheter points
+    catheter_axes: np.ndarray  # (worlds, 3) unit, towards the tip at the tip
+    catheter_axis_of: wp.array  # the same, on the device
     mass_scale: float
     node_radius: wp.array  # d/2 of the node's coil, mm
     contact: ContactModel
-    wall: WallModel | None = None
+    # worlds (ensemble members)
+    world_of: wp.array  # per node
+    coil_world: wp.array  # per coil
+    world_first_node: np.ndarray
+    world_last_node: np.ndarray
+    world_first_coil: np.ndarray  # (worlds + 1,): world w owns coils [first[w], first[w + 1])
+    world_node_range: wp.array  # (worlds, 2) int32: first and last node
+    world_walls: list  # per world: its WallModel or None
+    wall_mesh: wp.array  # uint64 per world (0: no wall)
+    wall_face_first: wp.array  # per world: its first triangle in wall_faces
+    wall_origin: wp.array  # vec3d per world
+    wall_vertices: wp.array  # every distinct wall's vertices (float64, relative to its origin), back to back
+    wall_faces: wp.array  # ... and faces (indices into wall_vertices), flat
 
     @property
     def node_count(self) -> int:
         return int(self.rest_positions.shape[0])
+
+    @property
+    def world_count(self) -> int:
+        return len(self.world_first_node)
+
+    @property
+    def catheter_axis(self) -> np.ndarray:
+        """The catheter axis at the tip of world 0 (unit)."""
+        return self.catheter_axes[0]
+
+    @property
+    def wall(self) -> "WallModel | None":
+        """World 0's wall."""
+        return self.world_walls[0]
+
+    def world_nodes(self, world: int) -> slice:
+        return slice(int(self.world_first_node[world]), int(self.world_last_node[world]) + 1)
+
+    def world_coils(self, world: int) -> range:
+        return range(int(self.world_first_coil[world]), int(self.world_first_coil[world + 1]))
 
     @property
     def coil_count(self) -> int:
@@ -194,7 +233,11 @@ class ModelBuilder:
         self._forces.append((self._node(coil, node), np.asarray(force_uN, np.float64)))
 
     def finalize(self, device: str | wp.context.Device | None = None) -> Model:
-        device = wp.get_device(device)
+        """The device-ready Model of this builder's one world."""
+        return finalize_ensemble([self], device)
+
+    def world_arrays(self) -> dict:
+        """Host arrays of this builder's world (numpy, node/coil indices local to it)."""
         if not self._coils:
             raise ValueError("a model needs at least one coil")
         s = self.settings
@@ -233,36 +276,120 @@ class ModelBuilder:
         external = np.zeros((n, 3))
         for node, f in self._forces:
             external[node] += f
-        path = catheter_path(self.catheter)
         d = per_coil(lambda c: c.d)
         c0 = self.contact.c0_mm if self.contact.c0_mm is not None else 0.1 * float(d.min())
-        longest = float(edge_len.max())
         contact_model = ContactModel(
             p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
             exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
             fold_span=max(1, int(math.ceil(float(d.max()) / float(edge_len[has_next == 1].mean()) - 1e-6))),
-            query_radius_mm=longest + float(d.max()) + c0)
+            query_radius_mm=float(edge_len.max()) + float(d.max()) + c0)
+        return dict(
+            coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
+            coil_of=coil_of, arc_s=arc_s, fixed=fixed, mass=mass, damping_c=damping_c, external=external,
+            edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
+            twist_damping=damping_c / s.damping_speed_mm_s * winding_r**2, k_bend=k_bend, k_twist=k_twist,
+            radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
+            mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall)
 
-        arr = lambda v, t: wp.array(v, dtype=t, device=device)  # noqa: E731
-        model = Model(
-            device=device, coils=tuple(self._coils), coil_first=first, coil_last=last, rest_positions=rest,
-            has_next=arr(has_next, wp.int32), coil_of=arr(coil_of, wp.int32), arc_s=arr(arc_s, wp.float64),
-            fixed=arr(fixed, wp.int32), inv_mass=arr(1.0 / mass, wp.float64),
-            damping_c=arr(damping_c, wp.float64), damping_k=float(s.damping_speed_mm_s),
-            external=arr(external, wp.vec3d),
-            rest_length=arr(edge_len, wp.float64), k_stretch=arr(k_stretch, wp.float64),
-            inv_inertia=arr(1.0 / inertia, wp.float64),
-            twist_damping=arr(damping_c / s.damping_speed_mm_s * winding_r**2, wp.float64),
-            k_bend=arr(k_bend, wp.float64), k_twist=arr(k_twist, wp.float64),
-            rest_K0=wp.zeros(n, dtype=wp.vec2d, device=device), rest_K1=wp.zeros(n, dtype=wp.vec2d, device=device),
-            rest_twist=wp.zeros(n, dtype=wp.float64, device=device),
-            catheter_path=arr(path, wp.vec3d), catheter_axis=_unit(path[-1] - path[-2]),
-            mass_scale=float(s.mass_scale), node_radius=arr(0.5 * d, wp.float64), contact=contact_model,
-            wall=None if self.wall is None else WallModel.create(
-                self.wall.vertices_mm, self.wall.faces, self.wall.volume_mm3, device),
-        )
-        rest_m1 = model.directors_along(rest)
-        wp.launch(elastic.rest_strains, n, device=device, inputs=[
-            model.array(rest, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,
-            model.rest_K0, model.rest_K1, model.rest_twist])
-        return model
+
+class EnsembleError(ValueError):
+    """Worlds that cannot share one set of launches (they differ in a scalar the kernels share)."""
+
+
+def _shared(worlds: list[dict], key: str, what: str):
+    values = {w[key] for w in worlds}
+    if len(values) > 1:
+        raise EnsembleError(f"ensemble members differ in {what} ({sorted(map(str, values))}); "
+                            f"run them in separate ensembles")
+    return values.pop()
+
+
+def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Device | None = None) -> Model:
+    """One Model holding each builder's world, back to back (world w = builders[w]).
+
+    The worlds must share the contact law (P0, c0, bonded-neighbour and fold
+    spans: the contact kernels take them as scalars), the damping speed and the
+    mass scale; the neighbour search radius is the largest of theirs. Worlds
+    with the same WallMesh object share one BVH."""
+    device = wp.get_device(device)
+    worlds = [b.world_arrays() for b in builders]
+    contacts = [w["contact"] for w in worlds]
+    for key, what in (("p0_uN", "contact P0_uN"), ("c0_mm", "contact c0_mm"),
+                      ("exclusion_edges", "bonded-neighbour span (wire diameter / segment length)"),
+                      ("fold_span", "fold span (wire diameter / segment length)")):
+        _shared([{key: getattr(c, key)} for c in contacts], key, what)
+    damping_k = _shared(worlds, "damping_k", "simulation.damping_speed_mm_s")
+    mass_scale = _shared(worlds, "mass_scale", "simulation.mass_scale")
+    contact_model = replace(contacts[0], query_radius_mm=max(c.query_radius_mm for c in contacts))
+
+    node_counts = np.array([len(w["rest"]) for w in worlds])
+    coil_counts = np.array([len(w["coils"]) for w in worlds])
+    node_base = np.concatenate([[0], np.cumsum(node_counts)[:-1]])
+    coil_base = np.concatenate([[0], np.cumsum(coil_counts)])
+    cat = lambda key: np.concatenate([w[key] for w in worlds])  # noqa: E731
+    coil_first = np.concatenate([w["coil_first"] + b for w, b in zip(worlds, node_base)]).astype(np.int32)
+    coil_last = np.concatenate([w["coil_last"] + b for w, b in zip(worlds, node_base)]).astype(np.int32)
+    coil_of = np.concatenate([w["coil_of"] + b for w, b in zip(worlds, coil_base)]).astype(np.int32)
+    paths = [w["path"] for w in worlds]
+    path_counts = np.array([len(p) for p in paths], np.int32)
+    axes = np.stack([_unit(p[-1] - p[-2]) for p in paths])
+
+    arr = lambda v, t: wp.array(v, dtype=t, device=device)  # noqa: E731
+    walls, wall_models = _ensemble_walls([w["wall"] for w in worlds], device)
+    n = int(node_counts.sum())
+    model = Model(
+        device=device, coils=tuple(c for w in worlds for c in w["coils"]), coil_first=coil_first,
+        coil_last=coil_last, rest_positions=cat("rest"),
+        has_next=arr(cat("has_next"), wp.int32), coil_of=arr(coil_of, wp.int32), arc_s=arr(cat("arc_s"), wp.float64),
+        fixed=arr(cat("fixed"), wp.int32), inv_mass=arr(1.0 / cat("mass"), wp.float64),
+        damping_c=arr(cat("damping_c"), wp.float64), damping_k=damping_k, external=arr(cat("external"), wp.vec3d),
+        rest_length=arr(cat("edge_len"), wp.float64), k_stretch=arr(cat("k_stretch"), wp.float64),
+        inv_inertia=arr(1.0 / cat("inertia"), wp.float64), twist_damping=arr(cat("twist_damping"), wp.float64),
+        k_bend=arr(cat("k_bend"), wp.float64), k_twist=arr(cat("k_twist"), wp.float64),
+        rest_K0=wp.zeros(n, dtype=wp.vec2d, device=device), rest_K1=wp.zeros(n, dtype=wp.vec2d, device=device),
+        rest_twist=wp.zeros(n, dtype=wp.float64, device=device),
+        catheter_path=arr(np.concatenate(paths), wp.vec3d),
+        catheter_first=arr(np.concatenate([[0], np.cumsum(path_counts)[:-1]]).astype(np.int32), wp.int32),
+        catheter_count=arr(path_counts, wp.int32), catheter_axes=axes, catheter_axis_of=arr(axes, wp.vec3d),
+        mass_scale=mass_scale, node_radius=arr(cat("radius"), wp.float64), contact=contact_model,
+        world_of=arr(np.repeat(np.arange(len(worlds), dtype=np.int32), node_counts), wp.int32),
+        coil_world=arr(np.repeat(np.arange(len(worlds), dtype=np.int32), coil_counts), wp.int32),
+        world_first_node=node_base.astype(np.int64), world_last_node=(node_base + node_counts - 1).astype(np.int64),
+        world_first_coil=coil_base.astype(np.int64),
+        world_node_range=arr(np.stack([node_base, node_base + node_counts - 1], 1).astype(np.int32), wp.int32),
+        world_walls=wall_models, **walls)
+    rest_m1 = model.directors_along(model.rest_positions)
+    wp.launch(elastic.rest_strains, n, device=device, inputs=[
+        model.array(model.rest_positions, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,
+        model.rest_K0, model.rest_K1, model.rest_twist])
+    return model
+
+
+def _ensemble_walls(meshes: list, device) -> tuple[dict, list]:
+    """Device wall arrays for every world: one BVH per distinct WallMesh object,
+    their float64 vertices and faces back to back, per world its mesh id, first
+    face and origin (id 0 where a world has no wall)."""
+    distinct: dict[int, WallModel] = {}
+    face_first: dict[int, int] = {}
+    vertices, faces = [], []
+    vertex_base = face_base = 0
+    for mesh in meshes:
+        if mesh is None or id(mesh) in distinct:
+            continue
+        model = WallModel.create(mesh.vertices_mm, mesh.faces, mesh.volume_mm3, device)
+        distinct[id(mesh)] = model
+        face_first[id(mesh)] = face_base
+        vertices.append(model.vertices_mm - model.origin)
+        faces.append(model.faces_np.ravel() + vertex_base)
+        vertex_base += len(model.vertices_mm)
+        face_base += len(model.faces_np)
+    models = [None if m is None else distinct[id(m)] for m in meshes]
+    arr = lambda v, t: wp.array(v, dtype=t, device=device)  # noqa: E731
+    return dict(
+        wall_mesh=arr(np.array([0 if m is None else m.mesh.id for m in models], np.uint64), wp.uint64),
+        wall_face_first=arr(np.array([0 if m is None else face_first[id(mesh)] for m, mesh in zip(models, meshes)],
+                                     np.int32), wp.int32),
+        wall_origin=arr(np.array([np.zeros(3) if m is None else m.origin for m in models]), wp.vec3d),
+        wall_vertices=arr(np.concatenate(vertices) if vertices else np.zeros((1, 3)), wp.vec3d),
+        wall_faces=arr(np.concatenate(faces).astype(np.int32) if faces else np.zeros(3, np.int32), wp.int32),
+    ), models

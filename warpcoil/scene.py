@@ -305,8 +305,31 @@ class _Reader:
         )
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read the scene TOML file at ``path``; raise :class:`SceneError` on any problem."""
+def _override(reader: _Reader, document: dict[str, Any], key: str, value: Any) -> None:
+    """Set ``table.key`` (or ``coil.key`` for every coil, ``coil.N.key`` for coil N) in the document."""
+    parts = key.split(".")
+    fix = 'name a scene key as table.key, e.g. catheter.angle_deg, coil.length_mm or coil.0.length_mm'
+    if len(parts) == 3 and parts[0] == "coil" and parts[1].isdigit():
+        coils = document.get("coil", [])
+        if int(parts[1]) >= len(coils):
+            raise reader.error(key, f"there is no coil {parts[1]} (the scene has {len(coils)})", fix)
+        targets = [coils[int(parts[1])]]
+    elif len(parts) == 2 and parts[0] == "coil":
+        targets = document.get("coil", [])
+    elif len(parts) == 2:
+        targets = [document.setdefault(parts[0], {})]
+    else:
+        raise reader.error(key, "is not a scene key", fix)
+    for table in targets:
+        if not isinstance(table, dict):
+            raise reader.error(key, f"{parts[0]} is not a table", fix)
+        table[parts[-1]] = value
+
+
+def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
+    """Read the scene TOML file at ``path``, with ``overrides`` (``{"catheter.angle_deg":
+    10.0}``: see :func:`_override`) set before it is checked; raise :class:`SceneError`
+    on any problem."""
     source = Path(path).expanduser().resolve()
     reader = _Reader(source)
     try:
@@ -316,4 +339,6 @@ def load_scene(path: str | Path) -> Scene:
         raise reader.error(None, f"cannot be read ({exc.strerror or exc})", "check the path and permissions") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise reader.error(None, f"is not valid TOML: {exc}", "correct the syntax there") from exc
+    for key, value in (overrides or {}).items():
+        _override(reader, document, key, value)
     return reader.scene(document)

@@ -9,6 +9,7 @@ stability bound of the stiffest term (:func:`stable_step_bound`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +24,8 @@ SPEED_LIMIT_MM_S = 1.0e5  # 100 m/s: far beyond any whip of a released coil end;
 WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a node ~1e-3 mm
 CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
 CONTACTS_AT_ONSET = 8  # ... and in a dense pack, for where the contact law turns linear
+NEIGHBOUR_SKIN_MM = 0.05  # coil–coil neighbour grid rebuilt when a midpoint moved half this (benchmarked)
+WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 
 
 class UnstableStepError(ValueError):
@@ -46,7 +49,7 @@ class StepBound:
     omega_rad_s: dict = field(default_factory=dict)
 
 
-def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> StepBound:
+def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
     """Gershgorin bounds of the highest angular frequency of each term, per node:
 
     * stretching: 2 (k_s,i-1 + k_s,i) / m_i (4 k_s/m for a uniform chain)
@@ -54,20 +57,23 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> Ste
     * twisting: (4 k_t + k_b |K̄|²) / J
     * contact: the contact law's slope at the design overlap (u = 3, h = −2 c0),
       times CONTACTS_PER_NODE, / m (when given)
+
+    ``nodes``: one world's nodes (default: every world, the smallest bound).
     """
-    inv_m = model.inv_mass.numpy()
-    has_next = model.has_next.numpy() == 1
-    ks = model.k_stretch.numpy()
-    kb = model.k_bend.numpy()
-    kt = model.k_twist.numpy()
-    rest_len = model.rest_length.numpy()
+    inv_m = model.inv_mass.numpy()[nodes]
+    has_next = model.has_next.numpy()[nodes] == 1
+    ks = model.k_stretch.numpy()[nodes]
+    kb = model.k_bend.numpy()[nodes]
+    kt = model.k_twist.numpy()[nodes]
+    rest_len = model.rest_length.numpy()[nodes]
     l_edge = np.where(has_next, rest_len, np.inf)
     ks_prev = np.concatenate([[0.0], ks[:-1]])
-    kbar = np.maximum(np.linalg.norm(model.rest_K0.numpy(), axis=1), np.linalg.norm(model.rest_K1.numpy(), axis=1))
+    kbar = np.maximum(np.linalg.norm(model.rest_K0.numpy()[nodes], axis=1),
+                      np.linalg.norm(model.rest_K1.numpy()[nodes], axis=1))
     kb_max = np.max(np.stack([kb, np.roll(kb, 1), np.roll(kb, -1)]), axis=0)
     kt_max = np.max(np.stack([kt, np.roll(kt, -1)]), axis=0)
     l_min = np.minimum(l_edge, np.concatenate([[np.inf], l_edge[:-1]]))
-    inv_j = model.inv_inertia.numpy()
+    inv_j = model.inv_inertia.numpy()[nodes]
     omega_sq = {
         "stretching (coil axial_stiffness_uN)": np.max(2.0 * (ks_prev + ks) * inv_m),
         "bending (coil bending_stiffness_uN_mm2)": np.max(16.0 * kb_max * inv_m / l_min**2),
@@ -80,7 +86,7 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0) -> Ste
     return StepBound(dt_s=2.0 / omega[name], limiting_term=name, omega_rad_s=omega)
 
 
-def contact_linear_onset(model: Model, dt_s: float) -> float:
+def contact_linear_onset(model: Model, dt_s: float, nodes: slice = slice(None)) -> float:
     """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
     MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
     step dt can integrate for the lightest node pressed from CONTACTS_AT_ONSET
@@ -88,7 +94,7 @@ def contact_linear_onset(model: Model, dt_s: float) -> float:
     Up to it the law is exact; past it the force keeps growing along the law's
     tangent, so deep overlaps in an overpacked sac stay stable instead of blowing
     up. For the default coil and step it is u ≈ 2.8 (|F| ≈ 24 P0)."""
-    m_min = 1.0 / float(model.inv_mass.numpy().max())
+    m_min = 1.0 / float(model.inv_mass.numpy()[nodes].max())
     k_max = m_min * (2.0 / dt_s) ** 2 / CONTACTS_AT_ONSET
     low, high = 2.0, 7.0
     if model.contact.stiffness_uN_mm(high) <= k_max:
@@ -103,33 +109,66 @@ def contact_linear_onset(model: Model, dt_s: float) -> float:
 
 @dataclass
 class Control:
-    """What drives the model from outside: which coil the pusher moves, how fast."""
+    """What drives the model from outside, per world: which coil its pusher moves
+    (a global coil index, −1 when nobody pushes), how fast (mm/s), and whether
+    the world is still running (a stopped world keeps its state)."""
 
-    active_coil: wp.array  # int32[1]; −1 when nobody pushes
-    push_speed_mm_s: float = 0.0
+    active_coil: wp.array  # int32 per world
+    push_speed_mm_s: wp.array  # float64 per world
+    running: wp.array  # int32 per world
+    model: Model
 
     @staticmethod
-    def create(model: Model, active_coil: int = -1, push_speed_mm_s: float = 0.0) -> "Control":
-        return Control(wp.array([active_coil], dtype=wp.int32, device=model.device), push_speed_mm_s)
+    def create(model: Model, active_coil: int | Sequence[int] = -1,
+               push_speed_mm_s: float | Sequence[float] = 0.0) -> "Control":
+        """``active_coil``: per world, the index of the pushed coil among that world's
+        coils (−1: none); a single value applies to every world."""
+        worlds = model.world_count
+        local = np.broadcast_to(np.asarray(active_coil, dtype=np.int64), (worlds,))
+        speeds = np.broadcast_to(np.asarray(push_speed_mm_s, dtype=np.float64), (worlds,))
+        control = Control(wp.full(worlds, -1, dtype=wp.int32, device=model.device),
+                          wp.array(speeds, dtype=wp.float64, device=model.device),
+                          wp.ones(worlds, dtype=wp.int32, device=model.device), model)
+        for w, coil in enumerate(local):
+            control.set_active_coil(int(coil), world=w)
+        return control
 
-    def set_active_coil(self, coil: int) -> None:
-        self.active_coil.fill_(coil)
+    def set_active_coil(self, coil: int, world: int = 0) -> None:
+        """Hand world ``world``'s pusher to its coil ``coil`` (local index; −1: none)."""
+        first = int(self.model.world_first_coil[world])
+        self.active_coil[world:world + 1].fill_(-1 if coil < 0 else first + coil)
+
+    def stop(self, world: int) -> None:
+        """Freeze a world: from the next step on it keeps its state."""
+        self.running[world:world + 1].fill_(0)
 
 
 class Solver:
-    """Elastic forces, catheter kinematics and time integration for one Model.
+    """Elastic forces, catheter kinematics and time integration for one Model
+    (one or many worlds).
 
     ``dt_s`` None → ``dt_safety`` (default 0.9) × the stable bound. A larger dt than the bound
     raises :class:`UnstableStepError` unless ``allow_unstable_dt``.
+
+    ``neighbour_skin_mm``: the coil–coil neighbour grid is rebuilt only when an
+    edge midpoint has moved more than half this since the last build (0: every
+    step); every pair within the contact range is found either way, and the
+    fixed-point contact sums make the forces bit-identical.
+    ``wall_guard_steps``: a node anchored away from the wall is searched again
+    at least this often.
     """
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
-                 wall_search_mm: float = WALL_SEARCH_MM):
+                 wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
+                 wall_guard_steps: int = WALL_GUARD_STEPS):
         self.model = model
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
-        with_contact = coil_contact or model.wall is not None
+        self.neighbour_skin_mm = float(neighbour_skin_mm)
+        self.wall_guard_steps = int(wall_guard_steps)
+        self.has_wall = any(w is not None for w in model.world_walls)
+        with_contact = coil_contact or self.has_wall
         # a node pressed from up to four sides (wall and coil), Gershgorin over its contacts
         contact_k = CONTACTS_PER_NODE * model.contact.stiffness_uN_mm() if with_contact else 0.0
         self.bound = stable_step_bound(model, contact_k)
@@ -150,71 +189,104 @@ class Solver:
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
         self.wall_distance.fill_(float(contact.FAR_MM))
-        self._wall_side = zeros(wp.int32)
+        self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
         self._wall_side.fill_(-1)
+        self._wall_quiet.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
-        self._midpoints = zeros(wp.vec3d)
+        self._midpoints, self._built_midpoints, self._grid_points = zeros(wp.vec3d), zeros(wp.vec3d), zeros(wp.vec3d)
+        self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
+        self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
-        self.push_accumulator = wp.zeros(2, dtype=wp.float64, device=dev)  # Σ and max of the step push force
+        # Σ and max of the step push force, per world
+        self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
+        self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
         cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
+        self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
+        # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
+        self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
+        self._world_offset = model.array(_world_offsets(model.world_count, cells, self._grid_radius), wp.vec3d)
 
     # --- one step ----------------------------------------------------------
-    def compute_contacts(self, state: State, wall_search_mm: float | None = None) -> None:
+    def _build_grid(self) -> None:
+        wp.launch(contact.grid_points, self.model.node_count, device=self.model.device, inputs=[
+            self._midpoints, self.model.world_of, self._world_offset, self._built_midpoints, self._grid_points,
+            self._rebuild])
+        self._grid.build(self._grid_points, self._grid_radius)
+        self.grid_builds += 1
+
+    def compute_contacts(self, state: State, wall_search_mm: float | None = None,
+                         running: wp.array | None = None) -> None:
         """Wall and coil–coil contact forces into ``contact_force`` (µN), with the
         per-node wall distance and the per-edge smallest coil gap and touching pairs
         (each pair counted from both edges). ``wall_search_mm``: how far beyond the
         contact range the wall is searched (default the solver's; a large value
-        gives exact distances for every node, for measurements)."""
+        gives exact distances for every node, for measurements). ``running``:
+        the worlds to compute (default all)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
-        if m.wall is not None:
-            w = m.wall
+        running = self._running_all if running is None else running
+        if self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
-                state.x, state.free, m.node_radius, w.mesh.id, w.vertices, w.faces, wp.vec3d(*w.origin),
-                c.p0_uN, c.c0_mm, self.contact_u_linear,
-                self.wall_search_mm if wall_search_mm is None else wall_search_mm, self._wall_side,
-                self.wall_force, self.wall_distance])
+                state.x, state.free, m.world_of, running, m.node_radius, m.wall_mesh, m.wall_face_first,
+                m.wall_origin, m.wall_vertices, m.wall_faces, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self.wall_search_mm if wall_search_mm is None else wall_search_mm, self.wall_guard_steps,
+                self._wall_side, self._wall_anchor, self._wall_quiet, self.wall_force, self.wall_distance])
         if self.coil_contact:
-            wp.launch(contact.edge_midpoints, n, device=dev, inputs=[state.x, m.has_next, self._midpoints])
-            self._grid.build(self._midpoints, c.query_radius_mm)
+            wp.launch(contact.edge_midpoints, n, device=dev, inputs=[
+                state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints,
+                self._rebuild])
+            if self._conditional_rebuild:
+                wp.capture_if(self._rebuild, on_true=self._build_grid)
+            else:
+                self._build_grid()
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, m.fixed, m.node_radius, self._grid.id, self._midpoints,
-                c.query_radius_mm, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
+                state.x, state.free, m.has_next, m.coil_of, m.world_of, running, self._world_offset, m.fixed,
+                m.node_radius, self._grid.id, self._midpoints, c.query_radius_mm, self._grid_radius,
+                c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
                 state.free, m.has_next, self.wall_force, self._edge_force_start, self._edge_force_end,
                 self.contact_force])
-        elif m.wall is not None:
+        elif self.has_wall:
             wp.copy(self.contact_force, self.wall_force)
 
-    def compute_forces(self, state: State) -> None:
+    def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
         m, dev, n = self.model, self.model.device, self.model.node_count
-        self.compute_contacts(state)
+        self.compute_contacts(state, running=running)
         wp.launch(elastic.vertex_gradients, n, device=dev, inputs=[
             state.x, state.m1, state.free, m.has_next, m.k_bend, m.k_twist, m.rest_K0, m.rest_K1,
             m.rest_twist, self.grad_prev, self.grad_mid, self.grad_next, self.grad_theta])
         wp.launch(elastic.gather_forces, n, device=dev, inputs=[
             state.x, state.free, m.has_next, m.k_stretch, m.rest_length, self.grad_prev, self.grad_mid,
             self.grad_next, self.grad_theta, m.external, self.contact_force, m.node_radius, m.contact.fold_span,
-            m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, wp.vec3d(*m.catheter_axis),
+            m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, m.world_of, m.catheter_axis_of,
             self.force, self.torque, self.push_share])
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
         """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         dt = self.dt_s if dt is None else dt
-        self.compute_forces(state_in)
+        self.compute_forces(state_in, control.running)
         wp.launch(integrate.integrate_nodes, n, device=dev, inputs=[
-            state_in.x, state_in.v, state_in.advance, self.force, m.fixed, m.coil_of, m.arc_s, m.inv_mass,
-            m.damping_c, m.damping_k, m.catheter_path, control.active_coil, control.push_speed_mm_s, dt,
+            state_in.x, state_in.v, state_in.free, state_in.advance, self.force, m.fixed, m.coil_of, m.world_of,
+            m.coil_world, m.arc_s, m.inv_mass, m.damping_c, m.damping_k, m.catheter_path, m.catheter_first,
+            m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
             state_out.x, state_out.v, state_out.free, state_out.advance])
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.has_next,
-            m.inv_inertia, m.twist_damping, dt, state_out.m1, state_out.omega])
-        wp.launch(integrate.accumulate_push_force, 1, device=dev, inputs=[self.push_share, self.push_accumulator])
+            m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
+        wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
+            self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
+
+    def invalidate_neighbours(self) -> None:
+        """Rebuild the neighbour grid and forget wall anchors at the next step (after
+        the state was replaced from outside the solver)."""
+        self._rebuild.fill_(1)
+        self._wall_quiet.fill_(-1)
+        self._wall_side.fill_(-1)
 
     # --- measurements ------------------------------------------------------
     def _launch_elastic_energies(self, state: State) -> None:
@@ -228,47 +300,78 @@ class Solver:
         self._launch_elastic_energies(state)
         return self._stretch_e.numpy() + self._bend_e.numpy() + self._twist_e.numpy()
 
-    def energies(self, state: State) -> dict[str, float]:
-        """Kinetic (free nodes, translation + spin), stretching, bending and twisting energy, nJ."""
+    def world_energies(self, state: State) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Per world: kinetic (free nodes, translation + spin), stretching, bending and
+        twisting energy (nJ), and the count of non-finite or runaway nodes."""
         m = self.model
         wp.launch(integrate.kinetic_energies, m.node_count, device=m.device, inputs=[
             state.v, state.omega, state.free, m.inv_mass, m.inv_inertia, self._kinetic, self._unhealthy,
             SPEED_LIMIT_MM_S])
         self._launch_elastic_energies(state)
-        return {
-            "kinetic_nJ": float(self._kinetic.numpy().sum()),
-            "stretch_nJ": float(self._stretch_e.numpy().sum()),
-            "bend_nJ": float(self._bend_e.numpy().sum()),
-            "twist_nJ": float(self._twist_e.numpy().sum()),
-        }
-
-    def take_push_force(self, steps: int) -> tuple[float, float]:
-        """Mean and largest push force (µN, compressive > 0) over the last ``steps``
-        steps, and restart the accumulation."""
-        total, largest = self.push_accumulator.numpy()
-        self.push_accumulator.zero_()
-        return float(total) / max(steps, 1), float(largest)
-
-    def check_health(self, state: State, energy_budget_nJ: float | None = None) -> dict[str, float]:
-        """Energies of ``state``; raises SimulationUnstable on NaN, a runaway speed, or
-        (with ``energy_budget_nJ``: the energy put in so far, by packing and pushing)
-        kinetic + elastic energy above twice that budget — damping only removes
-        energy, so more than was put in means the integration is unstable."""
-        e = self.energies(state)
-        bad = int(self._unhealthy.numpy().sum())
+        per_node = {"kinetic_nJ": self._kinetic.numpy(), "stretch_nJ": self._stretch_e.numpy(),
+                    "bend_nJ": self._bend_e.numpy(), "twist_nJ": self._twist_e.numpy()}
+        worlds = [m.world_nodes(w) for w in range(m.world_count)]
+        energies = {k: np.array([v[sl].sum() for sl in worlds]) for k, v in per_node.items()}
         x = state.x.numpy()
-        problem = None
-        if bad or not np.isfinite(x).all() or not all(math.isfinite(v) for v in e.values()):
-            problem = f"{bad} node(s) non-finite or faster than {SPEED_LIMIT_MM_S:.0e} mm/s"
-        elif energy_budget_nJ is not None and sum(e.values()) > 2.0 * energy_budget_nJ:
-            problem = (f"energy blow-up: kinetic + elastic {sum(e.values()):.4g} nJ > twice the energy put in "
-                       f"({energy_budget_nJ:.4g} nJ)")
-        if problem:
-            raise SimulationUnstable(
-                f"{problem} at t = {state.time_s:.6f} s (dt = {self.dt_s:.3e} s, bound {self.bound.dt_s:.3e} s set "
+        unhealthy = self._unhealthy.numpy()
+        bad = np.array([unhealthy[sl].sum() + (~np.isfinite(x[sl])).any(axis=1).sum() for sl in worlds])
+        return energies, bad
+
+    def energies(self, state: State) -> dict[str, float]:
+        """Kinetic (free nodes, translation + spin), stretching, bending and twisting energy, nJ (all worlds)."""
+        return {k: float(v.sum()) for k, v in self.world_energies(state)[0].items()}
+
+    def take_push_force(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per world: mean and largest push force (µN, compressive > 0) over the last
+        ``steps`` steps; restarts the accumulation."""
+        acc = self.push_accumulator.numpy().copy()  # a CPU array's numpy() is a view
+        self.push_accumulator.zero_()
+        return acc[:, 0] / max(steps, 1), acc[:, 1]
+
+    def world_health(self, state: State, energy_budget_nJ: np.ndarray | None = None
+                     ) -> tuple[dict[str, np.ndarray], list[str | None]]:
+        """Per-world energies (as :meth:`world_energies`) and, per world, None or why
+        it is unstable: NaN, a runaway speed, or (with ``energy_budget_nJ``: the
+        energy put in so far, by packing and pushing) kinetic + elastic energy
+        above twice that budget — damping only removes energy, so more than was
+        put in means the integration is unstable."""
+        energies, bad = self.world_energies(state)
+        total = sum(energies.values())
+        problems: list[str | None] = []
+        for w in range(self.model.world_count):
+            problem = None
+            if bad[w] or not all(math.isfinite(v[w]) for v in energies.values()):
+                problem = f"{bad[w]} node(s) non-finite or faster than {SPEED_LIMIT_MM_S:.0e} mm/s"
+            elif energy_budget_nJ is not None and total[w] > 2.0 * energy_budget_nJ[w]:
+                problem = (f"energy blow-up: kinetic + elastic {total[w]:.4g} nJ > twice the energy put in "
+                           f"({energy_budget_nJ[w]:.4g} nJ)")
+            problems.append(None if problem is None else self.unstable_reason(problem, state.time_s))
+        return energies, problems
+
+    def unstable_reason(self, problem: str, time_s: float) -> str:
+        return (f"{problem} at t = {time_s:.6f} s (dt = {self.dt_s:.3e} s, bound {self.bound.dt_s:.3e} s set "
                 f"by {self.bound.limiting_term}): reduce simulation.dt_s / dt_safety, or soften the contact "
                 f"(contact.P0_uN, larger contact.c0_mm)")
-        return e
+
+    def check_health(self, state: State, energy_budget_nJ: float | None = None) -> dict[str, float]:
+        """Energies of ``state`` (all worlds, nJ); raises SimulationUnstable when any
+        world is unstable (see :meth:`world_health`)."""
+        budget = None if energy_budget_nJ is None else np.full(self.model.world_count, energy_budget_nJ)
+        energies, problems = self.world_health(state, budget)
+        for problem in problems:
+            if problem is not None:
+                raise SimulationUnstable(problem)
+        return {k: float(v.sum()) for k, v in energies.items()}
+
+
+def _world_offsets(worlds: int, cells: int, cell_mm: float) -> np.ndarray:
+    """Neighbour-grid offsets (mm) that spread the worlds over the hashed grid's
+    period (cells × cell_mm per axis), so different worlds rarely share a cell
+    (the contact kernel skips other worlds' edges in any case)."""
+    side = max(1, math.ceil(worlds ** (1.0 / 3.0) - 1e-9))
+    step = cells / side * cell_mm
+    w = np.arange(worlds)
+    return np.stack([w % side, (w // side) % side, w // (side * side)], axis=1) * step
 
 
 class Stepper:
@@ -303,7 +406,7 @@ class Stepper:
         """Advance by ``chunk`` steps; returns the current state."""
         start = self._a.time_s
         if self._use_graph and self._graph is None:
-            for module in (elastic, integrate):
+            for module in (contact, elastic, integrate):
                 wp.load_module(module, device=self.solver.model.device)
             with wp.ScopedCapture(device=self.solver.model.device) as capture:
                 self._launch_chunk()

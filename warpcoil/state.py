@@ -59,14 +59,19 @@ def rest_state(model: Model) -> State:
 
 def packed_state(model: Model, gap_mm: float = 1.0) -> State:
     """The coils packed in the catheter, one behind the other (``gap_mm`` apart),
-    the first coil's distal node at the tip; directors carried along the
-    catheter so each edge keeps its pre-shape frame orientation (MODEL.md, Step 2)."""
+    the first coil's distal node at the tip (in each world, in its own
+    catheter); directors carried along the catheter so each edge keeps its
+    pre-shape frame orientation (MODEL.md, Step 2)."""
     lengths = np.array([model.arc_s.numpy()[last] for last in model.coil_last])
-    behind = np.concatenate([[0.0], np.cumsum(lengths + gap_mm)[:-1]])
-    advance = -behind
+    advance = np.zeros(model.coil_count)
+    for w in range(model.world_count):
+        coils = model.world_coils(w)
+        sl = slice(coils.start, coils.stop)
+        advance[sl] = -np.concatenate([[0.0], np.cumsum(lengths[sl] + gap_mm)[:-1]])
     x = wp.zeros(model.node_count, dtype=wp.vec3d, device=model.device)
     wp.launch(integrate.place_on_catheter, model.node_count, device=model.device, inputs=[
-        model.arc_s, model.coil_of, model.array(advance, wp.float64), model.catheter_path, x])
+        model.arc_s, model.coil_of, model.world_of, model.array(advance, wp.float64), model.catheter_path,
+        model.catheter_first, model.catheter_count, x])
     positions = x.numpy()
     return _state(model, positions, model.directors_along(positions), advance)
 

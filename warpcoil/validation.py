@@ -106,7 +106,8 @@ def gradient_check(positions: np.ndarray, directors: np.ndarray, rest: np.ndarra
     wp.launch(integrate.update_frames, copies * n, inputs=[
         wp.array(x_old, dtype=wp.vec3d), wp.array(x_new, dtype=wp.vec3d), wp.array(np.tile(directors, (copies, 1)),
         dtype=wp.vec3d), zeros_f, zeros_f, wp.zeros(copies * n, dtype=wp.int32), batch_model.has_next,
-        batch_model.inv_inertia, zeros_f, 0.0, m1, wp.zeros(copies * n, dtype=wp.float64)])
+        batch_model.inv_inertia, zeros_f, batch_model.world_of, wp.ones(1, dtype=wp.int32), 0.0, m1,
+        wp.zeros(copies * n, dtype=wp.float64)])
     m1 = m1.numpy().reshape(copies, n, 3)
     tangents = np.diff(positions, axis=0)
     tangents /= np.linalg.norm(tangents, axis=1)[:, None]

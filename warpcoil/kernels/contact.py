@@ -53,22 +53,55 @@ def evaluate_law(
     stiffness[i] = contact_stiffness(h[i], p0, c0, u_linear)
 
 
+# --- fixed-point sums -------------------------------------------------------------
+# Contact forces on a node are sums over partners found in hash-grid order, which
+# depends on the grid (its cell size, rebuild time, the other ensemble members in
+# it, the device's sort). Summed as integers of FIXED_POINT_PER_UN units per µN
+# (resolution 1.5e-8 µN, range ±1.4e11 µN), they are exactly order-independent:
+# the same forces bit for bit on CPU and CUDA, with any skin, alone or batched.
+FIXED_POINT_PER_UN = wp.constant(wp.float64(67108864.0))  # 2^26
+FIXED_POINT_LIMIT_UN = wp.constant(wp.float64(1.0e11))
+vec3l = wp.types.vector(length=3, dtype=wp.int64)
+
+
+@wp.func
+def to_fixed(f: wp.vec3d) -> vec3l:
+    """µN → fixed point (|components| clamped to FIXED_POINT_LIMIT_UN; NaN → 0,
+    flagged by the caller through :func:`finite_vec`)."""
+    out = vec3l()
+    for k in range(3):
+        c = wp.clamp(f[k], -FIXED_POINT_LIMIT_UN, FIXED_POINT_LIMIT_UN)
+        if c == c:
+            out[k] = wp.int64(c * FIXED_POINT_PER_UN)
+    return out
+
+
+@wp.func
+def from_fixed(f: vec3l) -> wp.vec3d:
+    return wp.vec3d(wp.float64(f[0]), wp.float64(f[1]), wp.float64(f[2])) / FIXED_POINT_PER_UN
+
+
+@wp.func
+def finite_vec(f: wp.vec3d) -> bool:
+    return wp.isfinite(f[0]) and wp.isfinite(f[1]) and wp.isfinite(f[2])
+
+
 # --- coil–wall -----------------------------------------------------------------
 FAR_MM = wp.constant(wp.float64(1.0e6))
-
-
 NO_FACE = wp.constant(-1)
+NO_ANCHOR = wp.constant(-1)
 
 
 @wp.func
 def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-               origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
+               face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
     """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
     distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
 
     The BVH (float32, mesh stored relative to ``origin``) finds the face and the
     inside/outside sign (angle-weighted pseudo-normal); the distance is then
-    evaluated in float64 on that face."""
+    evaluated in float64 on that face (the mesh's faces start at ``face_first``
+    in the flat ``faces`` array of every wall of an ensemble)."""
     local = p - origin
     q = wp.mesh_query_point_sign_normal(
         mesh, wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2])), wp.float32(max_dist))
@@ -76,9 +109,10 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     if not q.result:
         return NO_FACE, max_dist, zero
     f = q.face
-    v0 = vertices[faces[3 * f]]
-    v1 = vertices[faces[3 * f + 1]]
-    v2 = vertices[faces[3 * f + 2]]
+    base = 3 * (face_first + f)
+    v0 = vertices[faces[base]]
+    v1 = vertices[faces[base + 1]]
+    v2 = vertices[faces[base + 2]]
     u = wp.float64(q.u)
     v = wp.float64(q.v)
     delta = local - (u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2)
@@ -98,49 +132,74 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
 def wall_contact(
     x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
-    mesh: wp.uint64,
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
     vertices: wp.array(dtype=wp.vec3d),
     faces: wp.array(dtype=wp.int32),
-    origin: wp.vec3d,
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
     search_mm: wp.float64,
+    guard_steps: int,
     inside: wp.array(dtype=wp.int32),
+    anchor: wp.array(dtype=wp.vec3d),
+    quiet_steps: wp.array(dtype=wp.int32),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
 ):
     """Wall force on each free node (µN): the contact law of the gap
-    h = signed distance − d/2, along the inward wall normal.
+    h = signed distance − d/2, along the inward wall normal (the wall of the
+    node's ensemble member; none where its mesh id is 0).
 
     The BVH search is limited to ``search_mm`` beyond the contact range: a node
     farther from the wall feels no force, and keeps the side (``inside``: 1 in
     the lumen, 0 outside, −1 not yet known) it had when last seen near the
     wall — it cannot change side without coming near it, as long as a step
     moves it less than ``search_mm``. Nodes whose side is unknown (just out of
-    the catheter) get a full search. Writes the centre's signed distance (mm;
-    ± the search radius when no face is that close; +FAR in the catheter)."""
+    the catheter) get a full search. A search that finds no face anchors the
+    node there: while it stays within ``search_mm`` of its anchor no face can
+    come within its contact range, so it is not searched again (exactly the
+    same force, zero) — except every ``guard_steps`` steps. Writes the centre's
+    signed distance (mm; ± the search reach when no face is that close; +FAR in
+    the catheter or without a wall)."""
     i = wp.tid()
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     signed = FAR_MM
-    if free[i] != 0:
+    w = world_of[i]
+    mesh = meshes[w]
+    if free[i] != 0 and running[w] != 0 and mesh != wp.uint64(0):
         reach = node_radius[i] + c0 + search_mm
         side = inside[i]
-        if side < 0:
-            reach = FAR_MM
-        face, signed, inward = wall_query(mesh, vertices, faces, origin, x[i], reach)
-        if face == NO_FACE:
+        quiet = quiet_steps[i]
+        if side >= 0 and quiet != NO_ANCHOR and quiet < guard_steps and wp.length(x[i] - anchor[i]) < search_mm:
+            quiet_steps[i] = quiet + 1
+            signed = reach
             if side == 0:
                 signed = -reach
         else:
-            if signed > wp.float64(0.0):
-                inside[i] = 1
+            if side < 0:
+                reach = FAR_MM
+            face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)
+            signed = dist
+            if face == NO_FACE:
+                anchor[i] = x[i]
+                quiet_steps[i] = 0
+                if side == 0:
+                    signed = -reach
             else:
-                inside[i] = 0
-            f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
-    else:
+                quiet_steps[i] = NO_ANCHOR
+                if signed > wp.float64(0.0):
+                    inside[i] = 1
+                else:
+                    inside[i] = 0
+                f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
+    elif free[i] == 0:
         inside[i] = -1
+        quiet_steps[i] = NO_ANCHOR
     force[i] = f
     centre_distance[i] = signed
 
@@ -196,13 +255,43 @@ def edge_is_obstacle(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp
 
 
 @wp.kernel
-def edge_midpoints(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), mid: wp.array(dtype=wp.vec3d)):
-    """Midpoint of each edge (the last node of a coil, which has none, keeps its own position)."""
+def edge_midpoints(
+    x: wp.array(dtype=wp.vec3d),
+    has_next: wp.array(dtype=wp.int32),
+    built_mid: wp.array(dtype=wp.vec3d),
+    half_skin: wp.float64,
+    mid: wp.array(dtype=wp.vec3d),
+    rebuild: wp.array(dtype=wp.int32),
+):
+    """Midpoint of each edge (the last node of a coil, which has none, keeps its
+    own position); raises ``rebuild`` when a midpoint has moved more than half
+    the skin since the neighbour grid was built (every thread that raises it
+    writes the same 1, so the result does not depend on thread order)."""
     i = wp.tid()
+    m = x[i]
     if has_next[i] != 0:
-        mid[i] = wp.float64(0.5) * (x[i] + x[i + 1])
-    else:
-        mid[i] = x[i]
+        m = wp.float64(0.5) * (x[i] + x[i + 1])
+    mid[i] = m
+    if not (wp.length(m - built_mid[i]) <= half_skin):  # NaN also rebuilds
+        rebuild[0] = 1
+
+
+@wp.kernel
+def grid_points(
+    mid: wp.array(dtype=wp.vec3d),
+    world_of: wp.array(dtype=wp.int32),
+    world_offset: wp.array(dtype=wp.vec3d),
+    built_mid: wp.array(dtype=wp.vec3d),
+    points: wp.array(dtype=wp.vec3d),
+    rebuild: wp.array(dtype=wp.int32),
+):
+    """Neighbour-grid points: the midpoints as built, each member shifted by its
+    own offset so members do not share cells; clears the rebuild flag."""
+    i = wp.tid()
+    built_mid[i] = mid[i]
+    points[i] = mid[i] + world_offset[world_of[i]]
+    if i == 0:
+        rebuild[0] = 0
 
 
 @wp.kernel
@@ -211,11 +300,15 @@ def edge_contact(
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    world_offset: wp.array(dtype=wp.vec3d),
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     mid: wp.array(dtype=wp.vec3d),
     query_radius: wp.float64,
+    grid_radius: wp.float64,
     exclusion: int,
     p0: wp.float64,
     c0: wp.float64,
@@ -227,26 +320,33 @@ def edge_contact(
 ):
     """Segment–segment contact on edge a (so a segment cannot slip between two
     nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
-    closest points of a and every other edge b near it (hash grid of edge
-    midpoints), along (p_a − p_b)/|p_a − p_b|, split between a's start and end
-    node by the barycentric weight of p_a. Edges of the same coil closer than
+    closest points of a and every other edge b of the same ensemble member near
+    it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
+    the barycentric weight of p_a. Candidates come from the hash grid of edge
+    midpoints as last built, searched ``grid_radius`` (= query radius + half the
+    skin) around a's current midpoint, which finds every edge whose midpoint is
+    now within ``query_radius``. Edges of the same coil closer than
     ``exclusion`` along it are bonded neighbours and skipped. Each pair is
-    evaluated from both sides, so every edge writes only its own entries. Edges
-    in the catheter stand in for the catheter: free edges are pushed off them."""
+    evaluated from both sides, so every edge writes only its own entries; the
+    sums are fixed-point (order-independent). Edges in the catheter stand in for
+    the catheter: free edges are pushed off them."""
     a = wp.tid()
-    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    f_start = zero
-    f_end = zero
+    sum_start = vec3l()
+    sum_end = vec3l()
+    bad = int(0)  # a non-finite contribution
     gap_min = query_radius
     touching = int(0)
-    if edge_in_contact_pass(free, has_next, a):
+    w = world_of[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         pa0 = x[a]
         pa1 = x[a + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a], query_radius)
+        query = wp.hash_grid_query(grid, mid[a] + world_offset[w], grid_radius)
         b = int(0)
         while wp.hash_grid_query_next(query, b):
-            skip = not edge_is_obstacle(free, has_next, fixed, b)
+            skip = world_of[b] != w
+            if not skip:
+                skip = not edge_is_obstacle(free, has_next, fixed, b)
             if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
                 skip = True
             if not skip:
@@ -261,9 +361,22 @@ def edge_contact(
                     gap_min = wp.min(gap_min, gap)
                     if gap < c0 and dist > wp.float64(1.0e-12):
                         f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
-                        f_start = f_start + (wp.float64(1.0) - st[0]) * f
-                        f_end = f_end + st[0] * f
+                        share_start = (wp.float64(1.0) - st[0]) * f
+                        share_end = st[0] * f
+                        if not (finite_vec(share_start) and finite_vec(share_end)):
+                            bad = 1
+                        sum_start = sum_start + to_fixed(share_start)
+                        sum_end = sum_end + to_fixed(share_end)
                         touching += 1
+                    elif not (gap == gap):
+                        bad = 1
+    f_start = from_fixed(sum_start)
+    f_end = from_fixed(sum_end)
+    if bad != 0:
+        nan = wp.float64(wp.nan)
+        f_start = wp.vec3d(nan, nan, nan)
+        f_end = f_start
+        gap_min = nan
     force_start[a] = f_start
     force_end[a] = f_end
     min_gap[a] = gap_min

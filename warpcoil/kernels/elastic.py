@@ -188,7 +188,8 @@ def gather_forces(
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
-    push_axis: wp.vec3d,
+    world_of: wp.array(dtype=wp.int32),
+    push_axis: wp.array(dtype=wp.vec3d),
     force: wp.array(dtype=wp.vec3d),
     torque: wp.array(dtype=wp.float64),
     push_share: wp.array(dtype=wp.float64),
@@ -216,7 +217,7 @@ def gather_forces(
     share = F64_0
     fold = wp.vec3d(F64_0, F64_0, F64_0)
     if free[i] != 0:
-        share = wp.dot(f, push_axis)
+        share = wp.dot(f, push_axis[world_of[i]])
         fold = fold_force(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     push_share[i] = share
     force[i] = f + external[i] + contact[i] + fold

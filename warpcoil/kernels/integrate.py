@@ -35,32 +35,38 @@ def damped_speed(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
 
 
 @wp.func
-def catheter_point(path: wp.array(dtype=wp.vec3d), depth: wp.float64):
-    """Point and unit direction (towards the tip) on the catheter centerline at
-    arc distance ``depth`` ≥ 0 behind the tip. ``path`` runs proximal → tip;
-    beyond the proximal end the first segment is extended."""
-    n = path.shape[0]
+def catheter_point(path: wp.array(dtype=wp.vec3d), first: int, count: int, depth: wp.float64):
+    """Point and unit direction (towards the tip) on a catheter centerline at
+    arc distance ``depth`` ≥ 0 behind the tip. The centerline is
+    ``path[first:first + count]``, proximal → tip; beyond the proximal end the
+    first segment is extended."""
     remaining = depth
-    k = n - 1
+    k = count - 1
     while k > 0:
-        seg = path[k] - path[k - 1]
+        seg = path[first + k] - path[first + k - 1]
         length = wp.length(seg)
         direction = seg / length
         if remaining <= length or k == 1:
-            return path[k] - remaining * direction, direction
+            return path[first + k] - remaining * direction, direction
         remaining = remaining - length
         k = k - 1
-    return path[n - 1], wp.vec3d(F64_0, F64_0, F64_1)
+    return path[first + count - 1], wp.vec3d(F64_0, F64_0, F64_1)
+
+
+@wp.func
+def pushed(active_coil: wp.array(dtype=wp.int32), coil_world: wp.array(dtype=wp.int32), coil: int) -> bool:
+    """The pusher of the coil's world drives its active coil and the coils waiting
+    behind it in the catheter (so the next one arrives at the tip as the active
+    one detaches)."""
+    active = active_coil[coil_world[coil]]
+    return active >= 0 and coil >= active
 
 
 @wp.func
 def coil_advance(advance: wp.array(dtype=wp.float64), active_coil: wp.array(dtype=wp.int32),
-                 coil: int, push_step: wp.float64) -> wp.float64:
-    """The pusher drives the active coil and the coils waiting behind it in the
-    catheter (so the next one arrives at the tip as the active one detaches)."""
+                 coil_world: wp.array(dtype=wp.int32), coil: int, push_step: wp.float64) -> wp.float64:
     a = advance[coil]
-    active = active_coil[0]
-    if active >= 0 and coil >= active:
+    if pushed(active_coil, coil_world, coil):
         a = a + push_step
     return a
 
@@ -69,27 +75,45 @@ def coil_advance(advance: wp.array(dtype=wp.float64), active_coil: wp.array(dtyp
 def integrate_nodes(
     x_in: wp.array(dtype=wp.vec3d),
     v_in: wp.array(dtype=wp.vec3d),
+    free_in: wp.array(dtype=wp.int32),
     advance_in: wp.array(dtype=wp.float64),
     force: wp.array(dtype=wp.vec3d),
     fixed: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
     arc_s: wp.array(dtype=wp.float64),
     inv_mass: wp.array(dtype=wp.float64),
     damping_c: wp.array(dtype=wp.float64),
     damping_k: wp.float64,
     catheter_path: wp.array(dtype=wp.vec3d),
+    catheter_first: wp.array(dtype=wp.int32),
+    catheter_count: wp.array(dtype=wp.int32),
     active_coil: wp.array(dtype=wp.int32),
-    push_speed: wp.float64,
+    push_speed: wp.array(dtype=wp.float64),
+    running: wp.array(dtype=wp.int32),
     dt: wp.float64,
     x_out: wp.array(dtype=wp.vec3d),
     v_out: wp.array(dtype=wp.vec3d),
     free_out: wp.array(dtype=wp.int32),
     advance_out: wp.array(dtype=wp.float64),
 ):
+    """One step of node i (and of coil i's pusher advance, mm, for i < coils).
+    A world that is not running keeps its state."""
     i = wp.tid()
-    push_step = push_speed * dt
     if i < advance_in.shape[0]:
-        advance_out[i] = coil_advance(advance_in, active_coil, i, push_step)
+        cw = coil_world[i]
+        if running[cw] != 0:
+            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
+        else:
+            advance_out[i] = advance_in[i]
+    w = world_of[i]
+    if running[w] == 0:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+        free_out[i] = free_in[i]
+        return
+    push_step = push_speed[w] * dt
     zero = wp.vec3d(F64_0, F64_0, F64_0)
     if fixed[i] != 0:
         x_out[i] = x_in[i]
@@ -97,12 +121,12 @@ def integrate_nodes(
         free_out[i] = 0
         return
     c = coil_of[i]
-    sigma = coil_advance(advance_in, active_coil, c, push_step) - arc_s[i]
+    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_step) - arc_s[i]
     if sigma < F64_0:
-        p, direction = catheter_point(catheter_path, -sigma)
+        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
         x_out[i] = p
-        if active_coil[0] >= 0 and c >= active_coil[0]:
-            v_out[i] = push_speed * direction
+        if pushed(active_coil, coil_world, c):
+            v_out[i] = push_speed[w] * direction
         else:
             v_out[i] = zero
         free_out[i] = 0
@@ -127,6 +151,8 @@ def update_frames(
     has_next: wp.array(dtype=wp.int32),
     inv_inertia: wp.array(dtype=wp.float64),
     twist_damping: wp.array(dtype=wp.float64),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
     dt: wp.float64,
     m1_out: wp.array(dtype=wp.vec3d),
     omega_out: wp.array(dtype=wp.float64),
@@ -136,6 +162,10 @@ def update_frames(
     node in the catheter or clamped do not spin). Twist damping is linear and
     implicit: ω' = (ω + dt T/J) / (1 + dt b/J)."""
     i = wp.tid()
+    if running[world_of[i]] == 0:
+        m1_out[i] = m1_in[i]
+        omega_out[i] = omega_in[i]
+        return
     if not edge_valid(has_next, i):
         m1_out[i] = m1_in[i]
         omega_out[i] = F64_0
@@ -182,13 +212,17 @@ def kinetic_energies(
 def place_on_catheter(
     arc_s: wp.array(dtype=wp.float64),
     coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
     advance: wp.array(dtype=wp.float64),
     catheter_path: wp.array(dtype=wp.vec3d),
+    catheter_first: wp.array(dtype=wp.int32),
+    catheter_count: wp.array(dtype=wp.int32),
     x: wp.array(dtype=wp.vec3d),
 ):
-    """Packed positions: node i at depth −σ = s_i − advance behind the tip (σ ≤ 0)."""
+    """Packed positions: node i at depth −σ = s_i − advance behind its world's tip (σ ≤ 0)."""
     i = wp.tid()
-    p, direction = catheter_point(catheter_path, arc_s[i] - advance[coil_of[i]])
+    w = world_of[i]
+    p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], arc_s[i] - advance[coil_of[i]])
     x[i] = p
 
 
@@ -218,12 +252,15 @@ def transported_directors(
 
 
 @wp.kernel
-def accumulate_push_force(push_share: wp.array(dtype=wp.float64), accumulator: wp.array(dtype=wp.float64)):
-    """One thread: this step's push force (µN) = Σ push shares; adds it to
-    accumulator[0] and keeps the step maximum in accumulator[1] (a fixed-order
-    sum, so the result does not depend on the device)."""
+def accumulate_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32),
+                          accumulator: wp.array2d(dtype=wp.float64)):
+    """One thread per world: this step's push force (µN) = Σ push shares of its
+    nodes; adds it to accumulator[w, 0] and keeps the step maximum in
+    accumulator[w, 1] (a fixed-order sum, so the result does not depend on the
+    device or on the other worlds)."""
+    w = wp.tid()
     total = wp.float64(0.0)
-    for i in range(push_share.shape[0]):
+    for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
         total = total + push_share[i]
-    accumulator[0] = accumulator[0] + total
-    accumulator[1] = wp.max(accumulator[1], total)
+    accumulator[w, 0] = accumulator[w, 0] + total
+    accumulator[w, 1] = wp.max(accumulator[w, 1], total)

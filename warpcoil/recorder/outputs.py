@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..deploy import Deployment, Frame, RunResult
+from ..deploy import Frame, RunResult
 from ..model import Model
 from ..settings import Scene
 from ..state import State
@@ -87,27 +87,26 @@ class UsdFrames:
         self.recorder.close()
 
 
-def write_run(out: Path, scene: Scene, deployment: Deployment, result: RunResult, extra: dict | None = None) -> None:
+def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None) -> None:
     """Everything a run writes after it ends (the USD is recorded during the run):
     CSVs, then the pictures and tube meshes the scene asks for, then result.json
-    last, so its presence means the folder is complete."""
+    last, so its presence means the folder is complete. ``wall``: the run's
+    WallMesh (Anatomy.wall) or None."""
     from .figures import write_summary_png
     from .tube import coils_tube_mesh, write_tube_stl, write_tube_vtp
 
     write_timeseries_csv(out / TIMESERIES_CSV, result.frames)
     write_centerline_csv(out / CENTERLINE_CSV, result.positions_mm)
-    model = deployment.model
-    diameters = [c.d for c in model.coils]
+    diameters = [c.d for c in scene.coils]
     if scene.output.tube_mesh:
         mesh = coils_tube_mesh(result.positions_mm, diameters)
         write_tube_stl(out / TUBE_STL, mesh)
         write_tube_vtp(out / TUBE_VTP, mesh)
     if scene.output.png:
-        wall = model.wall
         starts = np.cumsum([c["deployed_length_mm"] for c in result.coils])[:-1].tolist()
         write_summary_png(
             out / SUMMARY_PNG, wall.vertices_mm if wall is not None else np.zeros((0, 3)),
-            wall.faces_np if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
+            wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
             result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
             f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %")
     write_result_json(out / RESULT_JSON, result, extra)

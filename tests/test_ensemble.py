@@ -1,0 +1,90 @@
+"""Ensembles: B deployments advanced by one set of launches give each member
+exactly the result of its single run."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import warpcoil as wc
+from warpcoil.deploy import Deployment, Ensemble, ensemble_groups
+from warpcoil.model import EnsembleError
+
+
+def scene(angle_deg=0.0, push_mm_s=100.0, sac_diameter_mm=3.5, length_mm=6.0):
+    """A 6 mm framing coil into a small sphere, the catheter tilted by ``angle_deg``."""
+    a = math.radians(angle_deg)
+    return wc.Scene(
+        coils=(wc.CoilSpec(shape="helix", length_mm=length_mm, loop_diameter_mm=2.5, pitch_mm=0.6, name="framing"),),
+        catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -0.45 * sac_diameter_mm + 0.1),
+                                 direction=(math.sin(a), 0.0, math.cos(a))),
+        wall=wc.WallSpec(sphere_diameter_mm=sac_diameter_mm),
+        simulation=wc.SimulationSettings(push_speed_mm_s=push_mm_s, frame_interval_s=0.005))
+
+
+def assert_same_run(single, member):
+    assert member.status == single.status and member.reason == single.reason
+    assert member.steps == single.steps
+    assert len(member.frames) == len(single.frames)
+    for a, b in zip(single.positions_mm, member.positions_mm):
+        assert np.array_equal(a, b)
+    assert member.min_coil_gap_mm == single.min_coil_gap_mm
+    assert member.max_push_force_uN == single.max_push_force_uN
+    assert [f.kinetic_nJ for f in member.frames] == [f.kinetic_nJ for f in single.frames]
+
+
+def test_members_equal_their_single_runs():
+    """Different catheter angles, push speeds and walls (two sphere sizes) in one ensemble."""
+    scenes = [scene(0.0), scene(20.0, push_mm_s=150.0), scene(10.0, sac_diameter_mm=4.0)]
+    results = Ensemble(scenes).run()
+    assert [r.status for r in results] == ["completed"] * 3
+    assert not np.allclose(results[0].positions_mm[0], results[1].positions_mm[0])  # members differ
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s).run(), member)
+
+
+def test_a_member_that_goes_unstable_is_rerun_alone(monkeypatch):
+    """Force member 1 unstable at its second frame: it leaves the ensemble and is
+    rerun alone (where a real instability would halve its step); both members
+    end as their single runs do."""
+    from warpcoil.solver import Solver
+
+    scenes = [scene(0.0), scene(15.0)]
+    real = Solver.world_health
+    calls = {"n": 0, "alone": 0}
+
+    def flaky(self, state, energy_budget_nJ=None):
+        calls["n"] += 1
+        energies, problems = real(self, state, energy_budget_nJ)
+        calls["alone"] += len(problems) == 1
+        if calls["n"] == 3 and len(problems) == 2:
+            problems = [problems[0], "forced for the test at t = 0"]
+        return energies, problems
+
+    monkeypatch.setattr(Solver, "world_health", flaky)
+    results = Ensemble(scenes).run()
+    monkeypatch.setattr(Solver, "world_health", real)
+    assert calls["alone"] > 0  # member 1 ran again, alone
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s).run(), member)
+
+
+def test_members_with_different_steps_are_grouped_apart():
+    scenes = [scene(0.0), scene(0.0, length_mm=7.3), scene(5.0)]
+    with pytest.raises(EnsembleError, match="same step"):
+        Ensemble(scenes)
+    assert ensemble_groups(scenes) == [[0, 2], [1]]
+
+
+def test_the_catheter_of_each_world_is_its_own():
+    scenes = [scene(0.0), scene(30.0)]
+    ensemble = Ensemble(scenes)
+    x = ensemble.stepper.state.x.numpy()
+    for w, s in enumerate(scenes):
+        tip = np.asarray(s.catheter.tip_mm)
+        direction = np.asarray(s.catheter.direction) / np.linalg.norm(s.catheter.direction)
+        nodes = x[ensemble.model.world_nodes(w)]
+        behind = (tip - nodes) @ direction
+        assert np.allclose(np.linalg.norm(tip - nodes - np.outer(behind, direction), axis=1), 0.0, atol=1e-9)
+        assert np.all(behind >= -1e-9)

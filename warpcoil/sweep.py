@@ -1,0 +1,131 @@
+"""`warpcoil sweep`: one scene, some keys varied, every member deployed in
+ensembles (one set of launches per group of compatible members).
+
+``--vary catheter.angle_deg=0:30:5`` (start:stop:step, stop included) or
+``--vary simulation.push_speed_mm_s=50,100``; several ``--vary`` make the
+Cartesian product. Each member gets its folder ``member_NNN`` (result.json,
+centerline.csv, timeseries.csv and the pictures / tube meshes the scene asks
+for; no USD — run a member alone with ``warpcoil run`` for that), and the
+sweep writes summary.csv and summary.md, all atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .deploy import Ensemble, RunResult, ensemble_groups
+from .recorder.atomic import write_text_atomic
+from .scene import load_scene
+
+
+class SweepError(ValueError):
+    """A --vary that cannot be read."""
+
+
+def parse_vary(text: str) -> tuple[str, list]:
+    """``key=start:stop:step`` or ``key=a,b,c`` → (key, values)."""
+    key, sep, values = text.partition("=")
+    fix = "write --vary key=start:stop:step or key=a,b,c, e.g. catheter.angle_deg=0:30:5"
+    if not sep or not key or not values:
+        raise SweepError(f"--vary {text!r}: {fix}")
+    try:
+        if ":" in values:
+            start, stop, step = (float(v) for v in values.split(":"))
+            if not step > 0.0 or stop < start:
+                raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
+            count = int(math.floor((stop - start) / step + 1e-9)) + 1
+            return key, [round(start + k * step, 12) for k in range(count)]
+        return key, [_scalar(v) for v in values.split(",")]
+    except ValueError as error:
+        if isinstance(error, SweepError):
+            raise
+        raise SweepError(f"--vary {text!r}: {error}; {fix}") from error
+
+
+def _scalar(text: str):
+    text = text.strip()
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+@dataclass
+class Member:
+    index: int
+    values: dict  # the varied keys and their values
+    result: RunResult | None = None
+
+
+def members(varies: list[tuple[str, list]]) -> list[Member]:
+    keys = [k for k, _ in varies]
+    return [Member(i, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*(v for _, v in varies)))]
+
+
+SUMMARY_COLUMNS = ["member", "status", "packing_density", "length_outside_sac_mm", "neck_coverage",
+                   "min_coil_gap_mm", "min_wall_gap_mm", "max_push_force_uN", "steps", "wall_time_s"]
+
+
+def _summary_row(member: Member) -> dict:
+    r = member.result
+    regions = r.regions or {}
+    row = {"member": f"member_{member.index:03d}", **member.values, "status": r.status,
+           "packing_density": r.packing_density, "length_outside_sac_mm": r.length_outside_sac_mm,
+           "neck_coverage": regions.get("neck_coverage"), "min_coil_gap_mm": r.min_coil_gap_mm,
+           "min_wall_gap_mm": r.min_wall_gap_mm, "max_push_force_uN": r.max_push_force_uN, "steps": r.steps,
+           "wall_time_s": r.wall_time_s}
+    return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
+                (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
+
+
+def write_summary(out: Path, all_members: list[Member], header: str) -> None:
+    rows = [_summary_row(m) for m in all_members]
+    columns = list(rows[0])
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomic(out / "summary.csv", buffer.getvalue())
+    lines = [header, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(str(row[c]) for c in columns) + " |" for row in rows]
+    write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
+
+
+def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device=None,
+              progress=None) -> list[Member]:
+    """Deploy every member; write their folders and the summary. ``progress(done, total)``."""
+    from .recorder.outputs import write_run
+
+    todo = members(varies)
+    scenes = [load_scene(scene_path, m.values) for m in todo]
+    started = time.perf_counter()
+    groups = ensemble_groups(scenes, device)
+    done = 0
+    for group in groups:
+        ensemble = Ensemble([scenes[k] for k in group], device)
+        for k, result in zip(group, ensemble.run()):
+            todo[k].result = result
+            folder = out / f"member_{k:03d}"
+            folder.mkdir(parents=True, exist_ok=True)
+            write_run(folder, scenes[k], ensemble.anatomies[group.index(k)].wall, result,
+                      {"scene": str(scene_path), "varied": todo[k].values})
+            done += 1
+            if progress:
+                progress(done, len(todo))
+    elapsed = time.perf_counter() - started
+    statuses = [m.result.status for m in todo]
+    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members in {len(groups)} ensemble(s), "
+                  f"{elapsed:.1f} s wall time ({60.0 * len(todo) / elapsed:.3g} deployments/min); "
+                  + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
+    return todo
+
+
+__all__ = ["SweepError", "parse_vary", "run_sweep"]
