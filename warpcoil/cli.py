@@ -123,6 +123,10 @@ def _validate(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
+    if args.kind == "ensemble":
+        from .bench.ensemble import main as ensemble_main
+
+        return ensemble_main(out, quick=args.quick, repeats=1, device=args.device)
     if args.kind == "accuracy":
         from .bench.accuracy import main as bench_main
     elif args.kind == "peers":
@@ -144,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(func=_validate)
 
     bench = sub.add_parser("bench", help="benchmarks: run time against error, stress sweep")
-    bench.add_argument("kind", choices=["accuracy", "stress", "peers"])
+    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble"])
+    bench.add_argument("--device", help="Warp device for `ensemble` (cpu, cuda:0; default Warp's)")
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")
     bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3; 1 with --quick)")

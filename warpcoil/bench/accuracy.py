@@ -11,8 +11,9 @@ Cases and their references:
   trajectory over the first loop (RMS distance / loop diameter).
 
 Knobs: step size (dt_safety × the stable bound), push advance per step (push
-speed), segment length l0 ∈ {d/2, d, 2d}, mass scaling. The deployment
-reference is the finest setting: dt 0.25 × bound, true inertia, slow push.
+speed), segment length l0 ∈ {d/2, d, 2d} (d/2 on the validation cases, where
+it is affordable), mass scaling. The deployment reference is the finest
+setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d.
 Float64 only (the kernels are written in float64; float32 is not offered).
 """
 
@@ -66,7 +67,7 @@ def _helix_error(results) -> float:
 def helix_rows(quick: bool, repeats: int) -> list[Row]:
     rows = []
     for factor in (1.0, 2.0) if quick else (0.5, 1.0, 2.0):
-        for safety in (0.5, 0.9) if quick else (0.25, 0.5, 0.9):
+        for safety in (0.5, 0.9) if quick or factor != 1.0 else (0.25, 0.5, 0.9):
             res, t = timed(lambda: validation.helix_recovery(segment_length_mm=factor * D, dt_safety=safety), repeats)
             rows.append(Row("helix recovery", f"l0 {factor:g} d, dt {safety} bound", factor == 1.0 and safety == 0.9,
                             0, t, _helix_error(res), f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm",
@@ -76,12 +77,13 @@ def helix_rows(quick: bool, repeats: int) -> list[Row]:
 
 def release_rows(quick: bool, repeats: int) -> list[Row]:
     rows = []
-    res, t = timed(lambda: validation.free_release(push_speed_mm_s=200.0, mass_scale=10.0), repeats)
-    rows.append(Row("free release", "push 200 mm/s, dt 0.9 bound, mass scale 10", False, 0, t, _helix_error(res),
-                    f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
+    if quick:  # mass scaling tangles a free release (shown once; the full sweep shows it on the seed deployment)
+        res, t = timed(lambda: validation.free_release(push_speed_mm_s=200.0, mass_scale=10.0), repeats)
+        rows.append(Row("free release", "push 200 mm/s, dt 0.9 bound, mass scale 10", False, 0, t, _helix_error(res),
+                        f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
     default_speed = 200.0 if quick else 100.0
     for speed in (200.0,) if quick else (50.0, 100.0, 200.0):
-        for safety in (0.5, 0.9):
+        for safety in (0.5, 0.9) if speed > 50.0 else (0.9,):
             res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, dt_safety=safety), repeats)
             rows.append(Row("free release", f"push {speed:g} mm/s, dt {safety} bound",
                             speed == default_speed and safety == 0.9,
@@ -163,18 +165,17 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         return replace(base, simulation=sim, coils=(replace(coil, segment_length_mm=l0_factor * D),))
 
     sac_radius = base.wall.sphere_diameter_mm / 2.0
-    reference, _ = deploy_shape(variant(dt_safety=0.25, mass_scale=1.0, push=50.0 if quick else 25.0), loop_mm,
-                                sac_radius)
+    # the finest setting swept: the smallest step and slowest push, true inertia, l0 = d
+    reference, _ = deploy_shape(variant(dt_safety=0.25, mass_scale=1.0, push=50.0), loop_mm, sac_radius)
     settings = {
         "default (dt 0.9 bound, push 50 mm/s, l0 d, true inertia)": variant(),
         "dt 0.5 bound": variant(dt_safety=0.5),
         "push 200 mm/s": variant(push=200.0),
         "mass scale 10": variant(mass_scale=10.0),
     }
-    if not quick:
-        settings.update({"dt 0.25 bound": variant(dt_safety=0.25), "push 100 mm/s": variant(push=100.0),
-                         "mass scale 100": variant(mass_scale=100.0), "l0 2d": variant(l0_factor=2.0),
-                         "l0 d/2": variant(l0_factor=0.5)})
+    if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
+        settings.update({"push 100 mm/s": variant(push=100.0), "mass scale 100": variant(mass_scale=100.0),
+                         "l0 2d": variant(l0_factor=2.0)})
     rows = []
     for label, scene in settings.items():
         (shape, steps), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius), repeats)
