@@ -8,6 +8,7 @@ shorter than ``L / n``; the solver takes the chords as rest lengths.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Callable
 from math import ceil
@@ -321,8 +322,14 @@ def from_file(path: str | Path, length_mm: float, segment_length_mm: float) -> n
 
 def rest_centerline(spec: CoilSpec) -> np.ndarray:
     """Rest centerline of a coil, (round(L/l0) + 1, 3) float64 in mm, from its pre-shape fields."""
+    if spec.shape == "file":  # read every time: the file may change
+        return from_file(spec.preshape_file, spec.length_mm, spec.l0)
+    return _generated_centerline(spec).copy()
+
+
+@functools.lru_cache(maxsize=256)
+def _generated_centerline(spec: CoilSpec) -> np.ndarray:
+    """A generated pre-shape, computed once per distinct spec (an ensemble repeats them)."""
     if spec.shape == "helix":
         return helix(spec.loop_diameter_mm, spec.helix_pitch_mm, spec.length_mm, spec.l0)
-    if spec.shape == "spherical":
-        return spherical_spiral(spec.loop_diameter_mm, spec.length_mm, spec.l0, spec.shrink, spec.wire_diameter_mm)
-    return from_file(spec.preshape_file, spec.length_mm, spec.l0)
+    return spherical_spiral(spec.loop_diameter_mm, spec.length_mm, spec.l0, spec.shrink, spec.wire_diameter_mm)

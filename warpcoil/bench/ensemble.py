@@ -1,12 +1,18 @@
 """`warpcoil bench ensemble`: seed-case deployments per minute against ensemble size B.
 
-B copies of scenes/seed_sphere.toml, the catheter tilted 0–20° across the
-members (so they differ), advanced by one set of launches. For small B every
-member is deployed to the end (measured throughput); for large B on a slow
-device a window of steps from the packed start is timed and the throughput
-extrapolated from the largest fully measured B by the per-member step cost
-(marked as such). Also reported: the launch floor (the same launches on a
-3-node model, graph replay) and the compute per step.
+Two measurements:
+
+* full: B copies of scenes/seed_sphere.toml, the catheter tilted 0–20° across
+  the members (so they differ), each deployed to the end by one ensemble —
+  deployments per minute as measured (the ensemble lasts as long as its
+  slowest member);
+* window: B identical members started from the half-deployed state of the
+  single run, a window of steps timed after a warm-up — the cost per member
+  and step c(B), so deployments per minute ≈ (single run's) × c(1) / c(B)
+  for B too large to run to the end on a slow device (marked as such).
+
+Also reported: the launch floor (the same launches on a 3-node model, graph
+replay) against the compute per step.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
 import warp as wp
 
 from ..deploy import Ensemble
@@ -26,53 +33,79 @@ from ..solver import Stepper
 from .report import markdown_table, write_report
 
 SEED_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "seed_sphere.toml"
-WINDOW_STEPS = 40  # steps timed per window (after a warm-up chunk that captures the graph)
+STATE_ARRAYS = ("x", "v", "m1", "omega", "free", "advance")
 
 
 @dataclass
 class Row:
     members: int
-    measured: str  # "full" or "window"
-    wall_time_s: float  # full: the ensemble's run; window: WINDOW_STEPS steps
-    steps: int  # full: the longest member's steps
-    us_per_member_step: float  # window: wall time / (steps × members)
-    deployments_per_min: float
-    completed: int = 0
+    full_wall_time_s: float | None = None  # the whole ensemble, deployed to the end
+    full_steps: int | None = None  # its longest member's steps
+    completed: int | None = None
+    window_steps: int = 0
+    us_per_member_step: float = 0.0  # window: wall time / (steps × members), half-deployed
+    deployments_per_min: float = 0.0
+    extrapolated: bool = False
 
 
-def seed_scenes(members: int) -> list:
+def seed_scenes(members: int, tilt_deg: float = 20.0) -> list:
     scenes = []
     for k in range(members):
-        a = math.radians(20.0 * k / max(members - 1, 1))
+        a = math.radians(tilt_deg * k / max(members - 1, 1))
         scenes.append(load_scene(SEED_SCENE, {"catheter.direction": [math.sin(a), 0.0, math.cos(a)],
                                               "output.usd": False, "output.png": False}))
     return scenes
 
 
-def window_cost_s(ensemble: Ensemble) -> float:
-    """Wall time of WINDOW_STEPS steps of the ensemble from its packed start, pushing."""
-    for member in ensemble.members:
-        ensemble.control.set_active_coil(0, world=member.world)
-    stepper = Stepper(ensemble.solver, ensemble.stepper.state, ensemble.control, chunk=WINDOW_STEPS)
-    stepper.run_chunk()  # capture
+def run_full(members: int, device) -> tuple[Row, dict]:
+    """Deploy B tilted seed members to the end; also returns member 0's state when
+    half of its coil was out (numpy arrays, for the windows)."""
+    ensemble = Ensemble(seed_scenes(members), device)
+    half = 0.5 * float(ensemble.members[0].coil_lengths_mm.sum())
+    mid: dict = {}
+
+    def on_frame(member, frame, state):
+        if member.world == 0 and not mid and frame.deployed_length_mm >= half:
+            sl = member.nodes
+            mid.update({name: getattr(state, name).numpy()[sl].copy() for name in STATE_ARRAYS if name != "advance"})
+            mid["advance"] = state.advance.numpy()[member.coils.start:member.coils.stop].copy()
+
+    start = time.perf_counter()
+    results = ensemble.run(on_frame)
+    elapsed = time.perf_counter() - start
+    return Row(members, elapsed, max(r.steps for r in results), sum(r.status == "completed" for r in results),
+               deployments_per_min=60.0 * members / elapsed), mid
+
+
+def window_us_per_member_step(members: int, mid: dict, steps: int, device) -> float:
+    """µs per member and step of B identical half-deployed members (after two warm-up chunks)."""
+    ensemble = Ensemble(seed_scenes(members, tilt_deg=0.0), device)
+    state = ensemble.stepper.state
+    for name in STATE_ARRAYS:
+        getattr(state, name).assign(np.concatenate([mid[name]] * members))
+    stepper = Stepper(ensemble.solver, state, ensemble.control, chunk=steps)
+    stepper.run_chunk()  # capture (and, on the CPU, nothing runs yet)
+    stepper.run_chunk()  # first replay: wall sides, anchors, neighbour grid
     wp.synchronize_device(ensemble.model.device)
     start = time.perf_counter()
     stepper.run_chunk()
     wp.synchronize_device(ensemble.model.device)
-    return time.perf_counter() - start
+    return (time.perf_counter() - start) / (steps * members) * 1e6
 
 
 def launch_floor_us(device) -> float:
     """µs per step of the same launch sequence on a 3-node coil (no wall): what graph
     replay costs when there is almost nothing to compute."""
     from .. import CoilSpec, Control, ModelBuilder, Solver, state_from_positions
-    import numpy as np
 
     builder = ModelBuilder()
-    builder.add_coil(CoilSpec(shape="straight", length_mm=2 * 0.2921, wire_diameter_mm=0.2921))
+    d = 0.2921
+    builder.add_coil(CoilSpec(length_mm=2 * d, wire_diameter_mm=d), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, d],
+                                                                             [0.0, 0.0, 2 * d]]))
     model = builder.finalize(device)
     state = state_from_positions(model, model.rest_positions + np.array([0.0, 0.0, 1.0]))
     stepper = Stepper(Solver(model), state, Control.create(model), chunk=1000)
+    stepper.run_chunk()
     stepper.run_chunk()
     wp.synchronize_device(model.device)
     start = time.perf_counter()
@@ -84,41 +117,41 @@ def launch_floor_us(device) -> float:
 def main(out: Path, quick: bool, repeats: int, device=None) -> int:
     device = wp.get_device(device)
     sizes = (1, 4, 16) if quick else (1, 16, 256, 4096)
-    full_up_to = 64 if device.is_cuda else (4 if quick else 16)
-    rows: list[Row] = []
-    for members in sizes:
-        scenes = seed_scenes(members)
-        ensemble = Ensemble(scenes, device)
-        if members <= full_up_to:
-            start = time.perf_counter()
-            results = ensemble.run()
-            elapsed = time.perf_counter() - start
-            window = window_cost_s(Ensemble(scenes, device))
-            rows.append(Row(members, "full", elapsed, max(r.steps for r in results),
-                            window / (WINDOW_STEPS * members) * 1e6, 60.0 * members / elapsed,
-                            sum(r.status == "completed" for r in results)))
-        else:
-            window = window_cost_s(ensemble)
-            base = max((r for r in rows if r.measured == "full"), key=lambda r: r.members)
-            per_member = window / (WINDOW_STEPS * members) * 1e6
-            rows.append(Row(members, "window", window, WINDOW_STEPS, per_member,
-                            base.deployments_per_min * base.us_per_member_step / per_member * members / base.members))
-        r = rows[-1]
-        print(f"B = {members:5d} ({r.measured}): {r.deployments_per_min:9.3g} deployments/min, "
-              f"{r.us_per_member_step:.3g} µs per member-step", flush=True)
+    full_sizes = [b for b in sizes if b <= (1 if quick else 16)] if device.is_cpu else list(sizes)
+    rows = {b: Row(b) for b in sizes}
+    mid: dict = {}
+    for b in full_sizes:
+        row, state = run_full(b, device)
+        rows[b] = row
+        mid = mid or state
+        print(f"B = {b:5d} full: {row.deployments_per_min:.3g} deployments/min ({row.completed}/{b} completed, "
+              f"{row.full_wall_time_s:.1f} s)", flush=True)
+    for b in sizes:
+        steps = 40 if b * 200 < 100_000 or device.is_cuda else 10
+        rows[b].window_steps = steps
+        rows[b].us_per_member_step = window_us_per_member_step(b, mid, steps, device)
+        if rows[b].full_wall_time_s is None:
+            rows[b].extrapolated = True
+            rows[b].deployments_per_min = (rows[1].deployments_per_min * b * rows[1].us_per_member_step
+                                           / (b * rows[b].us_per_member_step))
+        print(f"B = {b:5d} window: {rows[b].us_per_member_step:.3g} µs per member-step", flush=True)
     floor = launch_floor_us(device)
     table = markdown_table(
-        ["B (members)", "measured", "wall time (s)", "steps", "µs per member-step", "deployments / min", "completed"],
-        [[r.members, "full deployments" if r.measured == "full" else f"{WINDOW_STEPS}-step window, extrapolated",
-          r.wall_time_s, r.steps, r.us_per_member_step, r.deployments_per_min,
-          f"{r.completed}/{r.members}" if r.measured == "full" else ""] for r in rows])
-    one = rows[0]
-    notes = (f"Launch floor (the same launches per step on a 3-node coil, graph replay): {floor:.3g} µs per step. "
-             f"Compute at B = 1: {one.us_per_member_step:.3g} µs per step (window from the packed start; the "
-             f"full run averages {one.wall_time_s / one.steps * 1e6:.3g} µs per step over {one.steps} steps).")
-    command = f"warpcoil bench ensemble{' --quick' if quick else ''}" + (f" --device {device.alias}" if device.is_cuda else "")
+        ["B (members)", "full run: wall time (s)", "completed", "µs per member-step (half deployed)",
+         "deployments / min"],
+        [[r.members, "" if r.full_wall_time_s is None else r.full_wall_time_s,
+          "" if r.completed is None else f"{r.completed}/{r.members}", r.us_per_member_step,
+          f"{r.deployments_per_min:.3g}" + (" (from the window)" if r.extrapolated else "")]
+         for r in rows.values()])
+    one = rows[1]
+    notes = (f"Launch floor (the same launches per step on a 3-node coil, graph replay): {floor:.3g} µs per step; "
+             f"compute of the half-deployed seed case: {one.us_per_member_step:.3g} µs per step; the single run "
+             f"averages {one.full_wall_time_s / one.full_steps * 1e6:.3g} µs per step over {one.full_steps} steps "
+             f"(frames, measurements and checks included).")
+    command = f"warpcoil bench ensemble{' --quick' if quick else ''}" + (f" --device {device.alias}"
+                                                                         if device.is_cuda else "")
     write_report(out / "ensemble.md", "Seed-case deployments per minute against ensemble size", command,
                  [f"Device: {device.alias} ({device.name}).", table, notes])
-    write_text_atomic(out / "ensemble.json", json.dumps({"rows": [asdict(r) for r in rows],
+    write_text_atomic(out / "ensemble.json", json.dumps({"rows": [asdict(r) for r in rows.values()],
                                                           "launch_floor_us_per_step": floor}, indent=1))
     return 0
