@@ -51,6 +51,12 @@ def test_sweep_writes_each_member_and_a_summary(tmp_path, capsys):
         assert result["varied"] == {"simulation.push_speed_mm_s": speed}
         assert result["steps"] == int(rows[k]["steps"])
     assert "2 members in 1 ensemble(s)" in (out / "summary.md").read_text()
+    split = tmp_path / "split"  # two worker processes, one member each: the same results
+    assert main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100,150", "-o", str(split), "-q",
+                 "--jobs", "2"]) == 0
+    for k in range(2):
+        name = f"member_{k:03d}/centerline.csv"
+        assert (split / name).read_bytes() == (out / name).read_bytes()
 
 
 def test_a_bad_key_names_it_and_writes_nothing(tmp_path, capsys):

@@ -84,6 +84,8 @@ def _sweep(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
     try:
         varies = [parse_vary(v) for v in args.vary]
+        if args.jobs < 1:
+            raise SweepError(f"--jobs {args.jobs}: give 1 or more worker processes")
         out.mkdir(parents=True, exist_ok=True)
         bar = None
         if not args.quiet:
@@ -94,7 +96,7 @@ def _sweep(args: argparse.Namespace) -> int:
             bar.total = total
             bar.update(done - bar.n)
 
-        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None)
+        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None, args.jobs)
         if bar:
             bar.close()
     except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError) as error:
@@ -162,6 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "for a product)")
     sweep.add_argument("-o", "--output", help="output folder (default out/<scene name>_sweep)")
     sweep.add_argument("--device", help="Warp device, e.g. cpu or cuda:0 (default Warp's)")
+    sweep.add_argument("-j", "--jobs", type=int, default=1,
+                       help="worker processes, each running a share of the members (on the CPU a launch uses one "
+                            "core: give the number of cores; default 1)")
     sweep.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(func=_sweep)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")

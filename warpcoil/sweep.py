@@ -70,10 +70,6 @@ def members(varies: list[tuple[str, list]]) -> list[Member]:
     return [Member(i, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*(v for _, v in varies)))]
 
 
-SUMMARY_COLUMNS = ["member", "status", "packing_density", "length_outside_sac_mm", "neck_coverage",
-                   "min_coil_gap_mm", "min_wall_gap_mm", "max_push_force_uN", "steps", "wall_time_s"]
-
-
 def _summary_row(member: Member) -> dict:
     r = member.result
     regions = r.regions or {}
@@ -99,32 +95,54 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
+def _run_batch(scene_path: Path, overrides: list[dict], device) -> list[tuple[RunResult, object]]:
+    """Deploy one ensemble of members (a worker process's share); (result, wall mesh) each."""
+    scenes = [load_scene(scene_path, values) for values in overrides]
+    ensemble = Ensemble(scenes, device)
+    return list(zip(ensemble.run(), (a.wall for a in ensemble.anatomies)))
+
+
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device=None,
-              progress=None) -> list[Member]:
-    """Deploy every member; write their folders and the summary. ``progress(done, total)``."""
+              progress=None, jobs: int = 1) -> list[Member]:
+    """Deploy every member; write their folders and the summary. ``progress(done, total)``.
+
+    ``jobs`` > 1 splits each ensemble over that many worker processes: on the
+    CPU a launch runs on one core, so this is what uses the others (results are
+    the same: each member equals its single run)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
     from .recorder.outputs import write_run
 
     todo = members(varies)
     scenes = [load_scene(scene_path, m.values) for m in todo]
     started = time.perf_counter()
     groups = ensemble_groups(scenes, device)
-    done = 0
-    for group in groups:
-        ensemble = Ensemble([scenes[k] for k in group], device)
-        for k, result in zip(group, ensemble.run()):
+    batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]
+
+    def finish(batch: list[int], outcome: list) -> None:
+        for k, (result, wall) in zip(batch, outcome):
             todo[k].result = result
             folder = out / f"member_{k:03d}"
             folder.mkdir(parents=True, exist_ok=True)
-            write_run(folder, scenes[k], ensemble.anatomies[group.index(k)].wall, result,
-                      {"scene": str(scene_path), "varied": todo[k].values})
-            done += 1
-            if progress:
-                progress(done, len(todo))
+            write_run(folder, scenes[k], wall, result, {"scene": str(scene_path), "varied": todo[k].values})
+        if progress:
+            progress(sum(m.result is not None for m in todo), len(todo))
+
+    overrides = lambda batch: [todo[k].values for k in batch]  # noqa: E731
+    if jobs <= 1:
+        for batch in batches:
+            finish(batch, _run_batch(scene_path, overrides(batch), device))
+    else:
+        with ProcessPoolExecutor(min(jobs, len(batches)), mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(_run_batch, scene_path, overrides(b), device): b for b in batches}
+            for future, batch in futures.items():
+                finish(batch, future.result())
     elapsed = time.perf_counter() - started
     statuses = [m.result.status for m in todo]
-    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members in {len(groups)} ensemble(s), "
-                  f"{elapsed:.1f} s wall time ({60.0 * len(todo) / elapsed:.3g} deployments/min); "
-                  + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
+    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members in {len(batches)} "
+                  f"ensemble(s), {jobs} job(s), {elapsed:.1f} s wall time ({60.0 * len(todo) / elapsed:.3g} "
+                  "deployments/min); " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
     return todo
 
 
