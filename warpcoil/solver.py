@@ -154,8 +154,8 @@ class Solver:
     edge midpoint has moved more than half this since the last build (0: every
     step); every pair within the contact range is found either way, and the
     fixed-point contact sums make the forces bit-identical.
-    ``wall_guard_steps``: a node anchored away from the wall is searched again
-    at least this often.
+    ``wall_guard_steps``: a node anchored away from the wall's contact range is
+    searched again at least this often (0: every step).
     """
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
@@ -190,10 +190,11 @@ class Solver:
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
         self.wall_distance.fill_(float(contact.FAR_MM))
         self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
+        self._wall_slack = zeros(wp.float64)
         self._wall_side.fill_(-1)
         self._wall_quiet.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
-        self._midpoints, self._built_midpoints, self._grid_points = zeros(wp.vec3d), zeros(wp.vec3d), zeros(wp.vec3d)
+        self._midpoints, self._built_midpoints = zeros(wp.vec3d), zeros(wp.vec3d)
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
@@ -205,14 +206,12 @@ class Solver:
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
-        self._world_offset = model.array(_world_offsets(model.world_count, cells, self._grid_radius), wp.vec3d)
 
     # --- one step ----------------------------------------------------------
     def _build_grid(self) -> None:
-        wp.launch(contact.grid_points, self.model.node_count, device=self.model.device, inputs=[
-            self._midpoints, self.model.world_of, self._world_offset, self._built_midpoints, self._grid_points,
-            self._rebuild])
-        self._grid.build(self._grid_points, self._grid_radius)
+        wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
+            self._midpoints, self._built_midpoints, self._rebuild])
+        self._grid.build(self._built_midpoints, self._grid_radius, groups=self.model.world_of)
         self.grid_builds += 1
 
     def compute_contacts(self, state: State, wall_search_mm: float | None = None,
@@ -230,8 +229,10 @@ class Solver:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.wall_mesh, m.wall_face_first,
                 m.wall_origin, m.wall_vertices, m.wall_faces, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                self.wall_search_mm if wall_search_mm is None else wall_search_mm, self.wall_guard_steps,
-                self._wall_side, self._wall_anchor, self._wall_quiet, self.wall_force, self.wall_distance])
+                self.wall_search_mm if wall_search_mm is None else wall_search_mm,
+                self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
+                self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self.wall_force,
+                self.wall_distance])
         if self.coil_contact:
             wp.launch(contact.edge_midpoints, n, device=dev, inputs=[
                 state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints,
@@ -241,7 +242,7 @@ class Solver:
             else:
                 self._build_grid()
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, m.world_of, running, self._world_offset, m.fixed,
+                state.x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, self._grid.id, self._midpoints, c.query_radius_mm, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
@@ -364,16 +365,6 @@ class Solver:
             if problem is not None:
                 raise SimulationUnstable(problem)
         return {k: float(v.sum()) for k, v in energies.items()}
-
-
-def _world_offsets(worlds: int, cells: int, cell_mm: float) -> np.ndarray:
-    """Neighbour-grid offsets (mm) that spread the worlds over the hashed grid's
-    period (cells × cell_mm per axis), so different worlds rarely share a cell
-    (the contact kernel skips other worlds' edges in any case)."""
-    side = max(1, math.ceil(worlds ** (1.0 / 3.0) - 1e-9))
-    step = cells / side * cell_mm
-    w = np.arange(worlds)
-    return np.stack([w % side, (w // side) % side, w // (side * side)], axis=1) * step
 
 
 GRAPH_STEPS_MAX = 64  # steps per captured graph: capturing costs ~30 µs per launch on the CPU, replay ~0.4 µs

@@ -90,6 +90,8 @@ def finite_vec(f: wp.vec3d) -> bool:
 FAR_MM = wp.constant(wp.float64(1.0e6))
 NO_FACE = wp.constant(-1)
 NO_ANCHOR = wp.constant(-1)
+ANCHOR_SHARE = wp.constant(wp.float64(0.9))  # of the slack a node may move before it is searched again
+ANCHOR_MARGIN_MM = wp.constant(wp.float64(1.0e-5))  # ≫ the float32 BVH's error in picking the closest face
 
 
 @wp.func
@@ -147,6 +149,7 @@ def wall_contact(
     guard_steps: int,
     inside: wp.array(dtype=wp.int32),
     anchor: wp.array(dtype=wp.vec3d),
+    anchor_slack: wp.array(dtype=wp.float64),
     quiet_steps: wp.array(dtype=wp.int32),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
@@ -160,12 +163,16 @@ def wall_contact(
     the lumen, 0 outside, −1 not yet known) it had when last seen near the
     wall — it cannot change side without coming near it, as long as a step
     moves it less than ``search_mm``. Nodes whose side is unknown (just out of
-    the catheter) get a full search. A search that finds no face anchors the
-    node there: while it stays within ``search_mm`` of its anchor no face can
-    come within its contact range, so it is not searched again (exactly the
-    same force, zero) — except every ``guard_steps`` steps. Writes the centre's
-    signed distance (mm; ± the search reach when no face is that close; +FAR in
-    the catheter or without a wall)."""
+    the catheter) get a full search.
+
+    A node found in the lumen with a slack s = (distance − d/2 − c0) > 0 to the
+    contact range (s ≥ ``search_mm`` when no face was within reach) is anchored
+    there: while it stays within 0.9 s − 1e-5 mm of its anchor the wall cannot be within
+    its contact range, so the force is exactly zero and it is not searched
+    again — except every ``guard_steps`` steps (0: always search, as for exact
+    distances). Writes the centre's signed distance (mm; for a node not
+    searched, or with no face in reach, the distance plus slack bound it was
+    anchored with; +FAR in the catheter or without a wall)."""
     i = wp.tid()
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     signed = FAR_MM
@@ -175,27 +182,30 @@ def wall_contact(
         reach = node_radius[i] + c0 + search_mm
         side = inside[i]
         quiet = quiet_steps[i]
-        if side >= 0 and quiet != NO_ANCHOR and quiet < guard_steps and wp.length(x[i] - anchor[i]) < search_mm:
+        moved = wp.length(x[i] - anchor[i])
+        if side > 0 and quiet != NO_ANCHOR and quiet < guard_steps and moved < ANCHOR_SHARE * anchor_slack[i] - ANCHOR_MARGIN_MM:
             quiet_steps[i] = quiet + 1
-            signed = reach
-            if side == 0:
-                signed = -reach
+            signed = node_radius[i] + c0 + anchor_slack[i] - moved
         else:
             if side < 0:
                 reach = FAR_MM
             face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)
             signed = dist
             if face == NO_FACE:
-                anchor[i] = x[i]
-                quiet_steps[i] = 0
                 if side == 0:
                     signed = -reach
+            elif signed > wp.float64(0.0):
+                inside[i] = 1
+            else:
+                inside[i] = 0
+            slack = signed - node_radius[i] - c0
+            if inside[i] == 1 and slack > wp.float64(0.0):
+                anchor[i] = x[i]
+                anchor_slack[i] = slack
+                quiet_steps[i] = 0
             else:
                 quiet_steps[i] = NO_ANCHOR
-                if signed > wp.float64(0.0):
-                    inside[i] = 1
-                else:
-                    inside[i] = 0
+            if face != NO_FACE:
                 f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
     elif free[i] == 0:
         inside[i] = -1
@@ -277,19 +287,10 @@ def edge_midpoints(
 
 
 @wp.kernel
-def grid_points(
-    mid: wp.array(dtype=wp.vec3d),
-    world_of: wp.array(dtype=wp.int32),
-    world_offset: wp.array(dtype=wp.vec3d),
-    built_mid: wp.array(dtype=wp.vec3d),
-    points: wp.array(dtype=wp.vec3d),
-    rebuild: wp.array(dtype=wp.int32),
-):
-    """Neighbour-grid points: the midpoints as built, each member shifted by its
-    own offset so members do not share cells; clears the rebuild flag."""
+def mark_built(mid: wp.array(dtype=wp.vec3d), built_mid: wp.array(dtype=wp.vec3d), rebuild: wp.array(dtype=wp.int32)):
+    """The neighbour grid is being built from ``mid``: remember it, clear the rebuild flag."""
     i = wp.tid()
     built_mid[i] = mid[i]
-    points[i] = mid[i] + world_offset[world_of[i]]
     if i == 0:
         rebuild[0] = 0
 
@@ -302,7 +303,6 @@ def edge_contact(
     coil_of: wp.array(dtype=wp.int32),
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
-    world_offset: wp.array(dtype=wp.vec3d),
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     grid: wp.uint64,
@@ -320,8 +320,8 @@ def edge_contact(
 ):
     """Segment–segment contact on edge a (so a segment cannot slip between two
     nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
-    closest points of a and every other edge b of the same ensemble member near
-    it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
+    closest points of a and every other edge b of the same ensemble member (the
+    grid's group) near it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
     the barycentric weight of p_a. Candidates come from the hash grid of edge
     midpoints as last built, searched ``grid_radius`` (= query radius + half the
     skin) around a's current midpoint, which finds every edge whose midpoint is
@@ -341,12 +341,10 @@ def edge_contact(
         pa0 = x[a]
         pa1 = x[a + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a] + world_offset[w], grid_radius)
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         b = int(0)
         while wp.hash_grid_query_next(query, b):
-            skip = world_of[b] != w
-            if not skip:
-                skip = not edge_is_obstacle(free, has_next, fixed, b)
+            skip = not edge_is_obstacle(free, has_next, fixed, b)
             if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
                 skip = True
             if not skip:
