@@ -25,6 +25,7 @@ WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a nod
 CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
 CONTACTS_AT_ONSET = 8  # ... and in a dense pack, for where the contact law turns linear
 NEIGHBOUR_SKIN_MM = 0.05  # coil–coil neighbour grid rebuilt when a midpoint moved half this (benchmarked)
+NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches the grid instead
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 
 
@@ -153,7 +154,9 @@ class Solver:
     ``neighbour_skin_mm``: the coil–coil neighbour grid is rebuilt only when an
     edge midpoint has moved more than half this since the last build (0: every
     step); every pair within the contact range is found either way, and the
-    fixed-point contact sums make the forces bit-identical.
+    fixed-point contact sums make the forces bit-identical. At each build every
+    edge lists the edges within query radius + skin (up to ``neighbour_capacity``;
+    an edge with more searches the grid each step instead).
     ``wall_guard_steps``: a node anchored away from the wall's contact range is
     searched again at least this often (0: every step).
     """
@@ -161,7 +164,7 @@ class Solver:
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
-                 wall_guard_steps: int = WALL_GUARD_STEPS):
+                 wall_guard_steps: int = WALL_GUARD_STEPS, neighbour_capacity: int = NEIGHBOUR_CAPACITY):
         self.model = model
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
@@ -195,6 +198,8 @@ class Solver:
         self._wall_quiet.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
         self._midpoints, self._built_midpoints = zeros(wp.vec3d), zeros(wp.vec3d)
+        self._neighbours = wp.zeros((n, neighbour_capacity), dtype=wp.int32, device=dev)
+        self._neighbour_count = zeros(wp.int32)
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
@@ -203,6 +208,7 @@ class Solver:
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
         cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
         self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
+        self._list_radius = model.contact.query_radius_mm + self.neighbour_skin_mm
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
@@ -211,7 +217,11 @@ class Solver:
     def _build_grid(self) -> None:
         wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
             self._midpoints, self._built_midpoints, self._rebuild])
-        self._grid.build(self._built_midpoints, self._grid_radius, groups=self.model.world_of)
+        m = self.model
+        self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of)
+        wp.launch(contact.build_neighbours, m.node_count, device=m.device, inputs=[
+            self._grid.id, self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.contact.exclusion_edges,
+            self._list_radius, self._neighbours, self._neighbour_count])
         self.grid_builds += 1
 
     def compute_contacts(self, state: State, wall_search_mm: float | None = None,
@@ -243,7 +253,8 @@ class Solver:
                 self._build_grid()
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, self._grid.id, self._midpoints, c.query_radius_mm, self._grid_radius,
+                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                c.query_radius_mm, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

@@ -295,6 +295,79 @@ def mark_built(mid: wp.array(dtype=wp.vec3d), built_mid: wp.array(dtype=wp.vec3d
         rebuild[0] = 0
 
 
+NO_LIST = wp.constant(-1)  # an edge whose neighbour list overflowed searches the grid instead
+
+
+@wp.kernel
+def build_neighbours(
+    grid: wp.uint64,
+    built_mid: wp.array(dtype=wp.vec3d),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    exclusion: int,
+    list_radius: wp.float64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+):
+    """Neighbour list of edge a at the grid's build: every edge of its world (not a
+    bonded neighbour) whose midpoint is within ``list_radius`` (= query radius +
+    skin) of a's, in grid order; NO_LIST when more than the list holds."""
+    a = wp.tid()
+    found = int(0)
+    if has_next[a] != 0:
+        query = wp.hash_grid_query(grid, built_mid[a], list_radius, world_of[a])
+        b = int(0)
+        while wp.hash_grid_query_next(query, b):
+            keep = b != a and has_next[b] != 0 and wp.length(built_mid[a] - built_mid[b]) <= list_radius
+            if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
+                keep = False
+            if keep and found != NO_LIST:
+                if found < neighbours.shape[1]:
+                    neighbours[a, found] = b
+                    found += 1
+                else:
+                    found = NO_LIST
+    count[a] = found
+
+
+@wp.func
+def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                 fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                 mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
+                 c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+    """Edge b's contact on edge a: (fixed-point shares of a's start and end node,
+    surface gap or ``far`` when the bounding spheres miss, 1 if touching, 1 if non-finite)."""
+    start = vec3l()
+    end = vec3l()
+    gap = far
+    touching = int(0)
+    bad = int(0)
+    if edge_is_obstacle(free, has_next, fixed, b):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        pb0 = x[b]
+        pb1 = x[b + 1]
+        # bounding spheres first: most candidates end here
+        if wp.length(mid[a] - mid[b]) < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+            st = segment_closest_params(pa0, pa1, pb0, pb1)
+            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+            dist = wp.length(delta)
+            gap = dist - node_radius[a] - node_radius[b]
+            if gap < c0 and dist > wp.float64(1.0e-12):
+                f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+                share_start = (wp.float64(1.0) - st[0]) * f
+                share_end = st[0] * f
+                if not (finite_vec(share_start) and finite_vec(share_end)):
+                    bad = 1
+                start = to_fixed(share_start)
+                end = to_fixed(share_end)
+                touching = 1
+            elif not (gap == gap):
+                bad = 1
+    return start, end, gap, touching, bad
+
+
 @wp.kernel
 def edge_contact(
     x: wp.array(dtype=wp.vec3d),
@@ -306,6 +379,8 @@ def edge_contact(
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
     mid: wp.array(dtype=wp.vec3d),
     query_radius: wp.float64,
     grid_radius: wp.float64,
@@ -320,16 +395,18 @@ def edge_contact(
 ):
     """Segment–segment contact on edge a (so a segment cannot slip between two
     nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
-    closest points of a and every other edge b of the same ensemble member (the
-    grid's group) near it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
-    the barycentric weight of p_a. Candidates come from the hash grid of edge
-    midpoints as last built, searched ``grid_radius`` (= query radius + half the
-    skin) around a's current midpoint, which finds every edge whose midpoint is
-    now within ``query_radius``. Edges of the same coil closer than
-    ``exclusion`` along it are bonded neighbours and skipped. Each pair is
-    evaluated from both sides, so every edge writes only its own entries; the
-    sums are fixed-point (order-independent). Edges in the catheter stand in for
-    the catheter: free edges are pushed off them."""
+    closest points of a and every other edge b of the same ensemble member near
+    it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
+    the barycentric weight of p_a. Candidates: a's neighbour list from the last
+    build (every edge whose midpoint was within query radius + skin then, so
+    every edge whose midpoint is now within ``query_radius`` while no midpoint
+    has moved half the skin), or, when the list overflowed, the grid of that
+    build searched ``grid_radius`` (= query radius + half the skin) around a's
+    current midpoint. Bonded neighbours (same coil, closer than ``exclusion``
+    edges) are skipped. Each pair is evaluated from both sides, so every edge
+    writes only its own entries; the sums are fixed-point (order-independent).
+    Edges in the catheter stand in for the catheter: free edges are pushed off
+    them."""
     a = wp.tid()
     sum_start = vec3l()
     sum_end = vec3l()
@@ -338,36 +415,29 @@ def edge_contact(
     touching = int(0)
     w = world_of[a]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
-        pa0 = x[a]
-        pa1 = x[a + 1]
-        reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
-        b = int(0)
-        while wp.hash_grid_query_next(query, b):
-            skip = not edge_is_obstacle(free, has_next, fixed, b)
-            if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
-                skip = True
-            if not skip:
-                pb0 = x[b]
-                pb1 = x[b + 1]
-                # bounding spheres first: most candidates end here
-                if wp.length(mid[a] - mid[b]) < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
-                    st = segment_closest_params(pa0, pa1, pb0, pb1)
-                    delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
-                    dist = wp.length(delta)
-                    gap = dist - node_radius[a] - node_radius[b]
+        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        listed = neighbour_count[a]
+        if listed != NO_LIST:
+            for k in range(listed):
+                start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a,
+                                                           neighbours[a, k], reach_a, p0, c0, u_linear, query_radius)
+                sum_start = sum_start + start
+                sum_end = sum_end + end
+                gap_min = wp.min(gap_min, gap)
+                touching += hit
+                bad = wp.max(bad, wrong)
+        else:
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
+            b = int(0)
+            while wp.hash_grid_query_next(query, b):
+                if b != a and not (coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion):
+                    start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a, b,
+                                                               reach_a, p0, c0, u_linear, query_radius)
+                    sum_start = sum_start + start
+                    sum_end = sum_end + end
                     gap_min = wp.min(gap_min, gap)
-                    if gap < c0 and dist > wp.float64(1.0e-12):
-                        f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
-                        share_start = (wp.float64(1.0) - st[0]) * f
-                        share_end = st[0] * f
-                        if not (finite_vec(share_start) and finite_vec(share_end)):
-                            bad = 1
-                        sum_start = sum_start + to_fixed(share_start)
-                        sum_end = sum_end + to_fixed(share_end)
-                        touching += 1
-                    elif not (gap == gap):
-                        bad = 1
+                    touching += hit
+                    bad = wp.max(bad, wrong)
     f_start = from_fixed(sum_start)
     f_end = from_fixed(sum_end)
     if bad != 0:
