@@ -162,23 +162,23 @@ class Member:
     """One deployment's bookkeeping inside an ensemble (world ``world`` of the
     model): its coil sequence, energy budget, frames and, once it ends, its result."""
 
-    def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, stored_energy_nJ: float):
+    def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, host: dict[str, np.ndarray],
+                 stored_energy_nJ: float):
+        """``host``: the model's arc_s, inv_mass, node_radius and rest_length, read once for all members."""
         sim = scene.simulation
         self.world, self.scene, self.anatomy = world, scene, anatomy
         self.nodes = model.world_nodes(world)
         self.coils = model.world_coils(world)
-        arc_s = model.arc_s.numpy()
-        self.coil_lengths_mm = np.array([arc_s[model.coil_last[c]] for c in self.coils])
+        self.coil_lengths_mm = np.array([host["arc_s"][model.coil_last[c]] for c in self.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + len(self.coils)) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
-        self.mass_g = 1.0 / model.inv_mass.numpy()[self.nodes]
+        self.mass_g = 1.0 / host["inv_mass"][self.nodes]
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
-        self.radius = model.node_radius.numpy()[self.nodes]
-        rest_length = model.rest_length.numpy()
-        self.segment = np.repeat([rest_length[model.coil_first[c]] for c in self.coils],
+        self.radius = host["node_radius"][self.nodes]
+        self.segment = np.repeat([host["rest_length"][model.coil_first[c]] for c in self.coils],
                                  model.coil_last[self.coils.start:self.coils.stop]
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
@@ -250,7 +250,9 @@ class Ensemble:
                                chunk=steps[0][2])
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
-        self.members = [Member(w, s, a, self.model, float(stored[w]))
+        host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
+                                                                       "rest_length")}
+        self.members = [Member(w, s, a, self.model, host, float(stored[w]))
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
         self._steps_before = 0  # steps of chunks dropped by a step halving
@@ -341,38 +343,38 @@ class Ensemble:
         state.advance.assign(advance)
 
     # --- the run ---------------------------------------------------------------
-    def _finish(self, member: Member, status: str, reason: str, started: float) -> None:
+    def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
         if status in (TIMEOUT, FAILED) and member.jam_reasons:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
         member.steps = self._steps_before + self.stepper.steps
-        member.result = self._result(member, status, reason, time.perf_counter() - started)
+        member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
         self.control.stop(member.world)
 
-    def _advance_member(self, member: Member, frame: Frame, started: float) -> None:
+    def _advance_member(self, member: Member, frame: Frame, started: float, snap: Snapshot) -> None:
         """After a frame: jam, detach and next coil, rest, timeout."""
         sim = member.scene.simulation
-        state = self.stepper.state
         active = member.active
         coil = member.coils.start + active
         if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
             member.coil_status[active] = JAMMED
-            deployed = float(np.clip(state.advance.numpy()[coil], 0.0, member.coil_lengths_mm[active]))
+            deployed = float(np.clip(snap.advance[coil], 0.0, member.coil_lengths_mm[active]))
             member.jam_reasons.append(
                 f"coil {active} ({member.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
                 f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
                 f"{member.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
             self._retract(member, active)
             self._activate(member, active + 1)
-        elif active >= 0 and state.advance.numpy()[coil] >= member.coil_lengths_mm[active]:
+        elif active >= 0 and snap.advance[coil] >= member.coil_lengths_mm[active]:
             member.coil_status[active] = "detached"
             self._activate(member, active + 1)
         if member.active < 0 and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
             if member.jam_reasons:
-                self._finish(member, JAMMED, "; ".join(member.jam_reasons) + "; then at rest", started)
+                self._finish(member, JAMMED, "; ".join(member.jam_reasons) + "; then at rest", started, snap)
             else:
-                self._finish(member, COMPLETED, "all coils detached and at rest", started)
-        elif state.time_s >= member.max_time_s:
-            self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s", started)
+                self._finish(member, COMPLETED, "all coils detached and at rest", started, snap)
+        elif snap.time_s >= member.max_time_s:
+            self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s", started,
+                         snap)
 
     def _record(self, member: Member, frame: Frame, on_frame) -> None:
         member.frames.append(frame)
@@ -391,7 +393,7 @@ class Ensemble:
             self._record(member, self._measure(member, snap, energies, (0.0, 0.0)), on_frame)
             if state.time_s >= member.max_time_s:
                 self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
-                             started)
+                             started, snap)
         rerun: list[Member] = []
         snapshot = new_state_like(self.model)
         while any(m.result is None and m not in rerun for m in self.members):
@@ -400,10 +402,10 @@ class Ensemble:
             state = self.stepper.state
             push_mean, push_max = self.solver.take_push_force(self.stepper.chunk)
             running = [m for m in self.members if m.result is None and m not in rerun]
-            advance, free = state.advance.numpy(), state.free.numpy()
+            snap = self._snapshot(state)
             budgets = np.zeros(self.model.world_count)
             for m in running:
-                budgets[m.world] = m.energy_budget_nJ(advance[m.coils.start:m.coils.stop], free[m.nodes],
+                budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
                                                       push_mean[m.world])
             energies, problems = self.solver.world_health(state, budgets)
             unstable = [m for m in running if problems[m.world] is not None]
@@ -413,19 +415,18 @@ class Ensemble:
                     member.pusher_work_nJ, member.last_advance_mm = self._work_before
                     self._halve_step(snapshot, problems[member.world])
                     continue
-                self._finish(member, FAILED, problems[member.world], started)
+                self._finish(member, FAILED, problems[member.world], started, snap)
                 break
             for member in unstable:  # run alone afterwards, where its step can be halved
                 self.control.stop(member.world)
                 self._restore(member, snapshot)
                 rerun.append(member)
-            snap = self._snapshot(state)
             for member in running:
                 if member in unstable:
                     continue
                 frame = self._measure(member, snap, energies, (push_mean[member.world], push_max[member.world]))
                 self._record(member, frame, on_frame)
-                self._advance_member(member, frame, started)
+                self._advance_member(member, frame, started, snap)
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
         for member in rerun:
@@ -435,24 +436,25 @@ class Ensemble:
             member.frames, member.result = alone.members[0].frames, result
         return [m.result for m in self.members]
 
-    def _result(self, member: Member, status: str, reason: str, wall_time_s: float) -> RunResult:
-        m, state, sl = self.model, self.stepper.state, member.nodes
+    def _result(self, member: Member, status: str, reason: str, wall_time_s: float, snap: Snapshot) -> RunResult:
+        """The member's RunResult from its frames and the frame's snapshot."""
+        m, sl = self.model, member.nodes
         frames = member.frames
         last = frames[-1]
         sac_volume = member.anatomy.sac_volume_mm3
-        advance = state.advance.numpy()[member.coils.start:member.coils.stop]
+        advance = snap.advance[member.coils.start:member.coils.stop]
         deployed_each = np.clip(advance, 0.0, member.coil_lengths_mm)
         coil_specs = [m.coils[c] for c in member.coils]
         volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in coil_specs]) * deployed_each
         coil_volume = float(volumes.sum())
         density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
-        x = state.x.numpy()[sl].copy()  # the live state keeps changing (a CPU array's numpy() is a view)
-        free = state.free.numpy()[sl] == 1
+        x = snap.x[sl]
+        free = snap.free[sl] == 1
         outside = np.zeros(len(x), bool)
         if member.anatomy.sac is not None:
             outside[free] = ~member.in_sac(x[free])
         elif m.world_walls[member.world] is not None:
-            outside[free] = self.solver.wall_distance.numpy()[sl][free] < 0.0
+            outside[free] = snap.wall_distance[sl][free] < 0.0
         local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
         coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
                       length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
@@ -464,7 +466,7 @@ class Ensemble:
         return RunResult(
             status=status, reason=reason, steps=member.steps, dt_s=self.solver.dt_s,
             step_bound_s=self.solver.bound.dt_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
-            simulated_time_s=state.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
+            simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
             deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
             packing_density=coil_volume / sac_volume if sac_volume else None,
             length_outside_sac_mm=last.length_outside_sac_mm,

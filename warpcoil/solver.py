@@ -424,8 +424,15 @@ class Stepper:
             for module in (contact, elastic, integrate):
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
-            with wp.ScopedCapture(device=self.solver.model.device) as capture:
-                self._launch_steps(per_graph)
+            try:
+                with wp.ScopedCapture(device=self.solver.model.device) as capture:
+                    self._launch_steps(per_graph)
+            except RuntimeError:
+                if not self.solver._conditional_rebuild:
+                    raise
+                self.solver._conditional_rebuild = False  # this driver cannot branch in a graph: build every step
+                with wp.ScopedCapture(device=self.solver.model.device) as capture:
+                    self._launch_steps(per_graph)
             self._graph = capture.graph
         if self._graph is not None:
             for _ in range(self.chunk // per_graph):
