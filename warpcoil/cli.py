@@ -135,7 +135,7 @@ def _bench(args: argparse.Namespace) -> int:
         from .bench.peers import main as bench_main
     else:
         from .bench.stress import main as bench_main
-    repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
+    repeats = args.repeats if args.repeats is not None else 3
     return bench_main(out, quick=args.quick, repeats=repeats)
 
 
@@ -154,7 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--device", help="Warp device for `ensemble` (cpu, cuda:0; default Warp's)")
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")
-    bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3; 1 with --quick)")
+    bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3)")
     bench.set_defaults(func=_bench)
 
     sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary")

@@ -204,10 +204,10 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         error, detail = shape_error(shape, reference, loop_mm)
         not_default = (L0_IS_THE_MODEL if label.startswith("l0") else
                        MASS_SCALING_CHANGES_DYNAMICS if label.startswith("mass") else
-                       f"not quasi-static (kinetic/elastic {ke_ratio:.2g} > {QUASI_STATIC_KE_RATIO:g}; MODEL.md)"
+                       f"not quasi-static (kinetic/elastic {ke_ratio:.3g} > {QUASI_STATIC_KE_RATIO:g}; MODEL.md)"
                        if ke_ratio > QUASI_STATIC_KE_RATIO else "")
         rows.append(Row(case, label, label.startswith("default"), steps, t, error,
-                        f"{detail}; kinetic/elastic ≤ {ke_ratio:.2g}", not_default=not_default, floor=floor))
+                        f"{detail}; kinetic/elastic ≤ {ke_ratio:.3g}", not_default=not_default, floor=floor))
     return rows
 
 
