@@ -2,7 +2,6 @@
 exactly the result of its single run."""
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest

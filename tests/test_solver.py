@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 import warpcoil as wc
-from warpcoil import preshape
 from warpcoil.solver import SimulationUnstable, UnstableStepError
 
 

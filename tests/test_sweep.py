@@ -4,8 +4,10 @@ import csv
 import json
 
 import pytest
+from pxr import Usd, UsdGeom
 
 from warpcoil.cli import main
+from warpcoil.recorder import validate_usd
 from warpcoil.sweep import SweepError, parse_vary
 
 SCENE = """
@@ -51,12 +53,18 @@ def test_sweep_writes_each_member_and_a_summary(tmp_path, capsys):
         assert result["varied"] == {"simulation.push_speed_mm_s": speed}
         assert result["steps"] == int(rows[k]["steps"])
     assert "2 members in 1 ensemble(s)" in (out / "summary.md").read_text()
-    split = tmp_path / "split"  # two worker processes, one member each: the same results
+    split = tmp_path / "split"  # two worker processes, one member each: the same results, and a USD each
     assert main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100,150", "-o", str(split), "-q",
-                 "--jobs", "2"]) == 0
+                 "--jobs", "2", "--usd"]) == 0
     for k in range(2):
         name = f"member_{k:03d}/centerline.csv"
         assert (split / name).read_bytes() == (out / name).read_bytes()
+        usd = split / f"member_{k:03d}" / "deployment.usdc"
+        assert validate_usd(usd) == []
+        stage = Usd.Stage.Open(str(usd))
+        curves = [p for p in stage.Traverse() if p.IsA(UsdGeom.BasisCurves)]
+        frames = len(list(csv.DictReader((split / f"member_{k:03d}" / "timeseries.csv").open())))
+        assert len(curves) == 1 and len(curves[0].GetAttribute("points").GetTimeSamples()) == frames
 
 
 def test_a_bad_key_names_it_and_writes_nothing(tmp_path, capsys):

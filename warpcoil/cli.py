@@ -34,7 +34,8 @@ def _run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     usd = None
     if scene.output.usd and not args.no_usd:
-        usd = outputs.UsdFrames(out / outputs.DEPLOYMENT_USD, deployment.model, scene.simulation.frame_interval_s)
+        usd = outputs.UsdFrames.for_model(out / outputs.DEPLOYMENT_USD, deployment.model,
+                                          scene.simulation.frame_interval_s)
     progress = _progress(deployment, quiet=args.quiet)
 
     def on_frame(frame, state):
@@ -96,7 +97,7 @@ def _sweep(args: argparse.Namespace) -> int:
             bar.total = total
             bar.update(done - bar.n)
 
-        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None, args.jobs)
+        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None, args.jobs, args.usd)
         if bar:
             bar.close()
     except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError) as error:
@@ -167,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("-j", "--jobs", type=int, default=1,
                        help="worker processes, each running a share of the members (on the CPU a launch uses one "
                             "core: give the number of cores; default 1)")
+    sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
     sweep.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(func=_sweep)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")

@@ -228,7 +228,8 @@ class Ensemble:
     The scenes must give the same step (dt, and the contact law's linear onset)
     and frame length; :func:`ensemble_groups` splits a sweep into such groups.
     A member that goes unstable is stopped and, after the others, run alone
-    (where its step can be halved, as a single run's would be)."""
+    (where its step can be halved, as a single run's would be); ``on_frame``
+    then sees that member's frames again from its start."""
 
     def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None):
         self.scenes = list(scenes)

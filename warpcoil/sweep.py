@@ -4,9 +4,9 @@ ensembles (one set of launches per group of compatible members).
 ``--vary catheter.angle_deg=0:30:5`` (start:stop:step, stop included) or
 ``--vary simulation.push_speed_mm_s=50,100``; several ``--vary`` make the
 Cartesian product. Each member gets its folder ``member_NNN`` (result.json,
-centerline.csv, timeseries.csv and the pictures / tube meshes the scene asks
-for; no USD — run a member alone with ``warpcoil run`` for that), and the
-sweep writes summary.csv and summary.md, all atomically.
+centerline.csv, timeseries.csv, the pictures / tube meshes the scene asks for,
+and with ``--usd`` its deployment.usdc), and the sweep writes summary.csv and
+summary.md, all atomically.
 """
 
 from __future__ import annotations
@@ -95,15 +95,43 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
-def _run_batch(scene_path: Path, overrides: list[dict], device) -> list[tuple[RunResult, object]]:
-    """Deploy one ensemble of members (a worker process's share); (result, wall mesh) each."""
+def _member_folder(out: Path, k: int) -> Path:
+    return out / f"member_{k:03d}"
+
+
+def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: list[Path] | None = None
+               ) -> list[tuple[RunResult, object]]:
+    """Deploy one ensemble of members (a worker process's share); (result, wall mesh)
+    each. With ``usd_folders`` (one per member) each member's frames go to its
+    deployment.usdc."""
+    from .recorder.outputs import DEPLOYMENT_USD, UsdFrames
+
     scenes = [load_scene(scene_path, values) for values in overrides]
     ensemble = Ensemble(scenes, device)
-    return list(zip(ensemble.run(), (a.wall for a in ensemble.anatomies)))
+    recorders: dict[int, UsdFrames] = {}
+    last_time_s: dict[int, float] = {}
+
+    def record(member, frame, state):
+        usd = recorders.get(member.world)
+        if usd is None or frame.time_s < last_time_s[member.world]:  # a member rerun alone starts again
+            folder = usd_folders[member.world]
+            folder.mkdir(parents=True, exist_ok=True)
+            wall = member.anatomy.wall
+            usd = recorders[member.world] = UsdFrames(
+                folder / DEPLOYMENT_USD, [ensemble.model.node_slice(c) for c in member.coils],
+                [c.d for c in member.scene.coils], wall.vertices_mm if wall is not None else None,
+                wall.faces if wall is not None else None, member.scene.simulation.frame_interval_s)
+        last_time_s[member.world] = frame.time_s
+        usd(frame, state)
+
+    results = ensemble.run(record if usd_folders else None)
+    for usd in recorders.values():
+        usd.close()
+    return list(zip(results, (a.wall for a in ensemble.anatomies)))
 
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device=None,
-              progress=None, jobs: int = 1) -> list[Member]:
+              progress=None, jobs: int = 1, usd: bool = False) -> list[Member]:
     """Deploy every member; write their folders and the summary. ``progress(done, total)``.
 
     ``jobs`` > 1 splits each ensemble over that many worker processes: on the
@@ -123,19 +151,20 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     def finish(batch: list[int], outcome: list) -> None:
         for k, (result, wall) in zip(batch, outcome):
             todo[k].result = result
-            folder = out / f"member_{k:03d}"
+            folder = _member_folder(out, k)
             folder.mkdir(parents=True, exist_ok=True)
             write_run(folder, scenes[k], wall, result, {"scene": str(scene_path), "varied": todo[k].values})
         if progress:
             progress(sum(m.result is not None for m in todo), len(todo))
 
     overrides = lambda batch: [todo[k].values for k in batch]  # noqa: E731
+    folders = lambda batch: [_member_folder(out, k) for k in batch] if usd else None  # noqa: E731
     if jobs <= 1:
         for batch in batches:
-            finish(batch, _run_batch(scene_path, overrides(batch), device))
+            finish(batch, _run_batch(scene_path, overrides(batch), device, folders(batch)))
     else:
         with ProcessPoolExecutor(min(jobs, len(batches)), mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(_run_batch, scene_path, overrides(b), device): b for b in batches}
+            futures = {pool.submit(_run_batch, scene_path, overrides(b), device, folders(b)): b for b in batches}
             for future, batch in futures.items():
                 finish(batch, future.result())
     elapsed = time.perf_counter() - started

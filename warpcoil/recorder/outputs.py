@@ -69,19 +69,28 @@ def write_timeseries_csv(path: Path, frames: list[Frame]) -> None:
 
 class UsdFrames:
     """``on_frame`` callback that records every frame's centerlines into a USD file
-    (written on :meth:`close`; nothing is written if the run raises)."""
+    (written on :meth:`close`; nothing is written if the run raises).
 
-    def __init__(self, path: Path, model: Model, frame_interval_s: float):
+    ``coil_nodes``: each coil's node slice in the state; ``wall_vertices_mm`` /
+    ``wall_faces``: the static wall, or None."""
+
+    def __init__(self, path: Path, coil_nodes: list[slice], widths_mm: list[float],
+                 wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float):
+        self.coil_nodes = coil_nodes
+        self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
+                                    wall_faces, time_codes_per_second=1.0 / frame_interval_s)
+
+    @staticmethod
+    def for_model(path: Path, model: Model, frame_interval_s: float) -> "UsdFrames":
+        """Every coil of a one-world model, with its wall."""
         wall = model.wall
-        self.model = model
-        self.recorder = UsdRecorder(
-            path, [len(range(*model.node_slice(c).indices(model.node_count))) for c in range(model.coil_count)],
-            [c.d for c in model.coils], wall.vertices_mm if wall is not None else None,
-            wall.faces_np if wall is not None else None, time_codes_per_second=1.0 / frame_interval_s)
+        return UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
+                         wall.vertices_mm if wall is not None else None, wall.faces_np if wall is not None else None,
+                         frame_interval_s)
 
     def __call__(self, frame: Frame, state: State) -> None:
         x = state.x.numpy()
-        self.recorder.add_frame(frame.time_s, [x[self.model.node_slice(c)] for c in range(self.model.coil_count)])
+        self.recorder.add_frame(frame.time_s, [x[s] for s in self.coil_nodes])
 
     def close(self) -> None:
         self.recorder.close()
