@@ -11,15 +11,18 @@ from warpcoil.deploy import Deployment, Ensemble, ensemble_groups
 from warpcoil.model import EnsembleError
 
 
-def scene(angle_deg=0.0, push_mm_s=100.0, sac_diameter_mm=3.5, length_mm=6.0):
+def scene(angle_deg=0.0, push_mm_s=100.0, sac_diameter_mm=3.5, length_mm=6.0, dt_s=None, axial_stiffness_uN=None,
+          p0_uN=1.0e3, max_time_s=None):
     """A 6 mm framing coil into a small sphere, the catheter tilted by ``angle_deg``."""
     a = math.radians(angle_deg)
     return wc.Scene(
-        coils=(wc.CoilSpec(shape="helix", length_mm=length_mm, loop_diameter_mm=2.5, pitch_mm=0.6, name="framing"),),
+        coils=(wc.CoilSpec(shape="helix", length_mm=length_mm, loop_diameter_mm=2.5, pitch_mm=0.6, name="framing",
+                           axial_stiffness_uN=axial_stiffness_uN),),
         catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -0.45 * sac_diameter_mm + 0.1),
                                  direction=(math.sin(a), 0.0, math.cos(a))),
-        wall=wc.WallSpec(sphere_diameter_mm=sac_diameter_mm),
-        simulation=wc.SimulationSettings(push_speed_mm_s=push_mm_s, frame_interval_s=0.005))
+        wall=wc.WallSpec(sphere_diameter_mm=sac_diameter_mm), contact=wc.ContactSettings(P0_uN=p0_uN),
+        simulation=wc.SimulationSettings(push_speed_mm_s=push_mm_s, frame_interval_s=0.005, dt_s=dt_s,
+                                         max_time_s=max_time_s))
 
 
 def assert_same_run(single, member):
@@ -62,9 +65,18 @@ def test_a_member_that_goes_unstable_is_rerun_alone(monkeypatch):
         return energies, problems
 
     monkeypatch.setattr(Solver, "world_health", flaky)
-    results = Ensemble(scenes).run()
+    seen: dict[int, list[float]] = {0: [], 1: []}
+
+    def on_frame(member, frame, state):  # the member's own nodes in the state it comes with
+        x = np.concatenate([state.x.numpy()[s] for s in member.coil_nodes])
+        assert len(x) == sum(s.stop - s.start for s in member.coil_nodes) > 0 and np.isfinite(x).all()
+        seen[member.index].append(frame.time_s)
+
+    results = Ensemble(scenes).run(on_frame)
     monkeypatch.setattr(Solver, "world_health", real)
     assert calls["alone"] > 0  # member 1 ran again, alone
+    assert seen[1].count(0.0) == 2  # ... its frames from the start again
+    assert len(seen[0]) == len(results[0].frames)
     for s, member in zip(scenes, results):
         assert_same_run(Deployment(s).run(), member)
 
@@ -87,3 +99,22 @@ def test_the_catheter_of_each_world_is_its_own():
         behind = (tip - nodes) @ direction
         assert np.allclose(np.linalg.norm(tip - nodes - np.outer(behind, direction), axis=1), 0.0, atol=1e-9)
         assert np.all(behind >= -1e-9)
+
+
+def test_members_with_their_own_step_bound_and_search_radius():
+    """Two different coils (length, hence segment length and search radius; axial
+    stiffness, hence step bound) on one explicit step (and a contact soft enough
+    that its linear onset is MODEL.md's u = 7 for both): each member reports its
+    own bound and gaps, as its single run does."""
+    common = dict(dt_s=5e-6, p0_uN=1.0, max_time_s=0.08)
+    scenes = [scene(0.0, **common), scene(10.0, length_mm=7.3, axial_stiffness_uN=9.0e5, **common)]
+    ensemble = Ensemble(scenes)
+    radius = ensemble.model.query_radius_of.numpy()
+    assert radius[0] < radius[1] == ensemble.model.contact.query_radius_mm  # the grid searches the larger
+    results = ensemble.run()
+    assert results[0].step_bound_s != results[1].step_bound_s
+    for s, member in zip(scenes, results):
+        single = Deployment(s).run()
+        assert member.step_bound_s == single.step_bound_s
+        assert_same_run(single, member)
+        assert [f.min_coil_gap_mm for f in member.frames] == [f.min_coil_gap_mm for f in single.frames]

@@ -87,7 +87,6 @@ def _sweep(args: argparse.Namespace) -> int:
         varies = [parse_vary(v) for v in args.vary]
         if args.jobs < 1:
             raise SweepError(f"--jobs {args.jobs}: give 1 or more worker processes")
-        out.mkdir(parents=True, exist_ok=True)
         bar = None
         if not args.quiet:
             from tqdm import tqdm

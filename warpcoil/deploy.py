@@ -160,15 +160,20 @@ def build_model(scene: Scene, device=None, anatomy: Anatomy | None = None) -> Mo
 
 class Member:
     """One deployment's bookkeeping inside an ensemble (world ``world`` of the
-    model): its coil sequence, energy budget, frames and, once it ends, its result."""
+    model): its coil sequence, energy budget, frames and, once it ends, its result.
+    ``index`` is its place in the scenes the ensemble was given (kept when it is
+    rerun alone); ``coil_nodes`` its coils' node slices in the state that
+    ``on_frame`` receives with it."""
 
     def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, host: dict[str, np.ndarray],
-                 stored_energy_nJ: float):
+                 stored_energy_nJ: float, step_bound_s: float):
         """``host``: the model's arc_s, inv_mass, node_radius and rest_length, read once for all members."""
         sim = scene.simulation
-        self.world, self.scene, self.anatomy = world, scene, anatomy
+        self.world = self.index = world
+        self.scene, self.anatomy, self.step_bound_s = scene, anatomy, step_bound_s
         self.nodes = model.world_nodes(world)
         self.coils = model.world_coils(world)
+        self.coil_nodes = [model.node_slice(c) for c in self.coils]
         self.coil_lengths_mm = np.array([host["arc_s"][model.coil_last[c]] for c in self.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
@@ -239,13 +244,12 @@ class Ensemble:
         self.anatomies = list(anatomies) if anatomies is not None else resolve_anatomies(self.scenes)
         self.model = finalize_ensemble([model_builder(s, a) for s, a in zip(self.scenes, self.anatomies)], device)
         sims = [s.simulation for s in self.scenes]
-        steps = world_steps(self.model, self.scenes)
+        bounds = world_bounds(self.model)
+        steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
-        first = sims[0]
-        self.solver = Solver(self.model, dt_s=first.dt_s, dt_safety=first.dt_safety,
-                             allow_unstable_dt=first.allow_unstable_dt)
+        self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -253,7 +257,7 @@ class Ensemble:
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
                                                                        "rest_length")}
-        self.members = [Member(w, s, a, self.model, host, float(stored[w]))
+        self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
         self._steps_before = 0  # steps of chunks dropped by a step halving
@@ -432,8 +436,8 @@ class Ensemble:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
         for member in rerun:
             alone = Ensemble([member.scene], self.device, [member.anatomy])
-            forward = (lambda _m, frame, st, member=member: on_frame(member, frame, st)) if on_frame else None
-            result = alone.run(forward)[0]
+            alone.members[0].index = member.index
+            result = alone.run(on_frame)[0]
             member.frames, member.result = alone.members[0].frames, result
         return [m.result for m in self.members]
 
@@ -466,7 +470,7 @@ class Ensemble:
         finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
         return RunResult(
             status=status, reason=reason, steps=member.steps, dt_s=self.solver.dt_s,
-            step_bound_s=self.solver.bound.dt_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
+            step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
             simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
             deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
             packing_density=coil_volume / sac_volume if sac_volume else None,
@@ -496,18 +500,26 @@ class Ensemble:
         return {k: float(v) for k, v in asdict(density).items()}
 
 
-def world_steps(model: Model, scenes: Sequence[Scene]) -> list[tuple[float, float, int]]:
-    """Per world: (dt_s, contact linear onset, steps per frame) as a single run of
-    its scene would take them."""
-    from .solver import CONTACTS_PER_NODE, contact_linear_onset, stable_step_bound
+def world_bounds(model: Model) -> list:
+    """Per world: its explicit step bound (StepBound), as a single run computes it."""
+    from .solver import CONTACTS_PER_NODE, stable_step_bound
 
     contact_k = CONTACTS_PER_NODE * model.contact.stiffness_uN_mm()
+    return [stable_step_bound(model, contact_k, model.world_nodes(w)) for w in range(model.world_count)]
+
+
+def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None) -> list[tuple[float, float, int]]:
+    """Per world: (dt_s, contact linear onset, steps per frame) as a single run of
+    its scene would take them."""
+    from .solver import contact_linear_onset
+
+    bounds = bounds or world_bounds(model)
     steps = []
     for w, scene in enumerate(scenes):
         sim = scene.simulation
-        nodes = model.world_nodes(w)
-        dt = sim.dt_s if sim.dt_s is not None else sim.dt_safety * stable_step_bound(model, contact_k, nodes).dt_s
-        steps.append((dt, contact_linear_onset(model, dt, nodes), max(2, 2 * round(sim.frame_interval_s / dt / 2))))
+        dt = sim.dt_s if sim.dt_s is not None else sim.dt_safety * bounds[w].dt_s
+        steps.append((dt, contact_linear_onset(model, dt, model.world_nodes(w)),
+                      max(2, 2 * round(sim.frame_interval_s / dt / 2))))
     return steps
 
 

@@ -29,6 +29,7 @@ from .coil import CoilSpec
 from .kernels import elastic, integrate
 from .settings import CatheterSpec, ContactSettings, SimulationSettings
 
+EDGE_STRETCH_MARGIN = 1.1  # the coil–coil search holds for edges stretched up to 10 % past the longest rest edge
 CONTACT_DESIGN_OVERLAP_U = 3.0  # u = 1 − h/c0 at which the step bound takes the contact stiffness (h = −2 c0)
 
 
@@ -66,7 +67,7 @@ class ContactModel:
     c0_mm: float
     exclusion_edges: int  # same-coil edges this close along the coil never touch (bonded neighbours)
     fold_span: int  # nodes i and i ± 2·fold_span repel when a coil folds sharply (about 2d apart at rest)
-    query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0
+    query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0 (largest of the worlds')
 
     def stiffness_uN_mm(self, u: float = CONTACT_DESIGN_OVERLAP_U) -> float:
         """−d|F|/dh of the contact law at u (µN/mm)."""
@@ -134,6 +135,7 @@ class Model:
     world_last_node: np.ndarray
     world_first_coil: np.ndarray  # (worlds + 1,): world w owns coils [first[w], first[w + 1])
     world_node_range: wp.array  # (worlds, 2) int32: first and last node
+    query_radius_of: wp.array  # per world: its own coil–coil search radius (mm), as a single run has it
     world_walls: list  # per world: its WallModel or None
     wall_mesh: wp.array  # uint64 per world (0: no wall)
     wall_face_first: wp.array  # per world: its first triangle in wall_faces
@@ -282,7 +284,7 @@ class ModelBuilder:
             p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
             exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
             fold_span=max(1, int(math.ceil(float(d.max()) / float(edge_len[has_next == 1].mean()) - 1e-6))),
-            query_radius_mm=float(edge_len.max()) + float(d.max()) + c0)
+            query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0)
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
             coil_of=coil_of, arc_s=arc_s, fixed=fixed, mass=mass, damping_c=damping_c, external=external,
@@ -321,6 +323,7 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
     damping_k = _shared(worlds, "damping_k", "simulation.damping_speed_mm_s")
     mass_scale = _shared(worlds, "mass_scale", "simulation.mass_scale")
     contact_model = replace(contacts[0], query_radius_mm=max(c.query_radius_mm for c in contacts))
+    query_radius = np.array([c.query_radius_mm for c in contacts])
 
     node_counts = np.array([len(w["rest"]) for w in worlds])
     coil_counts = np.array([len(w["coils"]) for w in worlds])
@@ -357,6 +360,7 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         world_first_node=node_base.astype(np.int64), world_last_node=(node_base + node_counts - 1).astype(np.int64),
         world_first_coil=coil_base.astype(np.int64),
         world_node_range=arr(np.stack([node_base, node_base + node_counts - 1], 1).astype(np.int32), wp.int32),
+        query_radius_of=arr(query_radius, wp.float64),
         world_walls=wall_models, **walls)
     rest_m1 = model.directors_along(model.rest_positions)
     wp.launch(elastic.rest_strains, n, device=device, inputs=[

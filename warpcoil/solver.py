@@ -254,7 +254,7 @@ class Solver:
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                c.query_radius_mm, self._grid_radius,
+                m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
                 self._edge_force_end, self.coil_gap, self.coil_contacts])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

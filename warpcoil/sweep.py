@@ -112,16 +112,17 @@ def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: lis
     last_time_s: dict[int, float] = {}
 
     def record(member, frame, state):
-        usd = recorders.get(member.world)
-        if usd is None or frame.time_s < last_time_s[member.world]:  # a member rerun alone starts again
-            folder = usd_folders[member.world]
+        k = member.index
+        usd = recorders.get(k)
+        if usd is None or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
+            folder = usd_folders[k]
             folder.mkdir(parents=True, exist_ok=True)
             wall = member.anatomy.wall
-            usd = recorders[member.world] = UsdFrames(
-                folder / DEPLOYMENT_USD, [ensemble.model.node_slice(c) for c in member.coils],
-                [c.d for c in member.scene.coils], wall.vertices_mm if wall is not None else None,
-                wall.faces if wall is not None else None, member.scene.simulation.frame_interval_s)
-        last_time_s[member.world] = frame.time_s
+            usd = recorders[k] = UsdFrames(
+                folder / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
+                wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
+                member.scene.simulation.frame_interval_s)
+        last_time_s[k] = frame.time_s
         usd(frame, state)
 
     results = ensemble.run(record if usd_folders else None)
@@ -132,7 +133,8 @@ def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: lis
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device=None,
               progress=None, jobs: int = 1, usd: bool = False) -> list[Member]:
-    """Deploy every member; write their folders and the summary. ``progress(done, total)``.
+    """Deploy every member; write their folders, then the summary (its presence
+    means the sweep is complete). ``progress(done, total)``.
 
     ``jobs`` > 1 splits each ensemble over that many worker processes: on the
     CPU a launch runs on one core, so this is what uses the others (results are
@@ -143,7 +145,10 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     from .recorder.outputs import write_run
 
     todo = members(varies)
-    scenes = [load_scene(scene_path, m.values) for m in todo]
+    scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
+        stale.unlink(missing_ok=True)
     started = time.perf_counter()
     groups = ensemble_groups(scenes, device)
     batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]

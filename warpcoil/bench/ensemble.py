@@ -65,7 +65,7 @@ def run_full(members: int, device) -> tuple[Row, dict]:
     mid: dict = {}
 
     def on_frame(member, frame, state):
-        if member.world == 0 and not mid and frame.deployed_length_mm >= half:
+        if member.index == 0 and not mid and frame.deployed_length_mm >= half:
             sl = member.nodes
             mid.update({name: getattr(state, name).numpy()[sl].copy() for name in STATE_ARRAYS if name != "advance"})
             mid["advance"] = state.advance.numpy()[member.coils.start:member.coils.stop].copy()

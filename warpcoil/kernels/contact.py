@@ -57,17 +57,19 @@ def evaluate_law(
 # Contact forces on a node are sums over partners found in hash-grid order, which
 # depends on the grid (its cell size, rebuild time, the other ensemble members in
 # it, the device's sort). Summed as integers of FIXED_POINT_PER_UN units per µN
-# (resolution 1.5e-8 µN, range ±1.4e11 µN), they are exactly order-independent:
-# the same forces bit for bit on CPU and CUDA, with any skin, alone or batched.
+# (resolution 1.5e-8 µN), they are exactly order-independent: the same forces
+# bit for bit on CPU and CUDA, with any skin, alone or batched. A term above
+# FIXED_POINT_LIMIT_UN (1 kN: only a run that has already blown up) makes the
+# sum NaN, so the int64 sum (range ±1.4e11 µN) cannot overflow.
 FIXED_POINT_PER_UN = wp.constant(wp.float64(67108864.0))  # 2^26
-FIXED_POINT_LIMIT_UN = wp.constant(wp.float64(1.0e11))
+FIXED_POINT_LIMIT_UN = wp.constant(wp.float64(1.0e9))
 vec3l = wp.types.vector(length=3, dtype=wp.int64)
 
 
 @wp.func
 def to_fixed(f: wp.vec3d) -> vec3l:
-    """µN → fixed point (|components| clamped to FIXED_POINT_LIMIT_UN; NaN → 0,
-    flagged by the caller through :func:`finite_vec`)."""
+    """µN → fixed point (|components| clamped to FIXED_POINT_LIMIT_UN; NaN → 0;
+    the caller flags both through :func:`finite_vec`)."""
     out = vec3l()
     for k in range(3):
         c = wp.clamp(f[k], -FIXED_POINT_LIMIT_UN, FIXED_POINT_LIMIT_UN)
@@ -83,7 +85,9 @@ def from_fixed(f: vec3l) -> wp.vec3d:
 
 @wp.func
 def finite_vec(f: wp.vec3d) -> bool:
-    return wp.isfinite(f[0]) and wp.isfinite(f[1]) and wp.isfinite(f[2])
+    """Every component finite and within FIXED_POINT_LIMIT_UN."""
+    return wp.abs(f[0]) <= FIXED_POINT_LIMIT_UN and wp.abs(f[1]) <= FIXED_POINT_LIMIT_UN and \
+        wp.abs(f[2]) <= FIXED_POINT_LIMIT_UN
 
 
 # --- coil–wall -----------------------------------------------------------------
@@ -337,7 +341,9 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), ha
                  mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                  c0: wp.float64, u_linear: wp.float64, far: wp.float64):
     """Edge b's contact on edge a: (fixed-point shares of a's start and end node,
-    surface gap or ``far`` when the bounding spheres miss, 1 if touching, 1 if non-finite)."""
+    surface gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
+    Evaluated when the midpoints are within ``far`` (the world's query radius:
+    the same cutoff whichever way b was found) and the bounding spheres meet."""
     start = vec3l()
     end = vec3l()
     gap = far
@@ -349,7 +355,8 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), ha
         pb0 = x[b]
         pb1 = x[b + 1]
         # bounding spheres first: most candidates end here
-        if wp.length(mid[a] - mid[b]) < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+        apart = wp.length(mid[a] - mid[b])
+        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
             dist = wp.length(delta)
@@ -382,7 +389,7 @@ def edge_contact(
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
     mid: wp.array(dtype=wp.vec3d),
-    query_radius: wp.float64,
+    query_radius: wp.array(dtype=wp.float64),
     grid_radius: wp.float64,
     exclusion: int,
     p0: wp.float64,
@@ -399,7 +406,7 @@ def edge_contact(
     it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
     the barycentric weight of p_a. Candidates: a's neighbour list from the last
     build (every edge whose midpoint was within query radius + skin then, so
-    every edge whose midpoint is now within ``query_radius`` while no midpoint
+    every edge whose midpoint is now within its world's ``query_radius`` while no midpoint
     has moved half the skin), or, when the list overflowed, the grid of that
     build searched ``grid_radius`` (= query radius + half the skin) around a's
     current midpoint. Bonded neighbours (same coil, closer than ``exclusion``
@@ -411,16 +418,17 @@ def edge_contact(
     sum_start = vec3l()
     sum_end = vec3l()
     bad = int(0)  # a non-finite contribution
-    gap_min = query_radius
-    touching = int(0)
     w = world_of[a]
+    radius = query_radius[w]
+    gap_min = radius
+    touching = int(0)
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
                 start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a,
-                                                           neighbours[a, k], reach_a, p0, c0, u_linear, query_radius)
+                                                           neighbours[a, k], reach_a, p0, c0, u_linear, radius)
                 sum_start = sum_start + start
                 sum_end = sum_end + end
                 gap_min = wp.min(gap_min, gap)
@@ -432,7 +440,7 @@ def edge_contact(
             while wp.hash_grid_query_next(query, b):
                 if b != a and not (coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion):
                     start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a, b,
-                                                               reach_a, p0, c0, u_linear, query_radius)
+                                                               reach_a, p0, c0, u_linear, radius)
                     sum_start = sum_start + start
                     sum_end = sum_end + end
                     gap_min = wp.min(gap_min, gap)
