@@ -523,10 +523,12 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     return steps
 
 
-def ensemble_groups(scenes: Sequence[Scene], device=None) -> list[list[int]]:
+def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
+                    ) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
-    step, contact onset, frame length, contact law, damping speed and mass scale)."""
-    anatomies = resolve_anatomies(scenes)
+    step, contact onset, frame length, contact law, damping speed and mass scale).
+    ``anatomies``: the scenes' resolved anatomies, if the caller has them."""
+    anatomies = anatomies if anatomies is not None else resolve_anatomies(scenes)
     groups: dict[tuple, list[int]] = {}
     for k, (scene, anatomy) in enumerate(zip(scenes, anatomies)):
         model = finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
@@ -544,9 +546,18 @@ class Deployment(Ensemble):
     def __init__(self, scene: Scene, device=None):
         super().__init__([scene], device)
         self.scene = scene
-        self.anatomy = self.anatomies[0]
-        self.coil_lengths_mm = self.members[0].coil_lengths_mm
-        self.stored_energy_nJ = self.members[0].stored_energy_nJ
+
+    @property
+    def anatomy(self) -> Anatomy:
+        return self.anatomies[0]
+
+    @property
+    def coil_lengths_mm(self) -> np.ndarray:
+        return self.members[0].coil_lengths_mm
+
+    @property
+    def stored_energy_nJ(self) -> float:
+        return self.members[0].stored_energy_nJ
 
     def run(self, on_frame: Callable[[Frame, State], None] | None = None) -> RunResult:
         return super().run((lambda _member, frame, state: on_frame(frame, state)) if on_frame else None)[0]

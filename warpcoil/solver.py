@@ -214,6 +214,12 @@ class Solver:
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
 
     # --- one step ----------------------------------------------------------
+    def _launch_midpoints(self, state: State) -> None:
+        """Edge midpoints of ``state``, raising the rebuild flag when one moved half the skin."""
+        m = self.model
+        wp.launch(contact.edge_midpoints, m.node_count, device=m.device, inputs=[
+            state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints, self._rebuild])
+
     def _build_grid(self) -> None:
         wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
             self._midpoints, self._built_midpoints, self._rebuild])
@@ -244,9 +250,7 @@ class Solver:
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self.wall_force,
                 self.wall_distance])
         if self.coil_contact:
-            wp.launch(contact.edge_midpoints, n, device=dev, inputs=[
-                state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints,
-                self._rebuild])
+            self._launch_midpoints(state)
             if self._conditional_rebuild:
                 wp.capture_if(self._rebuild, on_true=self._build_grid)
             else:
@@ -296,9 +300,7 @@ class Solver:
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
         if self.coil_contact:
-            wp.launch(contact.edge_midpoints, self.model.node_count, device=self.model.device, inputs=[
-                state.x, self.model.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints,
-                self._rebuild])
+            self._launch_midpoints(state)
             self._build_grid()
             self._rebuild.fill_(1)
 

@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .deploy import Ensemble, RunResult, ensemble_groups
+from .deploy import Ensemble, RunResult, ensemble_groups, resolve_anatomies
 from .recorder.atomic import write_text_atomic
 from .scene import load_scene
 
@@ -99,15 +99,15 @@ def _member_folder(out: Path, k: int) -> Path:
     return out / f"member_{k:03d}"
 
 
-def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: list[Path] | None = None
-               ) -> list[tuple[RunResult, object]]:
+def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: list[Path] | None = None,
+               anatomies: list | None = None) -> list[tuple[RunResult, object]]:
     """Deploy one ensemble of members (a worker process's share); (result, wall mesh)
     each. With ``usd_folders`` (one per member) each member's frames go to its
-    deployment.usdc."""
+    deployment.usdc. ``anatomies``: already resolved (same process), else resolved here."""
     from .recorder.outputs import DEPLOYMENT_USD, UsdFrames
 
     scenes = [load_scene(scene_path, values) for values in overrides]
-    ensemble = Ensemble(scenes, device)
+    ensemble = Ensemble(scenes, device, anatomies)
     recorders: dict[int, UsdFrames] = {}
     last_time_s: dict[int, float] = {}
 
@@ -150,7 +150,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
     started = time.perf_counter()
-    groups = ensemble_groups(scenes, device)
+    anatomies = resolve_anatomies(scenes)  # walls read and necks cut once, for grouping and (one job) the runs
+    groups = ensemble_groups(scenes, device, anatomies)
     batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]
 
     def finish(batch: list[int], outcome: list) -> None:
@@ -166,7 +167,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     folders = lambda batch: [_member_folder(out, k) for k in batch] if usd else None  # noqa: E731
     if jobs <= 1:
         for batch in batches:
-            finish(batch, _run_batch(scene_path, overrides(batch), device, folders(batch)))
+            finish(batch, _run_batch(scene_path, overrides(batch), device, folders(batch),
+                                     [anatomies[k] for k in batch]))
     else:
         with ProcessPoolExecutor(min(jobs, len(batches)), mp_context=get_context("spawn")) as pool:
             futures = {pool.submit(_run_batch, scene_path, overrides(b), device, folders(b)): b for b in batches}

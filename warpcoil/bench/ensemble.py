@@ -84,13 +84,20 @@ def window_us_per_member_step(members: int, mid: dict, steps: int, device) -> fl
     for name in STATE_ARRAYS:
         getattr(state, name).assign(np.concatenate([mid[name]] * members))
     stepper = Stepper(ensemble.solver, state, ensemble.control, chunk=steps)
-    stepper.run_chunk()  # capture (and, on the CPU, nothing runs yet)
-    stepper.run_chunk()  # first replay: wall sides, anchors, neighbour grid
-    wp.synchronize_device(ensemble.model.device)
+    return chunk_time_s(stepper) / (steps * members) * 1e6
+
+
+def chunk_time_s(stepper: Stepper) -> float:
+    """Wall time of one chunk after two warm-up chunks (the capture — on the CPU
+    nothing runs during it — and a first replay: wall sides, anchors, neighbour grid)."""
+    device = stepper.solver.model.device
+    stepper.run_chunk()
+    stepper.run_chunk()
+    wp.synchronize_device(device)
     start = time.perf_counter()
     stepper.run_chunk()
-    wp.synchronize_device(ensemble.model.device)
-    return (time.perf_counter() - start) / (steps * members) * 1e6
+    wp.synchronize_device(device)
+    return time.perf_counter() - start
 
 
 def launch_floor_us(device) -> float:
@@ -104,14 +111,7 @@ def launch_floor_us(device) -> float:
                                                                              [0.0, 0.0, 2 * d]]))
     model = builder.finalize(device)
     state = state_from_positions(model, model.rest_positions + np.array([0.0, 0.0, 1.0]))
-    stepper = Stepper(Solver(model), state, Control.create(model), chunk=1000)
-    stepper.run_chunk()
-    stepper.run_chunk()
-    wp.synchronize_device(model.device)
-    start = time.perf_counter()
-    stepper.run_chunk()
-    wp.synchronize_device(model.device)
-    return (time.perf_counter() - start) / 1000 * 1e6
+    return chunk_time_s(Stepper(Solver(model), state, Control.create(model), chunk=1000)) / 1000 * 1e6
 
 
 def main(out: Path, quick: bool, repeats: int, device=None) -> int:

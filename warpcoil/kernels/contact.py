@@ -268,6 +268,13 @@ def edge_is_obstacle(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp
     return fixed[e] == 0 and fixed[e + 1] == 0
 
 
+@wp.func
+def bonded(coil_of: wp.array(dtype=wp.int32), exclusion: int, a: int, b: int) -> bool:
+    """Edges a and b are bonded neighbours (b = a included): the same coil, at most
+    ``exclusion`` edges apart along it; they never touch."""
+    return coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion
+
+
 @wp.kernel
 def edge_midpoints(
     x: wp.array(dtype=wp.vec3d),
@@ -323,10 +330,8 @@ def build_neighbours(
         query = wp.hash_grid_query(grid, built_mid[a], list_radius, world_of[a])
         b = int(0)
         while wp.hash_grid_query_next(query, b):
-            keep = b != a and has_next[b] != 0 and wp.length(built_mid[a] - built_mid[b]) <= list_radius
-            if coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion:
-                keep = False
-            if keep and found != NO_LIST:
+            keep = has_next[b] != 0 and not bonded(coil_of, exclusion, a, b)
+            if keep and found != NO_LIST and wp.length(built_mid[a] - built_mid[b]) <= list_radius:
                 if found < neighbours.shape[1]:
                     neighbours[a, found] = b
                     found += 1
@@ -438,7 +443,7 @@ def edge_contact(
             query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
             b = int(0)
             while wp.hash_grid_query_next(query, b):
-                if b != a and not (coil_of[b] == coil_of[a] and wp.abs(b - a) <= exclusion):
+                if not bonded(coil_of, exclusion, a, b):
                     start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a, b,
                                                                reach_a, p0, c0, u_linear, radius)
                     sum_start = sum_start + start
