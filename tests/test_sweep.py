@@ -1,15 +1,31 @@
-"""`warpcoil sweep`: --vary parsing, one folder per member, the summary, bad input."""
+"""`warpcoil sweep` on Dask: --vary parsing, members equal to their single runs on
+two local workers and on a separately started scheduler and worker, a killed
+worker's task retried, --resume, files shipped to workers, bad input."""
 
 import csv
 import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
 
+import dask
 import pytest
+import trimesh
 from pxr import Usd, UsdGeom
 
 from warpcoil.cli import main
+from warpcoil.deploy import deploy
 from warpcoil.recorder import validate_usd
-from warpcoil.sweep import SweepError, parse_vary
+from warpcoil.recorder.outputs import write_run
+from warpcoil.scene import load_scene
+from warpcoil.sweep import SweepError, complete_result, parse_vary, run_sweep
+from warpcoil.sweep_task import make_task, run_task
 
+ROOT = Path(__file__).resolve().parents[1]
+SPEEDS = (100.0, 150.0)
 SCENE = """
 [[coil]]
 shape = "helix"
@@ -23,12 +39,59 @@ tip = [0.0, 0.0, -1.4]
 direction = [0.0, 0.0, 1.0]
 
 [wall]
-sphere_diameter_mm = 3.5
+mesh = "walls/sphere.stl"
 
 [simulation]
 push_speed_mm_s = 100.0
 frame_interval_s = 0.005
 """
+TIMING_KEYS = ("wall_time_s", "scene", "varied", "files")  # all else must equal the single run's
+
+
+def _scene(folder: Path) -> Path:
+    """The test scene, its wall a 3.5 mm sphere mesh in a file beside it (shipped to the workers)."""
+    (folder / "walls").mkdir(parents=True, exist_ok=True)
+    trimesh.creation.icosphere(subdivisions=3, radius=1.75).export(folder / "walls" / "sphere.stl")
+    (folder / "s.toml").write_text(SCENE)
+    return folder / "s.toml"
+
+
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+
+
+@pytest.fixture(scope="module")
+def single_runs(tmp_path_factory):
+    """Each member run alone in this process: its output folder."""
+    root = tmp_path_factory.mktemp("single")
+    scene_path = _scene(root)
+    folders = []
+    for k, speed in enumerate(SPEEDS):
+        scene = load_scene(scene_path, {"simulation.push_speed_mm_s": speed})
+        result = deploy(scene)
+        folders.append(root / f"run_{k}")
+        folders[-1].mkdir()
+        write_run(folders[-1], scene, None, result)
+    return folders
+
+
+def _assert_equals_single_runs(out: Path, single_runs, members=range(len(SPEEDS))):
+    for k in members:
+        member = out / f"member_{k:03d}"
+        for name in ("centerline.csv", "timeseries.csv"):
+            assert (member / name).read_bytes() == (single_runs[k] / name).read_bytes(), (member, name)
+        swept = json.loads((member / "result.json").read_text())
+        alone = json.loads((single_runs[k] / "result.json").read_text())
+        assert {k: v for k, v in swept.items() if k not in TIMING_KEYS} == \
+            {k: v for k, v in alone.items() if k not in TIMING_KEYS}
+        assert swept["varied"] == {"simulation.push_speed_mm_s": SPEEDS[k]}
+        assert complete_result(member) == swept
+
+
+def _sweep_cli(args: list[str], stdout: Path, timeout_s: float = 300) -> subprocess.CompletedProcess:
+    with stdout.open("w") as file:
+        return subprocess.run([sys.executable, "-m", "warpcoil.cli", "sweep", *args], stdout=file,
+                              stderr=subprocess.PIPE, text=True, env=_env(), cwd=stdout.parent, timeout=timeout_s)
 
 
 def test_parse_vary():
@@ -39,38 +102,103 @@ def test_parse_vary():
             parse_vary(bad)
 
 
-def test_sweep_writes_each_member_and_a_summary(tmp_path, capsys):
-    scene = tmp_path / "s.toml"
-    scene.write_text(SCENE)
+def test_a_task_carries_its_files(tmp_path, single_runs):
+    """No shared filesystem: the task runs with the scene's files gone from their paths."""
+    scene = load_scene(_scene(tmp_path), {"simulation.push_speed_mm_s": SPEEDS[0]})
+    task = make_task([0], [scene], usd=False, device=None)
+    assert list(task.files) == [str(tmp_path / "walls" / "sphere.stl")]
+    shutil.rmtree(tmp_path / "walls")
+    (output,) = run_task(task)
+    assert output.files["centerline.csv"] == (single_runs[0] / "centerline.csv").read_bytes()
+    assert output.result["steps"] == json.loads((single_runs[0] / "result.json").read_text())["steps"]
+
+
+def test_two_local_workers_equal_single_runs_and_resume(tmp_path, single_runs):
+    scene = _scene(tmp_path)
     out = tmp_path / "out"
-    code = main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100,150", "-o", str(out), "-q"])
-    assert code == 0
+    vary = ["--vary", "simulation.push_speed_mm_s=100,150", "-o", str(out)]
+    run = _sweep_cli([str(scene), *vary, "--workers", "2", "--usd"], tmp_path / "stdout.txt")
+    assert run.returncode == 0, run.stderr
+    summary = (tmp_path / "stdout.txt").read_text()
+    assert "2 members (0 resumed) in 2 ensemble task(s) on 2 Dask worker thread(s)" in summary
+    for k in range(2):  # not a terminal: one line per finished member
+        assert f"member_{k:03d} simulation.push_speed_mm_s={SPEEDS[k]:g}: completed" in run.stderr
+    _assert_equals_single_runs(out, single_runs)
     rows = list(csv.DictReader((out / "summary.csv").open()))
-    assert [r["simulation.push_speed_mm_s"] for r in rows] == ["100", "150"]
     assert [r["status"] for r in rows] == ["completed", "completed"]
-    for k, speed in enumerate((100.0, 150.0)):
-        result = json.loads((out / f"member_{k:03d}" / "result.json").read_text())
-        assert result["varied"] == {"simulation.push_speed_mm_s": speed}
-        assert result["steps"] == int(rows[k]["steps"])
-    assert "2 members in 1 ensemble(s)" in (out / "summary.md").read_text()
-    split = tmp_path / "split"  # two worker processes, one member each: the same results, and a USD each
-    assert main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100,150", "-o", str(split), "-q",
-                 "--jobs", "2", "--usd"]) == 0
     for k in range(2):
-        name = f"member_{k:03d}/centerline.csv"
-        assert (split / name).read_bytes() == (out / name).read_bytes()
-        usd = split / f"member_{k:03d}" / "deployment.usdc"
+        usd = out / f"member_{k:03d}" / "deployment.usdc"
         assert validate_usd(usd) == []
         stage = Usd.Stage.Open(str(usd))
         curves = [p for p in stage.Traverse() if p.IsA(UsdGeom.BasisCurves)]
-        frames = len(list(csv.DictReader((split / f"member_{k:03d}" / "timeseries.csv").open())))
+        frames = len(list(csv.DictReader((out / f"member_{k:03d}" / "timeseries.csv").open())))
         assert len(curves) == 1 and len(curves[0].GetAttribute("points").GetTimeSamples()) == frames
 
+    kept = (out / "member_000" / "result.json").stat()
+    (out / "member_001" / "centerline.csv").unlink()  # incomplete: a file result.json lists is missing
+    assert complete_result(out / "member_001") is None
+    run = _sweep_cli([str(scene), *vary, "--workers", "1", "--resume", "--usd"], tmp_path / "stdout.txt")
+    assert run.returncode == 0, run.stderr
+    assert "2 members (1 resumed) in 1 ensemble task(s)" in (tmp_path / "stdout.txt").read_text()
+    assert "member_000 simulation.push_speed_mm_s=100: completed" in run.stderr and "resumed" in run.stderr
+    again = (out / "member_000" / "result.json").stat()
+    assert (again.st_ino, again.st_mtime_ns) == (kept.st_ino, kept.st_mtime_ns)  # not rerun
+    _assert_equals_single_runs(out, single_runs)
 
-def test_a_bad_key_names_it_and_writes_nothing(tmp_path, capsys):
-    scene = tmp_path / "s.toml"
-    scene.write_text(SCENE)
+    other = _sweep_cli([str(scene), "--vary", "simulation.push_speed_mm_s=120,150", "-o", str(out), "--resume"],
+                       tmp_path / "stdout.txt")
+    assert other.returncode == 2 and "another sweep's member" in other.stderr
+
+
+def test_a_killed_workers_task_is_retried(tmp_path, single_runs, monkeypatch):
+    marker = tmp_path / "killed"
+    monkeypatch.setenv("WARPCOIL_TEST_KILL_MARKER", str(marker))
+    with dask.config.set({"distributed.worker.preload": [str(Path(__file__).with_name("dask_kill_once.py"))]}):
+        todo = run_sweep(_scene(tmp_path), [("simulation.push_speed_mm_s", list(SPEEDS))], tmp_path / "out",
+                         workers=1, retries=1)
+    assert marker.read_text().startswith("warpcoil-ensemble")  # the first try's worker died
+    assert [m.result["status"] for m in todo] == ["completed", "completed"]
+    _assert_equals_single_runs(tmp_path / "out", single_runs)
+
+
+def test_scheduler_sweep_on_a_separately_started_cluster(tmp_path, single_runs):
+    scheduler_file = tmp_path / "scheduler.json"
+    started = []
+    try:
+        started.append(subprocess.Popen(
+            [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+             "--scheduler-file", str(scheduler_file)], env=_env(), cwd=tmp_path, stderr=subprocess.DEVNULL))
+        deadline = time.monotonic() + 120
+        while not scheduler_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(scheduler_file.read_text())["address"]
+        started.append(subprocess.Popen(
+            [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+             "--host", "127.0.0.1"], env=_env(), cwd=tmp_path, stderr=subprocess.DEVNULL))
+        run = _sweep_cli([str(_scene(tmp_path)), "--vary", "simulation.push_speed_mm_s=100", "-o",
+                          str(tmp_path / "out"), "--scheduler", address], tmp_path / "stdout.txt")
+        assert run.returncode == 0, run.stderr
+        assert "on 1 Dask worker thread(s)" in (tmp_path / "stdout.txt").read_text()
+        _assert_equals_single_runs(tmp_path / "out", single_runs, members=[0])
+    finally:
+        for process in reversed(started):
+            process.terminate()
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def test_bad_input_names_the_fix_and_writes_nothing(tmp_path, capsys):
+    scene = _scene(tmp_path)
     out = tmp_path / "out"
     assert main(["sweep", str(scene), "--vary", "catheter.angel_deg=0:10:5", "-o", str(out), "-q"]) == 2
     assert "catheter.angel_deg" in capsys.readouterr().err
-    assert not out.exists()
+    assert main(["sweep", str(scene), "--vary", "catheter.angle_deg=0:10:5", "-o", str(out), "-q", "--jobs", "2"]) == 2
+    assert "--workers 2" in capsys.readouterr().err
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        assert main(["sweep", str(scene), "--vary", "catheter.angle_deg=0", "-o", str(out), "-q",
+                     "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot connect" in capsys.readouterr().err
+    assert not (out / "summary.md").exists() and not (out / "member_000").exists()

@@ -79,31 +79,35 @@ def _sweep(args: argparse.Namespace) -> int:
     from .preshape import PreshapeError
     from .scene import SceneError
     from .solver import UnstableStepError
-    from .sweep import SweepError, parse_vary, run_sweep
+    from .sweep import SweepError, SweepIncomplete, SweepProgress, members, parse_vary, run_sweep
     from .wall import WallError
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
+    progress = SweepProgress(quiet=args.quiet)
     try:
+        if args.jobs is not None:
+            raise SweepError(f"--jobs {args.jobs}: removed; sweeps run on Dask: give --workers {args.jobs} (local "
+                             "worker processes) or --scheduler ADDRESS (an existing cluster)")
+        if args.workers is not None and (args.workers < 1 or args.scheduler):
+            raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler "
+                             "(a cluster's size is set where its workers start)")
+        if args.retries < 0:
+            raise SweepError(f"--retries {args.retries}: give 0 or more")
         varies = [parse_vary(v) for v in args.vary]
-        if args.jobs < 1:
-            raise SweepError(f"--jobs {args.jobs}: give 1 or more worker processes")
-        bar = None
-        if not args.quiet:
-            from tqdm import tqdm
-            bar = tqdm(unit="deployment", desc="sweep")
-
-        def progress(done, total):
-            bar.total = total
-            bar.update(done - bar.n)
-
-        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None, args.jobs, args.usd)
-        if bar:
-            bar.close()
+        progress.start(len(members(varies)))
+        todo = run_sweep(Path(args.scene), varies, out, args.device, progress, args.scheduler, args.workers,
+                         args.usd, args.resume, args.retries)
     except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError) as error:
+        progress.close()
         print(f"warpcoil sweep: {error}", file=sys.stderr)
         return 2
+    except SweepIncomplete as error:
+        progress.close()
+        print(f"warpcoil sweep: {error}", file=sys.stderr)
+        return 1
+    progress.close()
     print((out / "summary.md").read_text())
-    codes = {EXIT_FOR_STATUS[m.result.status] for m in todo}
+    codes = {EXIT_FOR_STATUS[m.result["status"]] for m in todo}
     return 1 if 1 in codes else max(codes)
 
 
@@ -164,9 +168,15 @@ def build_parser() -> argparse.ArgumentParser:
                             "for a product)")
     sweep.add_argument("-o", "--output", help="output folder (default out/<scene name>_sweep)")
     sweep.add_argument("--device", help="Warp device, e.g. cpu or cuda:0 (default Warp's)")
-    sweep.add_argument("-j", "--jobs", type=int, default=1,
-                       help="worker processes, each running a share of the members (on the CPU a launch uses one "
-                            "core: give the number of cores; default 1)")
+    sweep.add_argument("--workers", type=int, metavar="N",
+                       help="processes of the embedded Dask cluster (default: one per core, or one per GPU)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (docs/SWEEPS.md)")
+    sweep.add_argument("--resume", action="store_true",
+                       help="keep members whose folder holds a complete result; run the others")
+    sweep.add_argument("--retries", type=int, default=2, metavar="N",
+                       help="rerun a task that raised or whose worker died up to N times (default 2)")
+    sweep.add_argument("-j", "--jobs", type=int, help=argparse.SUPPRESS)  # removed: says to use --workers
     sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
     sweep.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(func=_sweep)

@@ -1,31 +1,50 @@
 """`warpcoil sweep`: one scene, some keys varied, every member deployed in
-ensembles (one set of launches per group of compatible members).
+ensembles (one set of launches per group of compatible members) on Dask.
 
 ``--vary catheter.angle_deg=0:30:5`` (start:stop:step, stop included) or
 ``--vary simulation.push_speed_mm_s=50,100``; several ``--vary`` make the
-Cartesian product. Each member gets its folder ``member_NNN`` (result.json,
-centerline.csv, timeseries.csv, the pictures / tube meshes the scene asks for,
-and with ``--usd`` its deployment.usdc), and the sweep writes summary.csv and
-summary.md, all atomically.
+Cartesian product. Each ensemble is one Dask task (warpcoil.sweep_task) on an
+embedded LocalCluster or an existing scheduler; the client writes each member's
+folder ``member_NNN`` (result.json, centerline.csv, timeseries.csv, the pictures /
+tube meshes the scene asks for, and with ``--usd`` its deployment.usdc) in one
+rename, and the summary.csv / summary.md last (their presence means the sweep
+is complete). docs/SWEEPS.md: clusters, resume, retries.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import itertools
+import json
+import logging
 import math
+import os
+import secrets
+import sys
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from .deploy import Ensemble, RunResult, ensemble_groups, resolve_anatomies
-from .recorder.atomic import write_text_atomic
+from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, resolve_anatomies
+from .recorder.atomic import write_folder_atomic, write_text_atomic
+from .recorder.outputs import RESULT_JSON
 from .scene import load_scene
+from .sweep_task import MemberOutput, make_task, run_task
+
+FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
+WORKER_WAIT_S = 60.0  # how long a --scheduler sweep waits for its first worker
 
 
 class SweepError(ValueError):
-    """A --vary that cannot be read."""
+    """Bad sweep input: a --vary that cannot be read, an unreachable scheduler, a
+    resumed folder that holds another sweep."""
+
+
+class SweepIncomplete(RuntimeError):
+    """Some ensembles failed after their retries; the other members are written."""
 
 
 def parse_vary(text: str) -> tuple[str, list]:
@@ -62,7 +81,12 @@ def _scalar(text: str):
 class Member:
     index: int
     values: dict  # the varied keys and their values
-    result: RunResult | None = None
+    result: dict | None = None  # its result.json
+    resumed: bool = False  # found complete in the output folder (--resume)
+
+    @property
+    def name(self) -> str:
+        return f"member_{self.index:03d}"
 
 
 def members(varies: list[tuple[str, list]]) -> list[Member]:
@@ -70,14 +94,42 @@ def members(varies: list[tuple[str, list]]) -> list[Member]:
     return [Member(i, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*(v for _, v in varies)))]
 
 
+def complete_result(folder: Path) -> dict | None:
+    """The result.json of a member folder that holds a complete result, else None.
+    Complete: result.json reads as JSON, its status is final (completed, failed,
+    jammed, timeout), and every file it lists under "files" (name → bytes) is in
+    the folder with that size."""
+    try:
+        result = json.loads((folder / RESULT_JSON).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(result, dict) or result.get("status") not in FINAL_STATUSES:
+        return None
+    files = result.get("files")
+    if not isinstance(files, dict):
+        return None
+    for name, size in files.items():
+        path = folder / name
+        if not path.is_file() or path.stat().st_size != size:
+            return None
+    return result
+
+
+def member_files(output: MemberOutput, member: Member, scene_path: Path) -> dict[str, bytes]:
+    """A member folder's files: the run's outputs and result.json, which adds the
+    scene, the varied values and the list of files (for --resume)."""
+    listed = {name: len(data) for name, data in output.files.items()}
+    result = {**output.result, "scene": str(scene_path), "varied": member.values, "files": listed}
+    return {**output.files, RESULT_JSON: (json.dumps(result, indent=2) + "\n").encode()}
+
+
 def _summary_row(member: Member) -> dict:
     r = member.result
-    regions = r.regions or {}
-    row = {"member": f"member_{member.index:03d}", **member.values, "status": r.status,
-           "packing_density": r.packing_density, "length_outside_sac_mm": r.length_outside_sac_mm,
-           "neck_coverage": regions.get("neck_coverage"), "min_coil_gap_mm": r.min_coil_gap_mm,
-           "min_wall_gap_mm": r.min_wall_gap_mm, "max_push_force_uN": r.max_push_force_uN, "steps": r.steps,
-           "wall_time_s": r.wall_time_s}
+    regions = r.get("regions") or {}
+    row = {"member": member.name, **member.values}
+    row |= {k: r.get(k) for k in ("status", "packing_density", "length_outside_sac_mm")}
+    row["neck_coverage"] = regions.get("neck_coverage")
+    row |= {k: r.get(k) for k in ("min_coil_gap_mm", "min_wall_gap_mm", "max_push_force_uN", "steps", "wall_time_s")}
     return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                 (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
 
@@ -95,91 +147,168 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
-def _member_folder(out: Path, k: int) -> Path:
-    return out / f"member_{k:03d}"
+def member_line(member: Member) -> str:
+    """One line on a finished member: its values, status, packing and time."""
+    r = member.result
+    values = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in member.values.items())
+    packing = r.get("packing_density")
+    facts = [r["status"], f"packing {100 * packing:.1f} %" if packing is not None else "no sac",
+             f"{r.get('steps')} steps", f"{r.get('wall_time_s', 0.0):.1f} s"]
+    return f"{member.name} {values}: " + ", ".join(facts) + (" (resumed: complete from an earlier run)"
+                                                              if member.resumed else "")
 
 
-def _run_batch(scene_path: Path, overrides: list[dict], device, usd_folders: list[Path] | None = None,
-               anatomies: list | None = None) -> list[tuple[RunResult, object]]:
-    """Deploy one ensemble of members (a worker process's share); (result, wall mesh)
-    each. With ``usd_folders`` (one per member) each member's frames go to its
-    deployment.usdc. ``anatomies``: already resolved (same process), else resolved here."""
-    from .recorder.outputs import DEPLOYMENT_USD, UsdFrames
+class SweepProgress:
+    """Progress over members: on a terminal one bar with the count of each status
+    and a line per finished member above it; elsewhere (a log file, a batch job)
+    only the lines; nothing when quiet. Writes to stderr."""
 
-    scenes = [load_scene(scene_path, values) for values in overrides]
-    ensemble = Ensemble(scenes, device, anatomies)
-    recorders: dict[int, UsdFrames] = {}
-    last_time_s: dict[int, float] = {}
+    def __init__(self, quiet: bool = False, stream=None):
+        self.quiet, self.stream = quiet, stream if stream is not None else sys.stderr
+        self.bar = None
+        self.statuses: dict[str, int] = {}
 
-    def record(member, frame, state):
-        k = member.index
-        usd = recorders.get(k)
-        if usd is None or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
-            folder = usd_folders[k]
-            folder.mkdir(parents=True, exist_ok=True)
-            wall = member.anatomy.wall
-            usd = recorders[k] = UsdFrames(
-                folder / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
-                wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
-                member.scene.simulation.frame_interval_s)
-        last_time_s[k] = frame.time_s
-        usd(frame, state)
+    def start(self, total: int) -> None:
+        if not self.quiet and self.stream.isatty():
+            from tqdm import tqdm
 
-    results = ensemble.run(record if usd_folders else None)
-    for usd in recorders.values():
-        usd.close()
-    return list(zip(results, (a.wall for a in ensemble.anatomies)))
+            self.bar = tqdm(total=total, unit="member", desc="sweep", file=self.stream)
+
+    def __call__(self, member: Member) -> None:
+        if self.quiet:
+            return
+        status = member.result["status"]
+        self.statuses[status] = self.statuses.get(status, 0) + 1
+        if self.bar is None:
+            print(member_line(member), file=self.stream, flush=True)
+            return
+        self.bar.write(member_line(member), file=self.stream)
+        self.bar.set_postfix_str(", ".join(f"{n} {s}" for s, n in self.statuses.items()), refresh=False)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
-def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device=None,
-              progress=None, jobs: int = 1, usd: bool = False) -> list[Member]:
-    """Deploy every member; write their folders, then the summary (its presence
-    means the sweep is complete). ``progress(done, total)``.
+def default_workers(device: str | None) -> int:
+    """Local workers: one per GPU for a CUDA sweep (the default device where there
+    are GPUs), one per core otherwise; one for an explicit cuda:N."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if device == "cpu" or (device or "cuda").startswith("cuda:"):
+        return cores if device == "cpu" else 1
+    import warp as wp
 
-    ``jobs`` > 1 splits each ensemble over that many worker processes: on the
-    CPU a launch runs on one core, so this is what uses the others (results are
-    the same: each member equals its single run)."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
+    from . import _warp  # noqa: F401
 
-    from .recorder.outputs import write_run
+    gpus = wp.get_cuda_device_count()
+    return gpus if gpus > 0 else cores
 
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None, workers: int | None, device: str | None, retries: int) -> Iterator:
+    """A Dask client: of the scheduler at ``scheduler``, or of an embedded
+    LocalCluster of ``workers`` processes with one thread each (closed on exit).
+    ``retries``: a local scheduler reruns a task whose worker died this often."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler)  # waits distributed.comm.timeouts.connect (30 s)
+        except (OSError, TimeoutError) as error:
+            raise SweepError(f"--scheduler {scheduler}: cannot connect ({error}); start one with `dask scheduler` "
+                             "and give the address it prints, e.g. tcp://10.0.0.5:8786") from error
+        try:
+            try:
+                client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+            except TimeoutError as error:
+                raise SweepError(f"--scheduler {scheduler}: no worker connected within {WORKER_WAIT_S:.0f} s; "
+                                 f"start some with `dask worker {scheduler}`") from error
+            yield client
+        finally:
+            client.close()
+        return
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+        cluster = LocalCluster(n_workers=workers or default_workers(device), threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    try:
+        with Client(cluster) as client:
+            yield client
+    finally:
+        cluster.close()
+
+
+def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
+              progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
+              workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2
+              ) -> list[Member]:
+    """Deploy every member on Dask; write their folders as they come back, then
+    the summary. ``progress(member)`` after each finished (or resumed) member.
+
+    Members that can share an ensemble are grouped (deploy.ensemble_groups) and
+    each group is split into one task per worker thread (a CPU launch runs on one
+    core; a GPU worker still advances its share of members per launch). A task
+    that raises, or whose worker dies, is rerun up to ``retries`` times; a member
+    equals its single run wherever it runs. ``resume``: members whose folder holds
+    a complete result (:func:`complete_result`) are not rerun. Raises
+    SweepIncomplete (after writing every member that finished) when a task still
+    fails."""
     todo = members(varies)
     scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
+    folders = [out / m.name for m in todo]
+    if resume:
+        for member, folder in zip(todo, folders):
+            found = complete_result(folder)
+            if found is not None and found.get("varied") != member.values:
+                raise SweepError(f"--resume: {folder} holds {found.get('varied')}, not {member.values}: another "
+                                 "sweep's member; give another -o folder, or drop --resume to overwrite")
+            member.result, member.resumed = found, found is not None
+    pending = [m.index for m in todo if m.result is None]
+    anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
     out.mkdir(parents=True, exist_ok=True)
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
     started = time.perf_counter()
-    anatomies = resolve_anatomies(scenes)  # walls read and necks cut once, for grouping and (one job) the runs
-    groups = ensemble_groups(scenes, device, anatomies)
-    batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]
+    for member in todo:
+        if member.resumed and progress:
+            progress(member)
+    batches, slots, failures = [], 0, []
+    if pending:
+        groups = ensemble_groups([scenes[k] for k in pending], "cpu", anatomies)  # host-side step bounds only
+        with dask_client(scheduler, workers, device, retries) as client:
+            from distributed import as_completed
 
-    def finish(batch: list[int], outcome: list) -> None:
-        for k, (result, wall) in zip(batch, outcome):
-            todo[k].result = result
-            folder = _member_folder(out, k)
-            folder.mkdir(parents=True, exist_ok=True)
-            write_run(folder, scenes[k], wall, result, {"scene": str(scene_path), "varied": todo[k].values})
-        if progress:
-            progress(sum(m.result is not None for m in todo), len(todo))
-
-    overrides = lambda batch: [todo[k].values for k in batch]  # noqa: E731
-    folders = lambda batch: [_member_folder(out, k) for k in batch] if usd else None  # noqa: E731
-    if jobs <= 1:
-        for batch in batches:
-            finish(batch, _run_batch(scene_path, overrides(batch), device, folders(batch),
-                                     [anatomies[k] for k in batch]))
-    else:
-        with ProcessPoolExecutor(min(jobs, len(batches)), mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(_run_batch, scene_path, overrides(b), device, folders(b)): b for b in batches}
-            for future, batch in futures.items():
-                finish(batch, future.result())
+            slots = sum(client.nthreads().values())
+            batches = [part for group in groups for part in ([pending[i] for i in group[j::slots]]
+                                                             for j in range(slots)) if part]
+            token = secrets.token_hex(4)
+            futures = {client.submit(run_task, make_task(batch, [scenes[k] for k in batch], usd, device),
+                                     retries=retries, pure=False, key=f"warpcoil-ensemble-{token}-{n}"): batch
+                       for n, batch in enumerate(batches)}
+            for future in as_completed(futures):
+                if future.status != "finished":
+                    failures.append((futures[future], future.exception()))
+                    continue
+                for output in future.result():
+                    member = todo[output.index]
+                    write_folder_atomic(folders[output.index], member_files(output, member, scene_path))
+                    member.result = json.loads((folders[output.index] / RESULT_JSON).read_text())
+                    if progress:
+                        progress(member)
+                future.release()
+    if failures:
+        missing = sorted(k for batch, _ in failures for k in batch)
+        raise SweepIncomplete(f"{len(missing)} member(s) not run ({', '.join(todo[k].name for k in missing)}): "
+                              f"{failures[0][1]!r}; the others are written; rerun with --resume to finish")
     elapsed = time.perf_counter() - started
-    statuses = [m.result.status for m in todo]
-    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members in {len(batches)} "
-                  f"ensemble(s), {jobs} job(s), {elapsed:.1f} s wall time ({60.0 * len(todo) / elapsed:.3g} "
-                  "deployments/min); " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
+    statuses = [m.result["status"] for m in todo]
+    resumed = sum(m.resumed for m in todo)
+    rate = f" ({60.0 * len(pending) / elapsed:.3g} deployments/min)" if pending else ""
+    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members ({resumed} resumed) in "
+                  f"{len(batches)} ensemble task(s) on {slots} Dask worker thread(s), {elapsed:.1f} s wall time"
+                  f"{rate}; " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
     return todo
 
 
-__all__ = ["SweepError", "parse_vary", "run_sweep"]
+__all__ = ["SweepError", "SweepIncomplete", "SweepProgress", "complete_result", "parse_vary", "run_sweep"]

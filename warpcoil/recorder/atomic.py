@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,3 +38,21 @@ def write_text_atomic(path: Path, text: str, encoding: str = "utf-8") -> None:
     """Write ``text`` to ``path`` atomically (all or nothing)."""
     with atomic_path(Path(path)) as tmp_path:
         tmp_path.write_text(text, encoding=encoding)
+
+
+def write_folder_atomic(folder: Path, files: dict[str, bytes]) -> None:
+    """Write ``files`` (name → bytes) as the whole content of ``folder``: built
+    under a temporary name beside it, then renamed into place, so the folder
+    holds either all of them or is absent (an older folder is removed first)."""
+    folder = Path(folder)
+    tmp_folder = folder.with_name(f".{folder.name}.tmp-{secrets.token_hex(4)}")
+    try:
+        tmp_folder.mkdir(parents=True)
+        for name, data in files.items():
+            (tmp_folder / name).write_bytes(data)
+        if folder.exists():
+            shutil.rmtree(folder)
+        os.replace(tmp_folder, folder)
+    except BaseException:
+        shutil.rmtree(tmp_folder, ignore_errors=True)
+        raise

@@ -1,0 +1,131 @@
+"""One sweep task: an ensemble of members, shipped to a Dask worker and back.
+
+No filesystem is shared between the client and the workers. The task carries
+its members' scenes and the bytes of every file they name (wall mesh, neck
+contour, pre-shape files); the worker writes those to a temporary folder,
+points the scenes at them, runs the ensemble, writes each member's outputs
+with the same writer as a single run (so the files are byte for byte a single
+run's), and returns their bytes. The client writes the member folders.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from .settings import Scene
+
+
+@dataclass(frozen=True)
+class EnsembleTask:
+    """Members (their sweep indices and checked scenes) that run as one Ensemble;
+    ``files``: bytes of each file the scenes name, keyed by the client's path."""
+
+    indices: tuple[int, ...]
+    scenes: tuple[Scene, ...]
+    files: dict[str, bytes]
+    usd: bool = False
+    device: str | None = None
+
+
+@dataclass(frozen=True)
+class MemberOutput:
+    """What comes back for one member: its result.json content and its other files."""
+
+    index: int
+    result: dict
+    files: dict[str, bytes]  # file name in the member folder → bytes
+
+
+def named_files(scene: Scene) -> list[Path]:
+    """The files a scene reads: wall mesh, neck contour, pre-shape files."""
+    paths = [scene.wall.mesh if scene.wall is not None else None,
+             scene.neck.contour if scene.neck is not None else None,
+             *(coil.preshape_file for coil in scene.coils)]
+    return [Path(p) for p in paths if p is not None]
+
+
+def make_task(indices: list[int], scenes: list[Scene], usd: bool, device: str | None) -> EnsembleTask:
+    """Read the files the scenes name into the task."""
+    files = {str(path): path.read_bytes() for scene in scenes for path in named_files(scene)}
+    return EnsembleTask(tuple(indices), tuple(scenes), files, usd, device)
+
+
+def _relocated(scene: Scene, moved: dict[str, Path]) -> Scene:
+    """The scene with every file it names replaced by its copy on this machine."""
+    def at(path):
+        return moved[str(path)] if path is not None else None
+
+    wall = replace(scene.wall, mesh=at(scene.wall.mesh)) if scene.wall is not None else None
+    neck = replace(scene.neck, contour=at(scene.neck.contour)) if scene.neck is not None else None
+    coils = tuple(replace(c, preshape_file=at(c.preshape_file)) for c in scene.coils)
+    return replace(scene, wall=wall, neck=neck, coils=coils)
+
+
+def worker_device(device: str | None, worker_name, cuda_count: int) -> str | None:
+    """The Warp device a worker runs on: ``device`` as given, except that "cuda"
+    (or no device, where there are GPUs) means GPU ``worker_name % cuda_count`` for
+    the numbered workers of a local cluster (one worker per GPU)."""
+    if cuda_count > 0 and device in (None, "cuda") and isinstance(worker_name, int):
+        return f"cuda:{worker_name % cuda_count}"
+    return device
+
+
+def _this_worker_device(device: str | None) -> str | None:
+    import warp as wp
+
+    from . import _warp  # noqa: F401  (kernel cache, init)
+
+    try:
+        from distributed import get_worker
+
+        name = get_worker().name
+    except ValueError:  # not on a Dask worker
+        name = None
+    return worker_device(device, name, wp.get_cuda_device_count())
+
+
+def run_task(task: EnsembleTask) -> list[MemberOutput]:
+    """Deploy the task's members as one ensemble (on a worker); their outputs."""
+    from .deploy import Ensemble
+    from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON, UsdFrames, write_run
+
+    with tempfile.TemporaryDirectory(prefix="warpcoil-task-") as tmp:
+        root = Path(tmp)
+        moved = {}
+        for k, (original, data) in enumerate(task.files.items()):
+            copy = root / "inputs" / str(k) / Path(original).name
+            copy.parent.mkdir(parents=True)
+            copy.write_bytes(data)
+            moved[original] = copy
+        scenes = [_relocated(scene, moved) for scene in task.scenes]
+        folders = [root / f"member_{k}" for k in range(len(scenes))]
+        for folder in folders:
+            folder.mkdir()
+        ensemble = Ensemble(scenes, _this_worker_device(task.device))
+        recorders: dict[int, UsdFrames] = {}
+        last_time_s: dict[int, float] = {}
+
+        def record(member, frame, state):
+            k = member.index
+            usd = recorders.get(k)
+            if usd is None or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
+                wall = member.anatomy.wall
+                usd = recorders[k] = UsdFrames(
+                    folders[k] / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
+                    wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
+                    member.scene.simulation.frame_interval_s)
+            last_time_s[k] = frame.time_s
+            usd(frame, state)
+
+        results = ensemble.run(record if task.usd else None)
+        for usd in recorders.values():
+            usd.close()
+        outputs = []
+        for k, (scene, anatomy, result) in enumerate(zip(scenes, ensemble.anatomies, results)):
+            write_run(folders[k], scene, anatomy.wall, result)
+            files = {p.name: p.read_bytes() for p in sorted(folders[k].iterdir()) if p.name != RESULT_JSON}
+            outputs.append(MemberOutput(task.indices[k], json.loads((folders[k] / RESULT_JSON).read_text()), files))
+        return outputs
