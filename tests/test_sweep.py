@@ -3,6 +3,7 @@ two local workers and on a separately started scheduler and worker, a killed
 worker's task retried, --resume, files shipped to workers, bad input."""
 
 import csv
+import io
 import json
 import os
 import shutil
@@ -21,8 +22,8 @@ from warpcoil.deploy import deploy
 from warpcoil.recorder import validate_usd
 from warpcoil.recorder.outputs import write_run
 from warpcoil.scene import load_scene
-from warpcoil.sweep import SweepError, complete_result, parse_vary, run_sweep
-from warpcoil.sweep_task import make_task, run_task
+from warpcoil.sweep import Member, SweepError, SweepProgress, complete_result, parse_vary, run_sweep
+from warpcoil.sweep_task import make_task, run_task, worker_device
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEEDS = (100.0, 150.0)
@@ -202,3 +203,33 @@ def test_bad_input_names_the_fix_and_writes_nothing(tmp_path, capsys):
                      "--scheduler", "tcp://127.0.0.1:9"]) == 2
     assert "cannot connect" in capsys.readouterr().err
     assert not (out / "summary.md").exists() and not (out / "member_000").exists()
+
+
+def test_progress_on_a_terminal_is_one_bar_with_a_line_per_member():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    stream = Terminal()
+    progress = SweepProgress(stream=stream)
+    progress.start(3)
+    for k, status in enumerate(("completed", "jammed", "completed")):
+        progress(Member(k, {"catheter.angle_deg": 10.0 * k},
+                        {"status": status, "packing_density": 0.2, "steps": 100, "wall_time_s": 1.0}))
+    progress.close()
+    text = stream.getvalue()
+    assert "member_001 catheter.angle_deg=10: jammed, packing 20.0 %, 100 steps" in text
+    assert "3/3" in text and "2 completed, 1 jammed" in text
+    quiet = Terminal()
+    progress = SweepProgress(quiet=True, stream=quiet)
+    progress.start(1)
+    progress(Member(0, {}, {"status": "completed"}))
+    progress.close()
+    assert quiet.getvalue() == ""
+
+
+def test_gpu_workers_of_a_local_cluster_each_take_their_gpu():
+    assert [worker_device(None, k, 2) for k in range(3)] == ["cuda:0", "cuda:1", "cuda:0"]
+    assert worker_device("cuda", 1, 4) == "cuda:1"
+    assert worker_device("cuda:3", 1, 4) == "cuda:3" and worker_device("cpu", 1, 4) == "cpu"
+    assert worker_device(None, "SLURMCluster-0-1", 4) is None and worker_device(None, 0, 0) is None

@@ -195,8 +195,10 @@ def default_workers(device: str | None) -> int:
     """Local workers: one per GPU for a CUDA sweep (the default device where there
     are GPUs), one per core otherwise; one for an explicit cuda:N."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if device == "cpu" or (device or "cuda").startswith("cuda:"):
-        return cores if device == "cpu" else 1
+    if device == "cpu":
+        return cores
+    if device is not None and device.startswith("cuda:"):
+        return 1
     import warp as wp
 
     from . import _warp  # noqa: F401
