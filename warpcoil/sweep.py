@@ -22,6 +22,7 @@ import logging
 import math
 import os
 import secrets
+import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -271,6 +272,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     out.mkdir(parents=True, exist_ok=True)
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
+    for partial in out.glob(".member_*.tmp-*"):  # a member folder being written when a sweep was killed
+        shutil.rmtree(partial, ignore_errors=True)
     started = time.perf_counter()
     for member in todo:
         if member.resumed and progress:
@@ -289,8 +292,9 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
                                      retries=retries, pure=False, key=f"warpcoil-ensemble-{token}-{n}"): batch
                        for n, batch in enumerate(batches)}
             for future in as_completed(futures):
-                if future.status != "finished":
-                    failures.append((futures[future], future.exception()))
+                if future.status != "finished":  # erred after its retries, or cancelled
+                    failures.append((futures[future], future.exception() if future.status == "error" else
+                                     future.status))
                     continue
                 for output in future.result():
                     member = todo[output.index]
@@ -302,7 +306,7 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     if failures:
         missing = sorted(k for batch, _ in failures for k in batch)
         raise SweepIncomplete(f"{len(missing)} member(s) not run ({', '.join(todo[k].name for k in missing)}): "
-                              f"{failures[0][1]!r}; the others are written; rerun with --resume to finish")
+                              f"{failures[0][1]}; the others are written; rerun with --resume to finish")
     elapsed = time.perf_counter() - started
     statuses = [m.result["status"] for m in todo]
     resumed = sum(m.resumed for m in todo)
