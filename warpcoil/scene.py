@@ -185,7 +185,7 @@ _SIMULATION = {
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),
 }
-_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool)}
+_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool)}
 _TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
 
 

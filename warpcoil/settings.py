@@ -127,11 +127,13 @@ class SimulationSettings:
 @dataclass(frozen=True)
 class OutputSettings:
     """What a run writes besides result.json and the CSVs: the USD animation, a
-    PNG summary, and the coil surface as a closed tube mesh (STL + VTP) for CFD."""
+    PNG summary, the coil surface as a closed tube mesh (STL + VTP) for CFD, and
+    an animated GIF of the deployment from a fixed view."""
 
     usd: bool = True
     png: bool = False
     tube_mesh: bool = False
+    animation: bool = False
 
 
 @dataclass(frozen=True)

@@ -76,7 +76,7 @@ def _summary_row(member: Member) -> dict:
     row = {"member": f"member_{member.index:03d}", **member.values, "status": r.status,
            "packing_density": r.packing_density, "length_outside_sac_mm": r.length_outside_sac_mm,
            "neck_coverage": regions.get("neck_coverage"), "min_coil_gap_mm": r.min_coil_gap_mm,
-           "min_wall_gap_mm": r.min_wall_gap_mm, "max_push_force_uN": r.max_push_force_uN, "steps": r.steps,
+           "min_wall_gap_mm": r.min_wall_gap_mm, "push_force_peak_uN": r.push_force_peak_uN, "steps": r.steps,
            "wall_time_s": r.wall_time_s}
     return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                 (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
