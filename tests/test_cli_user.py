@@ -133,7 +133,8 @@ def test_run_reports_repairs_push_forces_and_plays_in_real_time(first_run):
     assert result["push_force_peak_uN"] == pytest.approx(max(peak), rel=1e-6) and max(peak) > 0.0
     assert result["push_force_mean_max_uN"] == pytest.approx(max(mean), rel=1e-6)
     assert all(r >= abs(m) * (1 - 1e-9) and p >= m * (1 - 1e-9) for m, p, r in zip(mean, peak, rms))  # RMS ≥ |mean|
-    pushed = [r for r in rms if r > 0.0]
+    deployed = [float(r["deployed_length_mm"]) for r in rows]
+    pushed = [r for r, now, before in zip(rms[1:], deployed[1:], deployed) if now > before]
     assert result["push_force_rms_uN"] == pytest.approx(math.sqrt(np.mean(np.square(pushed))), rel=1e-4)
     # 10: one USD time code per frame, played at as many frames per second: real time
     from pxr import Usd
@@ -311,3 +312,32 @@ def test_a_step_above_the_bound_names_the_scene_file_and_key(tmp_path):
     assert code == 2
     line = one_line(err)
     assert "tiny.toml: simulation.dt_s" in line and "stable bound" in line
+
+
+# --- 4: an impossible deployment ------------------------------------------------------------
+def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
+    """40 mm of coil (2.7 mm³) for a 2 mm sac (4.2 mm³, 64 %): warned before the run;
+    the push force then stays above the stall force and the run ends as jammed well
+    before the coil is in."""
+    path = scene(tmp_path, **{"sphere_diameter_mm = 3.5": "sphere_diameter_mm = 2.0",
+                              "tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -0.8]",
+                              "loop_diameter_mm = 2.5": "loop_diameter_mm = 1.5",
+                              "length_mm = 4.0": "length_mm = 40.0"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "full", "-q")
+    assert code == 3, err
+    assert "warning:" in err and "64 % of the sac's" in err
+    result = json.loads((tmp_path / "full" / "result.json").read_text())
+    assert result["status"] == "jammed" and result["reason"].startswith("stalled: coil 0")
+    assert "stall_force_uN = 1000 µN" in result["reason"]
+    assert 10.0 < result["deployed_length_mm"] < 38.0
+    rows = list(csv.DictReader((tmp_path / "full" / "timeseries.csv").open()))
+    last = [float(r["push_force_mean_uN"]) for r in rows if float(r["time_s"]) > float(rows[-1]["time_s"]) - 0.1]
+    assert min(last) > 1000.0  # the window the reason speaks of
+
+
+def test_a_loop_far_larger_than_the_sac_is_warned_about(tmp_path):
+    path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nmax_time_s = 0.005"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
+    assert code == 3
+    assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err

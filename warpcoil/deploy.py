@@ -198,6 +198,8 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
+        self.stall_force_uN = sim.stall_force_uN if sim.stall_force_uN is not None else scene.contact.P0_uN
+        self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
         self.steps = 0
@@ -360,17 +362,45 @@ class Ensemble:
 
     # --- the run ---------------------------------------------------------------
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
-        if status in (TIMEOUT, FAILED) and member.jam_reasons:
+        if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
         member.steps = self._steps_before + self.stepper.steps
         member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
         self.control.stop(member.world)
 
+    def _stalled(self, member: Member, frame: Frame, frame_s: float) -> str | None:
+        """Why the member's deployment has stalled (None while it has not): its frame-mean
+        push force has stayed above the stall force for the stall window."""
+        sim = member.scene.simulation
+        if member.active < 0 or frame.push_force_mean_uN <= member.stall_force_uN:
+            member.resisted_since_s = None
+            return None
+        if member.resisted_since_s is None:
+            member.resisted_since_s = frame.time_s - frame_s
+        if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
+            return None
+        k = member.active
+        volume = sum(math.pi * (c.wire_diameter_mm / 2.0) ** 2 * c.length_mm for c in member.scene.coils[:k])
+        volume += math.pi * (member.scene.coils[k].wire_diameter_mm / 2.0) ** 2 * float(
+            np.clip(frame.deployed_length_mm - member.coil_lengths_mm[:k].sum(), 0.0, None))
+        sac = member.anatomy.sac_volume_mm3
+        packing = f", packing density {100 * volume / sac:.1f} %" if sac else ""
+        return (f"stalled: coil {k} ({member.scene.coils[k].name}) met a sustained resistance, mean push force above "
+                f"stall_force_uN = {member.stall_force_uN:g} µN in every frame for {sim.stall_window_s:g} s (last "
+                f"{frame.push_force_mean_uN:.4g} µN) with {frame.deployed_length_mm:.2f} of "
+                f"{member.coil_lengths_mm.sum():.2f} mm deployed{packing}: the sac takes no more coil here; "
+                "deploy less coil (coil.length_mm) or a smaller loop")
+
     def _advance_member(self, member: Member, frame: Frame, started: float, snap: Snapshot) -> None:
-        """After a frame: jam, detach and next coil, rest, timeout."""
+        """After a frame: stall, jam, detach and next coil, rest, timeout."""
         sim = member.scene.simulation
         active = member.active
         coil = member.coils.start + active
+        stalled = self._stalled(member, frame, self.stepper.chunk * self.solver.dt_s)
+        if stalled is not None:
+            member.coil_status[active] = JAMMED
+            self._finish(member, JAMMED, stalled, started, snap)
+            return
         if active >= 0 and frame.push_force_mean_uN > sim.jam_force_uN:
             member.coil_status[active] = JAMMED
             deployed = float(np.clip(snap.advance[coil], 0.0, member.coil_lengths_mm[active]))
@@ -539,9 +569,11 @@ class Ensemble:
 
 
 def _run_rms(frames: list[Frame]) -> float:
-    """RMS push force (µN) over the frames in which the pusher pushed (each frame
-    spans the same simulated time, so this is the RMS over that time)."""
-    pushed = [f.push_force_rms_uN for f in frames if f.push_force_rms_uN > 0.0]
+    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
+    length grew; each frame spans the same simulated time, so this is the RMS over
+    that time)."""
+    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
+              f.deployed_length_mm > before.deployed_length_mm]
     return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
 
 

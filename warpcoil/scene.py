@@ -181,6 +181,8 @@ _SIMULATION = {
     "allow_unstable_dt": _Key(_bool),
     "mass_scale": _Key(_positive),
     "jam_force_uN": _Key(_positive),
+    "stall_force_uN": _Key(_positive),
+    "stall_window_s": _Key(_positive),
     "rest_kinetic_energy_nJ": _Key(_positive),
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),

@@ -104,6 +104,11 @@ class SimulationSettings:
       reported in results; BENCHMARKS.md shows what it does to the error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
+    * stall_force_uN, stall_window_s: a deployment whose frame-mean push force
+      stays above stall_force_uN (None → the contact force at zero clearance,
+      contact P0_uN) in every frame for stall_window_s has stalled: the sac
+      resists the coil without letup (it is full, or the loop cannot form), and
+      the run ends there as "jammed" instead of pushing on into interpenetration.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
       is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
       i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
@@ -119,6 +124,8 @@ class SimulationSettings:
     allow_unstable_dt: bool = False
     mass_scale: float = DEFAULT_MASS_SCALE
     jam_force_uN: float = 1.0e5
+    stall_force_uN: float | None = None
+    stall_window_s: float = 0.1
     rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None
     frame_interval_s: float = 0.01
