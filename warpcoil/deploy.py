@@ -368,35 +368,46 @@ class Ensemble:
         member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
         self.control.stop(member.world)
 
-    def _stalled(self, member: Member, frame: Frame, frame_s: float) -> str | None:
-        """Why the member's deployment has stalled (None while it has not): its frame-mean
-        push force has stayed above the stall force for the stall window."""
-        sim = member.scene.simulation
-        if member.active < 0 or frame.push_force_mean_uN <= member.stall_force_uN:
+    def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
+        """Why the member's deployment has stalled (None while it has not): the coil in
+        the sac fills more than stall_packing of it (coils cannot pack that densely, so
+        more coil can only pass through coil), or the frame-mean push force has stayed
+        above the stall force for the stall window. ``advance``: the member's coils'
+        pusher advance (mm)."""
+        sim, k = member.scene.simulation, member.active
+        if k < 0:
+            member.resisted_since_s = None
+            return None
+        areas = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in member.scene.coils])
+        deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
+        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm
+        sac = member.anatomy.sac_volume_mm3
+        packing = in_sac / sac if sac else 0.0
+        where = (f"coil {k} ({member.scene.coils[k].name}) stalled with {frame.deployed_length_mm:.2f} of "
+                 f"{member.coil_lengths_mm.sum():.2f} mm deployed" + (f", packing density {100 * packing:.1f} %"
+                                                                       if sac else ""))
+        fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
+        if sac and packing > sim.stall_packing:
+            return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
+                    f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
+        if frame.push_force_mean_uN <= member.stall_force_uN:
             member.resisted_since_s = None
             return None
         if member.resisted_since_s is None:
             member.resisted_since_s = frame.time_s - frame_s
         if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
             return None
-        k = member.active
-        volume = sum(math.pi * (c.wire_diameter_mm / 2.0) ** 2 * c.length_mm for c in member.scene.coils[:k])
-        volume += math.pi * (member.scene.coils[k].wire_diameter_mm / 2.0) ** 2 * float(
-            np.clip(frame.deployed_length_mm - member.coil_lengths_mm[:k].sum(), 0.0, None))
-        sac = member.anatomy.sac_volume_mm3
-        packing = f", packing density {100 * volume / sac:.1f} %" if sac else ""
-        return (f"stalled: coil {k} ({member.scene.coils[k].name}) met a sustained resistance, mean push force above "
-                f"stall_force_uN = {member.stall_force_uN:g} µN in every frame for {sim.stall_window_s:g} s (last "
-                f"{frame.push_force_mean_uN:.4g} µN) with {frame.deployed_length_mm:.2f} of "
-                f"{member.coil_lengths_mm.sum():.2f} mm deployed{packing}: the sac takes no more coil here; "
-                "deploy less coil (coil.length_mm) or a smaller loop")
+        return (f"stalled: {where}: the mean push force stayed above stall_force_uN = {member.stall_force_uN:g} µN "
+                f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
+                f"µN), a resistance that does not let up; {fix}")
 
     def _advance_member(self, member: Member, frame: Frame, started: float, snap: Snapshot) -> None:
         """After a frame: stall, jam, detach and next coil, rest, timeout."""
         sim = member.scene.simulation
         active = member.active
         coil = member.coils.start + active
-        stalled = self._stalled(member, frame, self.stepper.chunk * self.solver.dt_s)
+        stalled = self._stalled(member, frame, self.stepper.chunk * self.solver.dt_s,
+                                snap.advance[member.coils.start:member.coils.stop])
         if stalled is not None:
             member.coil_status[active] = JAMMED
             self._finish(member, JAMMED, stalled, started, snap)

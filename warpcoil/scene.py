@@ -183,6 +183,7 @@ _SIMULATION = {
     "jam_force_uN": _Key(_positive),
     "stall_force_uN": _Key(_positive),
     "stall_window_s": _Key(_positive),
+    "stall_packing": _Key(_fraction),
     "rest_kinetic_energy_nJ": _Key(_positive),
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),

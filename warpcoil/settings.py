@@ -109,6 +109,8 @@ class SimulationSettings:
       contact P0_uN) in every frame for stall_window_s has stalled: the sac
       resists the coil without letup (it is full, or the loop cannot form), and
       the run ends there as "jammed" instead of pushing on into interpenetration.
+    * stall_packing: so has one whose coil inside the sac fills more than this
+      fraction of it (no coil packing comes close: clinical 20–35 %).
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
       is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
       i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
@@ -125,7 +127,8 @@ class SimulationSettings:
     mass_scale: float = DEFAULT_MASS_SCALE
     jam_force_uN: float = 1.0e5
     stall_force_uN: float | None = None
-    stall_window_s: float = 0.1
+    stall_window_s: float = 0.3
+    stall_packing: float = 0.5
     rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None
     frame_interval_s: float = 0.01
