@@ -335,9 +335,21 @@ def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
     assert out.startswith("jammed: stalled")
 
 
-def test_a_loop_far_larger_than_the_sac_is_warned_about(tmp_path):
+def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force(tmp_path):
+    """A 35 mm loop for the 3.5 mm sac: warned before the run; with the optional force
+    criterion it ends as stalled once the push force has resisted for the window."""
     path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
-                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nmax_time_s = 0.005"})
+                              "length_mm = 4.0": "length_mm = 20.0",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nstall_force_uN = 500.0\n"
+                              "stall_window_s = 0.05"})
     code, _, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
-    assert code == 3
+    assert code == 3, err
     assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
+    result = json.loads((tmp_path / "big" / "result.json").read_text())
+    assert result["status"] == "jammed" and "stall_force_uN = 500 µN" in result["reason"], result["reason"]
+    rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
+    frame_s = float(rows[-1]["time_s"]) - float(rows[-2]["time_s"])
+    count = math.ceil(0.05 / frame_s - 1e-9)  # frames that span the window
+    mean = [float(r["push_force_mean_uN"]) for r in rows]
+    assert min(mean[-count:]) > 500.0 and mean[-count - 1] <= 500.0  # every frame of the window above, no more
+    assert result["deployed_length_mm"] < 19.0

@@ -198,7 +198,7 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
-        self.stall_force_uN = sim.stall_force_uN if sim.stall_force_uN is not None else scene.contact.P0_uN
+        self.stall_force_uN = sim.stall_force_uN  # None: no force criterion
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -371,8 +371,8 @@ class Ensemble:
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
         """Why the member's deployment has stalled (None while it has not): the coil in
         the sac fills more than stall_packing of it (coils cannot pack that densely, so
-        more coil can only pass through coil), or the frame-mean push force has stayed
-        above the stall force for the stall window. ``advance``: the member's coils'
+        more coil can only pass through coil), or (when the scene sets stall_force_uN)
+        the frame-mean push force has stayed above it for the stall window. ``advance``: the member's coils'
         pusher advance (mm)."""
         sim, k = member.scene.simulation, member.active
         if k < 0:
@@ -390,7 +390,7 @@ class Ensemble:
         if sac and packing > sim.stall_packing:
             return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
                     f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
-        if frame.push_force_mean_uN <= member.stall_force_uN:
+        if member.stall_force_uN is None or frame.push_force_mean_uN <= member.stall_force_uN:
             member.resisted_since_s = None
             return None
         if member.resisted_since_s is None:

@@ -104,13 +104,13 @@ class SimulationSettings:
       reported in results; BENCHMARKS.md shows what it does to the error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
-    * stall_force_uN, stall_window_s: a deployment whose frame-mean push force
-      stays above stall_force_uN (None → the contact force at zero clearance,
-      contact P0_uN) in every frame for stall_window_s has stalled: the sac
-      resists the coil without letup (it is full, or the loop cannot form), and
-      the run ends there as "jammed" instead of pushing on into interpenetration.
-    * stall_packing: so has one whose coil inside the sac fills more than this
-      fraction of it (no coil packing comes close: clinical 20–35 %).
+    * stall_packing: a deployment whose coil inside the sac fills more than this
+      fraction of it has stalled (no coil packing comes close: clinical 20–35 %;
+      more coil could only pass through coil): the run ends there as "jammed".
+    * stall_force_uN, stall_window_s: optional (None: off): so has one whose
+      frame-mean push force stays above stall_force_uN in every frame for
+      stall_window_s (an operator's "stop when it keeps resisting"). No default
+      is safe: patient framing coils legitimately hold several mN for 0.7 s.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
       is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
       i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
