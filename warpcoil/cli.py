@@ -50,7 +50,8 @@ def _device(name: str | None):
 
 def _force_text(frame) -> str:
     """The frame's push force for the progress display, named as in timeseries.csv (mN)."""
-    return (f"push mean {frame.push_force_mean_uN / 1e3:.3g} mN, peak {frame.push_force_peak_uN / 1e3:.3g} mN, "
+    mN = lambda uN: round(uN / 1e3, 6) + 0.0  # noqa: E731  (no -2e-18 for a zero)
+    return (f"push mean {mN(frame.push_force_mean_uN):.3g} mN, peak {mN(frame.push_force_peak_uN):.3g} mN, "
             f"t = {frame.time_s:.2f} s")
 
 

@@ -78,8 +78,9 @@ def wall_collection(vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray,
 def line_width_pt(diameter_mm: float, box_extent_mm: np.ndarray, panel_width_in: float) -> float:
     """Line width (pt) that draws a wire of ``diameter_mm`` at its true thickness in a
     3D panel ``panel_width_in`` wide whose box spans ``box_extent_mm`` (the box's
-    largest side fills about 60 % of the panel; at least 0.5 pt)."""
-    pt_per_mm = 0.6 * panel_width_in * 72.0 / max(float(np.max(box_extent_mm)), 1e-6)
+    largest side takes about half the panel's width, as measured on the summary's
+    views; at least 0.5 pt)."""
+    pt_per_mm = 0.49 * panel_width_in * 72.0 / max(float(np.max(box_extent_mm)), 1e-6)
     return max(diameter_mm * pt_per_mm, 0.5)
 
 
@@ -147,10 +148,10 @@ def _draw_push_force(ax, frames: list[Frame]) -> None:
     ax.plot(t, mean_smooth, color="C0", lw=1.6,
             label=f"push_force_mean (per frame, smoothed over {window * step:.2g} s)")
     scale = float(np.percentile(np.abs(mean_smooth), 95)) if len(t) else 0.0
-    ax.set_yscale("symlog", linthresh=max(scale, 1e-4))
+    ax.set_yscale("symlog", linthresh=10.0 ** math.floor(math.log10(max(scale, 1e-4))))  # linear up to the mean
     ax.axhline(0.0, color="0.5", lw=0.5)
     ax.set(xlabel="time (s)", ylabel="push force (mN, compressive > 0)", title="Push force")
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=7, loc="best", framealpha=0.8)
     ax.grid(alpha=0.3)
 
 
