@@ -325,7 +325,7 @@ def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
                               "length_mm = 4.0": "length_mm = 40.0"})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "full", "-q")
     assert code == 3, err
-    assert "warning:" in err and "64 % of the sac's" in err
+    assert "warning:" in err and "64 % of the sac's" in err and "fills 50 % of it, after about 31 mm" in err
     result = json.loads((tmp_path / "full" / "result.json").read_text())
     assert result["status"] == "jammed" and result["reason"].startswith("stalled: coil 0")
     assert "stall_packing = 0.5" in result["reason"]

@@ -136,10 +136,19 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
     warnings = []
     volume = sum(math.pi * (c.wire_diameter_mm / 2.0) ** 2 * c.length_mm for c in scene.coils)
     if volume > MAX_PACKING * sac_volume_mm3:
+        stall = scene.simulation.stall_packing * sac_volume_mm3
+        filled, at_mm = 0.0, 0.0
+        for coil in scene.coils:  # the deployed length at which the sac holds stall_packing
+            area = math.pi * (coil.wire_diameter_mm / 2.0) ** 2
+            take = min(coil.length_mm, max(stall - filled, 0.0) / area)
+            filled, at_mm = filled + take * area, at_mm + take
+        when = (f"; the run will end as jammed (stalled) when the coil in the sac fills "
+                f"{100 * scene.simulation.stall_packing:.0f} % of it, after about {at_mm:.0f} mm"
+                if filled >= stall * (1 - 1e-9) else "")
         warnings.append(
             f"{_where(scene)}: the coils' volume {volume:.3g} mm³ is {100 * volume / sac_volume_mm3:.0f} % of the "
             f"sac's {sac_volume_mm3:.3g} mm³ (clinical packing is 20–35 %; above {100 * MAX_PACKING:.0f} % the sac "
-            "cannot hold them): expect a jam; use shorter coils (coil.length_mm)")
+            f"cannot hold them){when}; use shorter coils (coil.length_mm)")
     sac_diameter = (6.0 * sac_volume_mm3 / math.pi) ** (1.0 / 3.0)
     for k, coil in enumerate(scene.coils):
         if coil.loop_diameter_mm > MAX_LOOP_OVER_SAC * sac_diameter:
