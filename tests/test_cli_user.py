@@ -353,3 +353,11 @@ def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force
     mean = [float(r["push_force_mean_uN"]) for r in rows]
     assert min(mean[-count:]) > 500.0 and mean[-count - 1] <= 500.0  # every frame of the window above, no more
     assert result["deployed_length_mm"] < 19.0
+
+
+def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):
+    path = scene(tmp_path, **{"tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -2.0]"})
+    code, _, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "never")
+    assert code == 2
+    assert "catheter.tip [0, 0, -2] mm is 0.25 mm outside the lumen" in one_line(err)
+    assert not (tmp_path / "never").exists()

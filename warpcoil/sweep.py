@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import Ensemble, RunResult, ensemble_groups, resolve_anatomies
+from .preflight import check_catheter
 from .recorder.atomic import write_text_atomic
 from .scene import load_scene
 
@@ -151,6 +152,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
         stale.unlink(missing_ok=True)
     started = time.perf_counter()
     anatomies = resolve_anatomies(scenes)  # walls read and necks cut once, for grouping and (one job) the runs
+    for scene, anatomy in zip(scenes, anatomies):  # a catheter outside the lumen: SetupError before any step
+        check_catheter(scene, anatomy, device)
     groups = ensemble_groups(scenes, device, anatomies)
     batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]
 
