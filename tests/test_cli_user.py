@@ -251,6 +251,9 @@ def test_an_output_path_that_is_a_file_is_one_line(tmp_path):
     code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "taken")
     assert code == 2
     assert "is an existing file, not a folder" in one_line(err)
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "taken/run")
+    assert code == 2
+    assert "taken is a file, so the folder cannot be created" in one_line(err)
     assert (tmp_path / "taken").read_text() == "a file"
 
 

@@ -305,7 +305,8 @@ class Ensemble:
         coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (self.solver.coil_contact and free.any()) else np.inf
         return Frame(
             time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
-            push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]), kinetic_nJ=float(energies["kinetic_nJ"][w]),
+            push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),
+            kinetic_nJ=float(energies["kinetic_nJ"][w]),
             bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
             stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
             coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
@@ -372,18 +373,18 @@ class Ensemble:
         """Why the member's deployment has stalled (None while it has not): the coil in
         the sac fills more than stall_packing of it (coils cannot pack that densely, so
         more coil can only pass through coil), or (when the scene sets stall_force_uN)
-        the frame-mean push force has stayed above it for the stall window. ``advance``: the member's coils'
-        pusher advance (mm)."""
+        the frame-mean push force has stayed above it for the stall window.
+        ``advance``: the member's coils' pusher advance (mm)."""
         sim, k = member.scene.simulation, member.active
         if k < 0:
             member.resisted_since_s = None
             return None
         areas = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in member.scene.coils])
         deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
-        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm
+        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
         sac = member.anatomy.sac_volume_mm3
         packing = in_sac / sac if sac else 0.0
-        where = (f"coil {k} ({member.scene.coils[k].name}) stalled with {frame.deployed_length_mm:.2f} of "
+        where = (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "
                  f"{member.coil_lengths_mm.sum():.2f} mm deployed" + (f", packing density {100 * packing:.1f} %"
                                                                        if sac else ""))
         fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
@@ -416,7 +417,8 @@ class Ensemble:
             member.coil_status[active] = JAMMED
             deployed = float(np.clip(snap.advance[coil], 0.0, member.coil_lengths_mm[active]))
             member.jam_reasons.append(
-                f"coil {active} ({member.scene.coils[active].name}) jammed: mean push force {frame.push_force_mean_uN:.4g} µN"
+                f"coil {active} ({member.scene.coils[active].name}) jammed: mean push force "
+                f"{frame.push_force_mean_uN:.4g} µN"
                 f" over a frame > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
                 f"{member.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
             self._retract(member, active)
