@@ -364,3 +364,12 @@ def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):
     assert code == 2
     assert "catheter.tip [0, 0, -2] mm is 0.25 mm outside the lumen" in one_line(err)
     assert not (tmp_path / "never").exists()
+
+
+def test_an_unwritable_parent_is_refused_in_one_line(tmp_path, monkeypatch):
+    """(The subprocess test above is skipped as root, who may write anywhere.)"""
+    from warpcoil.recorder import folder
+
+    monkeypatch.setattr(folder.os, "access", lambda path, mode: False)
+    with pytest.raises(folder.OutputFolderError, match=r"is not writable; fix: choose a folder you can write to"):
+        folder.check_output_path(tmp_path / "run")
