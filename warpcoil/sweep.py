@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, resolve_anatomies
+from .preflight import check_catheter
+from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
 from .scene import load_scene
@@ -130,7 +132,7 @@ def _summary_row(member: Member) -> dict:
     row = {"member": member.name, **member.values}
     row |= {k: r.get(k) for k in ("status", "packing_density", "length_outside_sac_mm")}
     row["neck_coverage"] = regions.get("neck_coverage")
-    row |= {k: r.get(k) for k in ("min_coil_gap_mm", "min_wall_gap_mm", "max_push_force_uN", "steps", "wall_time_s")}
+    row |= {k: r.get(k) for k in ("min_coil_gap_mm", "min_wall_gap_mm", "push_force_peak_uN", "steps", "wall_time_s")}
     return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                 (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
 
@@ -160,36 +162,37 @@ def member_line(member: Member) -> str:
 
 
 class SweepProgress:
-    """Progress over members: on a terminal one bar with the count of each status
-    and a line per finished member above it; elsewhere (a log file, a batch job)
-    only the lines; nothing when quiet. Writes to stderr."""
+    """Progress over members by the rules of every command (warpcoil.progress: a
+    bar on a terminal, a line every few seconds or 10 % in a log, nothing when
+    quiet), the bar showing the count of each status so far, plus one line per
+    finished member (:func:`member_line`; above the bar on a terminal)."""
 
     def __init__(self, quiet: bool = False, stream=None):
         self.quiet, self.stream = quiet, stream if stream is not None else sys.stderr
-        self.bar = None
+        self.progress: Progress | None = None
         self.statuses: dict[str, int] = {}
 
     def start(self, total: int) -> None:
-        if not self.quiet and self.stream.isatty():
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, unit="member", desc="sweep", file=self.stream)
+        self.progress = Progress("sweep", "deployments", total=total, quiet=self.quiet, stream=self.stream, decimals=0)
 
     def __call__(self, member: Member) -> None:
-        if self.quiet:
-            return
         status = member.result["status"]
         self.statuses[status] = self.statuses.get(status, 0) + 1
-        if self.bar is None:
-            print(member_line(member), file=self.stream, flush=True)
-            return
-        self.bar.write(member_line(member), file=self.stream)
-        self.bar.set_postfix_str(", ".join(f"{n} {s}" for s, n in self.statuses.items()), refresh=False)
-        self.bar.update(1)
+        if not self.quiet:
+            if self.progress.terminal:
+                from tqdm import tqdm
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+                tqdm.write(member_line(member), file=self.stream)
+            else:
+                print(member_line(member), file=self.stream, flush=True)
+        self.progress.update(sum(self.statuses.values()), ", ".join(f"{n} {s}" for s, n in self.statuses.items()))
+
+    def close(self, failed: bool = False) -> None:
+        """End the bar; ``failed`` (the sweep stopped on an error): no closing line in a log."""
+        if self.progress is not None:
+            if failed and not self.progress.terminal:
+                self.progress.quiet = True
+            self.progress.close()
 
 
 def default_workers(device: str | None) -> int:
@@ -234,7 +237,8 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         return
     with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
         cluster = LocalCluster(n_workers=workers or default_workers(device), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=None, silence_logs=logging.ERROR,  # no dashboard; its health
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})  # routes on a free port
     try:
         with Client(cluster) as client:
             yield client
@@ -269,6 +273,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
             member.result, member.resumed = found, found is not None
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
+    for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
+        check_catheter(scenes[k], anatomy, "cpu")
     out.mkdir(parents=True, exist_ok=True)
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
