@@ -3,7 +3,7 @@ herniated length of a made-up coil, and the time these calls take.
 
 The coil is not a deployment: nested spherical spirals (loxodromes) about the
 sac's centroid at 0.3–0.9 of its equivalent radius, ~20 % packing, plus a
-straight 3 mm tail from the neck centroid into the parent vessel (herniated).
+straight 3 mm tail from just below the neck centroid into the parent vessel (herniated).
 It exercises the same calls a finished run makes (``regional_density``,
 ``inside_sac``, ``herniated_length_mm``) on real walls in seconds.
 
@@ -47,7 +47,7 @@ def made_up_coil(sac: Sac, packing: float = 0.2) -> np.ndarray:
         pieces.append(centre + r * np.column_stack((np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth),
                                                     np.cos(polar))))
     neck = sac.neck
-    tail = neck.centroid_mm - np.linspace(0.0, 3.0, int(3.0 / SPACING_MM) + 1)[:, None] * neck.normal
+    tail = neck.centroid_mm - np.linspace(0.05, 3.05, int(3.0 / SPACING_MM) + 1)[:, None] * neck.normal  # off the fan
     return np.vstack(pieces + [tail[::-1]])
 
 
