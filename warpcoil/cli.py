@@ -47,7 +47,8 @@ def _run(args: argparse.Namespace) -> int:
     progress(None)
     if usd is not None:
         usd.close()
-    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source)})
+    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source)},
+                      sac=deployment.anatomy.sac)
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
