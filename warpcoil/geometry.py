@@ -8,7 +8,6 @@
 * :func:`inside_voxels`: voxel centres inside a closed surface from the crossings up each
   voxel column (``wp.mesh_query_ray``), one ray march per column.
 * :func:`surface_voxels`: the voxels a surface passes through (``wp.mesh_query_point_no_sign``).
-* :func:`surface_distance`: unsigned distance to the surface (``wp.mesh_query_point_no_sign``).
 * :func:`ray_hits`: every crossing of parallel rays with a surface (``wp.mesh_query_ray``).
 * :func:`points_near_segments`: points within a segment's radius of it (``wp.Bvh`` of
   the segments' radius-grown boxes, exact float64 distance on the candidates).
@@ -26,9 +25,8 @@ import warp as wp
 
 from . import _warp  # noqa: F401  (kernel cache, init)
 
-RAY_DIRECTION = (0.0, 0.0, 1.0)  # voxel columns run along +z
 FAR_MM = 1.0e6  # mm, 'no limit' for ray and point queries
-STEP_VOXELS = 1.0e-4  # hits closer than this (in voxel edges) along a column are one crossing (a shared edge)
+STEP_VOXELS = 1.0e-4  # a column's march resumes this far (in voxel edges) past each hit
 
 
 class SurfaceBVH:
@@ -60,23 +58,30 @@ def surface_bvh(owner: object, vertices_mm: np.ndarray, faces: np.ndarray, devic
     return _BVHS[key]
 
 
-@wp.kernel
-def _first_hit_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), direction: wp.vec3,
-                      inside: wp.array(dtype=wp.int8)):
-    k = wp.tid()
-    hit = wp.mesh_query_ray(mesh, points[k], direction, FAR_MM)
+@wp.func
+def first_hit_inside(mesh: wp.uint64, point: wp.vec3) -> int:
+    """1 if the first face the ray from ``point`` along +z meets is seen from its back (inner) side."""
+    hit = wp.mesh_query_ray(mesh, point, wp.vec3(0.0, 0.0, 1.0), FAR_MM)
     if hit.result and hit.sign < 0.0:
-        inside[k] = wp.int8(1)
+        return 1
+    return 0
 
 
 @wp.kernel
-def _parity_inside_columns(mesh: wp.uint64, origin: wp.vec3, h: float, ny: int, nz: int, direction: wp.vec3,
+def _first_hit_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), inside: wp.array(dtype=wp.int8)):
+    k = wp.tid()
+    inside[k] = wp.int8(first_hit_inside(mesh, points[k]))
+
+
+@wp.kernel
+def _inside_columns(mesh: wp.uint64, origin: wp.vec3, h: float, ny: int, nz: int,
                            inside: wp.array(dtype=wp.int8)):
     """One voxel column per thread: march the ray up the column from its foot; past a hit on the front
     (outer) side of a face the column is inside, past one on the back side outside. Reading the side
     rather than toggling keeps a hit on an edge shared by two faces (found once or twice) from
     flipping the rest of the column."""
     c = wp.tid()
+    direction = wp.vec3(0.0, 0.0, 1.0)
     foot = origin + h * wp.vec3(float(c // ny) + 0.5, float(c % ny) + 0.5, 0.0)
     travelled = float(0.0)  # along the unit direction, from the foot
     state = wp.int8(0)
@@ -84,21 +89,12 @@ def _parity_inside_columns(mesh: wp.uint64, origin: wp.vec3, h: float, ny: int, 
     hit = wp.mesh_query_ray(mesh, foot, direction, FAR_MM)
     while hit.result:
         travelled = travelled + hit.t
-        while l < nz and (float(l) + 0.5) * h < travelled * direction[2]:
+        while l < nz and (float(l) + 0.5) * h < travelled:
             inside[c * nz + l] = state
             l = l + 1
         state = wp.where(hit.sign > 0.0, wp.int8(1), wp.int8(0))
         travelled = travelled + STEP_VOXELS * h
         hit = wp.mesh_query_ray(mesh, foot + travelled * direction, direction, FAR_MM)
-
-
-@wp.kernel
-def _unsigned_distance(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), max_dist: float,
-                       distance: wp.array(dtype=float)):
-    k = wp.tid()
-    query = wp.mesh_query_point_no_sign(mesh, points[k], max_dist)
-    if query.result:
-        distance[k] = wp.length(points[k] - wp.mesh_eval_position(mesh, query.face, query.u, query.v))
 
 
 @wp.kernel
@@ -165,8 +161,7 @@ def inside_points(surface: SurfaceBVH, points_mm: np.ndarray) -> np.ndarray:
     points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
     inside = wp.zeros(len(points), dtype=wp.int8, device=surface.device)
     if len(points):
-        wp.launch(_first_hit_inside, len(points),
-                  inputs=[surface.mesh.id, surface.local(points), wp.vec3(*RAY_DIRECTION)], outputs=[inside],
+        wp.launch(_first_hit_inside, len(points), inputs=[surface.mesh.id, surface.local(points)], outputs=[inside],
                   device=surface.device)
     return inside.numpy().astype(bool)
 
@@ -176,9 +171,8 @@ def inside_voxels(surface: SurfaceBVH, origin_mm: np.ndarray, h_mm: float, shape
     surface: the side of the last face crossed below them along their column (``origin`` below the surface)."""
     inside = wp.zeros(int(np.prod(shape)), dtype=wp.int8, device=surface.device)
     origin = wp.vec3(*(np.asarray(origin_mm, dtype=np.float64) - surface.centre_mm))
-    wp.launch(_parity_inside_columns, shape[0] * shape[1],
-              inputs=[surface.mesh.id, origin, float(h_mm), shape[1], shape[2],
-                      wp.normalize(wp.vec3(*RAY_DIRECTION))], outputs=[inside], device=surface.device)
+    wp.launch(_inside_columns, shape[0] * shape[1], inputs=[surface.mesh.id, origin, float(h_mm), shape[1],
+                                                                   shape[2]], outputs=[inside], device=surface.device)
     return inside.numpy().astype(bool).reshape(shape)
 
 
@@ -193,16 +187,6 @@ def surface_voxels(surface: SurfaceBVH, origin_mm: np.ndarray, h_mm: float, shap
     wp.launch(_surface_voxels, count, inputs=[surface.mesh.id, origin, float(h_mm), shape[1], shape[2]],
               outputs=[crossed], device=surface.device)
     return crossed.numpy().astype(bool).reshape(shape)
-
-
-def surface_distance(surface: SurfaceBVH, points_mm: np.ndarray, max_mm: float) -> np.ndarray:
-    """Unsigned distance (mm) from each point to the surface; inf beyond ``max_mm``."""
-    points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    distance = wp.full(len(points), np.inf, dtype=float, device=surface.device)
-    if len(points):
-        wp.launch(_unsigned_distance, len(points), inputs=[surface.mesh.id, surface.local(points), float(max_mm)],
-                  outputs=[distance], device=surface.device)
-    return distance.numpy().astype(np.float64)
 
 
 def ray_hits(surface: SurfaceBVH, starts_mm: np.ndarray, direction: np.ndarray, step_mm: float

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .geometry import SurfaceBVH
+from .geometry import SurfaceBVH, first_hit_inside
 
 SAMPLES_PER_AXIS = wp.constant(4)  # 4³ = 64 samples per voxel: one bit each of a uint64 mask
 SAMPLES = wp.constant(64)
@@ -102,10 +102,7 @@ def _sample_point(corner: wp.vec3d, h: wp.float64, bit: int) -> wp.vec3d:
 
 @wp.func
 def _inside(mesh: wp.uint64, p: wp.vec3d) -> wp.uint64:
-    hit = wp.mesh_query_ray(mesh, wp.vec3(float(p[0]), float(p[1]), float(p[2])), wp.vec3(0.0, 0.0, 1.0), 1.0e6)
-    if hit.result and hit.sign < 0.0:
-        return wp.uint64(1)
-    return wp.uint64(0)
+    return wp.uint64(first_hit_inside(mesh, wp.vec3(float(p[0]), float(p[1]), float(p[2]))))
 
 
 @wp.func
