@@ -1,11 +1,15 @@
-"""Sac geometry on the shipped patient walls: sac volumes, regional densities and
-herniated length of a made-up coil, and the time these calls take.
+"""Sac geometry on the shipped patient walls: sac volumes, regional densities,
+herniated length and the porous field (porous.vti) of a made-up coil, and the
+time these calls take.
 
 The coil is not a deployment: nested spherical spirals (loxodromes) about the
 sac's centroid at 0.3–0.9 of its equivalent radius, ~20 % packing, plus a
 straight 3 mm tail from just below the neck centroid into the parent vessel (herniated).
 It exercises the same calls a finished run makes (``regional_density``,
-``inside_sac``, ``herniated_length_mm``) on real walls in seconds.
+``inside_sac``, ``herniated_length_mm``, ``porous_field`` and the VTI writer) on
+real walls in seconds. ``porous_solid`` (the sac-weighted mean of 1 − porosity,
+sampled at d/8) is checked against ``total_voxel`` (voxel centres at d/4): two
+samplings of the coil volume fraction of the sac.
 
     PYTHONPATH=$PWD python -m benchmarks.sac_geometry [CASE ...] [--repeats N]
 """
@@ -15,12 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tempfile
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from warpcoil.porous import porous_field
+from warpcoil.recorder.porous import POROUS_VTI, write_porous_vti
 from warpcoil.sac import Sac, herniated_length_mm, inside_sac, regional_density
 from warpcoil.scene import load_scene
 
@@ -59,7 +66,8 @@ def measure(case: str, repeats: int) -> dict:
     nodes = made_up_coil(sac)
     step = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
     lengths = 0.5 * (np.r_[0.0, step] + np.r_[step, 0.0])  # each node's share of the polyline
-    timings: dict[str, list[float]] = {"regional_density_s": [], "herniation_s": []}
+    timings: dict[str, list[float]] = {"regional_density_s": [], "herniation_s": [], "porous_s": []}
+    surface = sac.closed_surface
     for _ in range(repeats):
         start = time.perf_counter()
         density = regional_density(sac, [nodes], [D_MM])
@@ -68,8 +76,17 @@ def measure(case: str, repeats: int) -> dict:
         herniated = herniated_length_mm(sac, wall, nodes, lengths)
         inside = int(inside_sac(sac, nodes).sum())
         timings["herniation_s"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        field = porous_field(np.asarray(surface.vertices), np.asarray(surface.faces), [nodes], [D_MM])
+        with tempfile.TemporaryDirectory() as folder:
+            write_porous_vti(Path(folder) / POROUS_VTI, field)
+            vti_bytes = (Path(folder) / POROUS_VTI).stat().st_size
+        timings["porous_s"].append(time.perf_counter() - start)
+    porous_solid = float((field.sac_fraction * (1.0 - field.porosity)).sum() / field.sac_fraction.sum())
     return dict(case=case, nodes=len(nodes), sac_volume_mm3=sac.volume_mm3, inside_nodes=inside,
                 herniated_mm=herniated, **{k: float(v) for k, v in asdict(density).items()},
+                porous_voxels=int(np.prod(field.shape)), porous_vti_bytes=vti_bytes, porous_solid=porous_solid,
+                porous_vs_total_voxel=porous_solid / density.total_voxel - 1.0,
                 **{k: float(np.median(v)) for k, v in timings.items()})
 
 
