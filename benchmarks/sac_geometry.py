@@ -59,7 +59,7 @@ def made_up_coil(sac: Sac, packing: float = 0.2) -> np.ndarray:
 
 
 def measure(case: str, repeats: int) -> dict:
-    from warpcoil.deploy import resolve_anatomy
+    from warpcoil.anatomy import resolve_anatomy
 
     anatomy = resolve_anatomy(load_scene(SCENES / f"aneurisk_{case}.toml"))
     sac, wall = anatomy.sac, anatomy.wall

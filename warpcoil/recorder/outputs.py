@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..deploy import Frame, RunResult
+from ..measure import Frame, RunResult
 from ..model import Model
 from ..settings import Scene
 from ..state import State
@@ -102,7 +102,7 @@ def write_porous(path: Path, scene: Scene, wall, sac, positions_mm: list[np.ndar
     from ..porous import porous_field
 
     if sac is None and scene.neck is not None:
-        from ..deploy import resolve_anatomy
+        from ..anatomy import resolve_anatomy
 
         sac = resolve_anatomy(scene).sac
     if sac is not None:

@@ -2,7 +2,9 @@
 
 Cell data, one value per voxel: ``sac`` (uint8 mask), ``sac_fraction``, ``porosity``,
 ``permeability_mm2`` and ``permeability_tensor_mm2`` (9 components, row-major);
-field data ``units`` = "mm". Permeabilities are +inf where a voxel holds no coil.
+field data ``units`` = "mm". Where a voxel holds no coil (porosity 1) there is no porous
+medium and the permeabilities, +inf in :class:`~warpcoil.porous.PorousField`, are stored as
+NaN: VTK's XML readers cannot parse the infinite value ranges the writer would record.
 """
 
 from __future__ import annotations
@@ -27,6 +29,10 @@ def _cells(values: np.ndarray, components: int = 1) -> np.ndarray:
     return np.ascontiguousarray(values.reshape(nx, ny, nz, components).transpose(2, 1, 0, 3).reshape(-1, components))
 
 
+def _nan_for_inf(values: np.ndarray) -> np.ndarray:
+    return np.where(np.isinf(values), np.nan, values)
+
+
 def porous_image(field: PorousField) -> vtkImageData:
     """The field as vtkImageData: voxels are cells, the origin is voxel (0, 0, 0)'s corner."""
     image = vtkImageData()
@@ -37,8 +43,9 @@ def porous_image(field: PorousField) -> vtkImageData:
         "sac": _cells(field.sac.astype(np.uint8)),
         "sac_fraction": _cells(field.sac_fraction),
         "porosity": _cells(field.porosity),
-        "permeability_mm2": _cells(field.permeability_mm2()),
-        "permeability_tensor_mm2": _cells(field.permeability_tensor_mm2().reshape(field.shape + (9,)), 9),
+        "permeability_mm2": _cells(_nan_for_inf(field.permeability_mm2())),
+        "permeability_tensor_mm2": _cells(_nan_for_inf(field.permeability_tensor_mm2()).reshape(field.shape + (9,)),
+                                          9),
     }
     for name, values in arrays.items():
         array = numpy_to_vtk(values if values.shape[1] > 1 else values[:, 0], deep=True)
