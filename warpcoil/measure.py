@@ -48,8 +48,9 @@ class Frame:
 
     time_s: float
     deployed_length_mm: float
-    push_force_uN: float  # mean over the frame's steps
-    push_force_max_uN: float  # largest single step
+    push_force_mean_uN: float  # signed mean over the frame's steps (compressive > 0)
+    push_force_peak_uN: float  # largest compressive single-step value in the frame (≥ 0)
+    push_force_rms_uN: float  # root mean square over the frame's steps
     kinetic_nJ: float
     bend_nJ: float
     twist_nJ: float
@@ -82,7 +83,9 @@ class RunResult:
     min_wall_gap_mm: float
     min_coil_gap_mm: float
     max_wall_force_uN: float
-    max_push_force_uN: float  # largest frame-mean push force (single steps ring: see the frames)
+    push_force_peak_uN: float  # largest compressive single-step push force of the run
+    push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
+    push_force_rms_uN: float  # root mean square over every step while a coil was pushed
     stored_energy_nJ: float
     final_kinetic_nJ: float
     final_bend_nJ: float
@@ -91,6 +94,9 @@ class RunResult:
     coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
     regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
+    wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
+    catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
+    catheter_direction: tuple | None = None
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
 
@@ -124,8 +130,9 @@ def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
     return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
 
 def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot, energies: dict,
-                  push: tuple[float, float]) -> Frame:
-    """Frame quantities of one member at the snapshot."""
+                  push: tuple[float, float, float]) -> Frame:
+    """Frame quantities of one member at the snapshot; ``push``: the frame's
+    push force mean, peak and RMS (µN)."""
     w, sl, m = member.world, member.nodes, model
     free = snap.free[sl] == 1
     advance = snap.advance[member.coils.start:member.coils.stop]
@@ -145,8 +152,9 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
     in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
     coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (solver.coil_contact and free.any()) else np.inf
     return Frame(
-        time_s=snap.time_s, deployed_length_mm=deployed, push_force_uN=float(push[0]),
-        push_force_max_uN=float(push[1]), kinetic_nJ=float(energies["kinetic_nJ"][w]),
+        time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
+        push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),
+        kinetic_nJ=float(energies["kinetic_nJ"][w]),
         bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
         stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
         coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if solver.coil_contact else 0,
@@ -191,10 +199,15 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
         min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
         max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-        max_push_force_uN=max(f.push_force_uN for f in frames),
+        push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
+        push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
+        push_force_rms_uN=_run_rms(frames),
         stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
         final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
-        regions=regional_densities(model, member, x, free), step_reductions=list(step_reductions), frames=frames,
+        regions=regional_densities(model, member, x, free), step_reductions=list(step_reductions),
+        wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
+        catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
+        frames=frames,
         positions_mm=[x[s] for s in local])
 
 def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.ndarray) -> dict | None:
@@ -209,3 +222,12 @@ def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.n
     density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
                                r.neck_band_mm, r.boundary_mm)
     return {k: float(v) for k, v in asdict(density).items()}
+
+
+def _run_rms(frames: list[Frame]) -> float:
+    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
+    length grew; each frame spans the same simulated time, so this is the RMS over
+    that time)."""
+    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
+              f.deployed_length_mm > before.deployed_length_mm]
+    return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
