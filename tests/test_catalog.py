@@ -156,3 +156,11 @@ def test_cli_runs_a_product_scene(tmp_path):
     assert result["coil_length_mm"] == pytest.approx(10.0, abs=line.d_mm)  # n = round(L / l0) segments
     assert any("secondary diameter" in warning for warning in result["warnings"])
     assert "coil[0]: Axium Helix: no public source gives its secondary diameter" in err
+
+
+def test_sweep_override_varies_the_size(tmp_path):
+    path = write(tmp_path, 'product = "Micrus MicroCoil Spherical 10"\nsize = "4 x 10"')
+    coil = load_scene(path, overrides={"coil.size": "3 x 6"}).coils[0]
+    assert (coil.loop_diameter_mm, coil.length_mm, coil.shape) == (3.0, 60.0, "spherical")
+    with pytest.raises(SceneError, match=r"coil\[0\]\.length_mm: is set by product"):
+        load_scene(path, overrides={"coil.length_mm": 50.0})
