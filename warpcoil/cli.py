@@ -1,4 +1,5 @@
-"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``.
+"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``,
+``warpcoil coils``.
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
@@ -128,6 +129,18 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     return EXIT_FOR_STATUS[result.status]
 
 
+def _coils(args: argparse.Namespace) -> int:
+    from .catalog import CatalogueError, listing, select
+
+    try:
+        lines = select(args.family)
+    except CatalogueError as error:
+        print(f"warpcoil coils: --family: {error}", file=sys.stderr)
+        return 2
+    sys.stdout.write(listing(lines))
+    return 0
+
+
 def _sweep(args: argparse.Namespace) -> int:
     from .model import EnsembleError
     from .preflight import SetupError
@@ -237,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("-q", "--quiet", action="store_true",
                        help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
+    coils = sub.add_parser("coils", help="list the coil catalogue (families, shapes, sizes, sources) for product = ...")
+    coils.add_argument("--family", help="only the families whose name contains this text (case-insensitive)")
+    coils.set_defaults(func=_coils)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")
