@@ -32,9 +32,9 @@ def test_extensible_elastica_reduces_to_the_euler_elastica():
 def test_cantilever_clamped_at_node_0_matches_the_extensible_elastica_at_second_order():
     """Clamp at node 0 (x = 0): the old clamp (first edge, section at its midpoint)
     gave −2.2 % at 50 segments and first order for this placement."""
-    rows = validation.cantilever_cases(resolutions=(25, 50, 100))
+    rows = validation.cantilever_cases(resolutions=(25, 50))
     assert_rows_pass(rows)
-    errors = [r.error for r in rows[:3]]
+    errors = [r.error for r in rows[:2]]
     assert errors[1] <= 5e-4
     assert validation.observed_order(errors) == pytest.approx(2.0, abs=0.3)
 
