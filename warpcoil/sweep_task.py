@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import tempfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 
 from .settings import Scene
@@ -39,12 +39,25 @@ class MemberOutput:
     files: dict[str, bytes]  # file name in the member folder → bytes
 
 
+def _with_paths(value, change):
+    """``value`` (a dataclass, tuple or list, nested) with each Path ``p`` in it
+    replaced by ``change(p)``; every other value kept."""
+    if isinstance(value, Path):
+        return change(value)
+    if is_dataclass(value) and not isinstance(value, type):
+        return replace(value, **{f.name: _with_paths(getattr(value, f.name), change)
+                                 for f in fields(value) if f.init})
+    if isinstance(value, (tuple, list)):
+        return type(value)(_with_paths(v, change) for v in value)
+    return value
+
+
 def named_files(scene: Scene) -> list[Path]:
-    """The files a scene reads: wall mesh, neck contour, pre-shape files."""
-    paths = [scene.wall.mesh if scene.wall is not None else None,
-             scene.neck.contour if scene.neck is not None else None,
-             *(coil.preshape_file for coil in scene.coils)]
-    return [Path(p) for p in paths if p is not None]
+    """The files a scene reads: every path in its settings (wall mesh, neck contour,
+    pre-shape files, and any file key added later), not the TOML file itself."""
+    found: list[Path] = []
+    _with_paths(replace(scene, source=None), lambda path: found.append(path) or path)
+    return list(dict.fromkeys(found))
 
 
 def make_task(indices: list[int], scenes: list[Scene], usd: bool, device: str | None) -> EnsembleTask:
@@ -55,13 +68,8 @@ def make_task(indices: list[int], scenes: list[Scene], usd: bool, device: str | 
 
 def _relocated(scene: Scene, moved: dict[str, Path]) -> Scene:
     """The scene with every file it names replaced by its copy on this machine."""
-    def at(path):
-        return moved[str(path)] if path is not None else None
-
-    wall = replace(scene.wall, mesh=at(scene.wall.mesh)) if scene.wall is not None else None
-    neck = replace(scene.neck, contour=at(scene.neck.contour)) if scene.neck is not None else None
-    coils = tuple(replace(c, preshape_file=at(c.preshape_file)) for c in scene.coils)
-    return replace(scene, wall=wall, neck=neck, coils=coils)
+    source = scene.source
+    return replace(_with_paths(replace(scene, source=None), lambda path: moved[str(path)]), source=source)
 
 
 def worker_device(device: str | None, worker_name, cuda_count: int) -> str | None:
@@ -125,7 +133,7 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
             usd.close()
         outputs = []
         for k, (scene, anatomy, result) in enumerate(zip(scenes, ensemble.anatomies, results)):
-            write_run(folders[k], scene, anatomy.wall, result)
+            write_run(folders[k], scene, anatomy.wall, result, sac=anatomy.sac)
             files = {p.name: p.read_bytes() for p in sorted(folders[k].iterdir()) if p.name != RESULT_JSON}
             outputs.append(MemberOutput(task.indices[k], json.loads((folders[k] / RESULT_JSON).read_text()), files))
         return outputs
