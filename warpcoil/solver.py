@@ -161,6 +161,9 @@ class Solver:
     searched again at least this often (0: every step).
     """
 
+    integrator = "symplectic"
+    kernel_modules = (contact, elastic, integrate)  # loaded before a graph capture
+
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
@@ -423,7 +426,7 @@ class Stepper:
         start = self._a.time_s
         per_graph = graph_steps(self.chunk)
         if self._use_graph and self._graph is None:
-            for module in (contact, elastic, integrate):
+            for module in self.solver.kernel_modules:
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
             try:

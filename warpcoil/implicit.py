@@ -1,0 +1,125 @@
+"""Linearly implicit Euler step (Baraff & Witkin 1998) beside the reference
+symplectic Euler: the step is set by accuracy, not by the stiffest spring.
+
+Forces, contact search, catheter kinematics and push accounting are the
+reference solver's; only the update differs (kernels/implicit.py): each coil's
+free nodes solve (M + dt² H) v* = M v + dt F through the banded block
+factorisation of H (stretching, Gauss–Newton bending, contact along its
+normals), then the reference's exact implicit damping is applied to v*; each
+coil's edge spins solve their tridiagonal system. Twist is the fastest mode
+(inertia m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of a few
+hundred µs the implicit spin update is overdamped, i.e. it relaxes the twist
+to its equilibrium each step (quasi-static twist), which is what its negligible
+inertia means physically.
+
+The contact law keeps the reference's linear onset (computed for the explicit
+step), so both integrators integrate the same forces.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .kernels import implicit as kernels
+from .kernels import integrate
+from .model import Model
+from .settings import DEFAULT_DT_SAFETY
+from .solver import Control, Solver, contact_linear_onset
+from .state import State
+
+INTEGRATORS = ("symplectic", "implicit")
+# default implicit step: the pusher advances this fraction of the contact onset c0 per step
+# (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
+IMPLICIT_ADVANCE_PER_C0 = 0.2
+IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+
+
+def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
+    """Default implicit step (s): the pusher moves IMPLICIT_ADVANCE_PER_C0 · c0 per
+    step, at most IMPLICIT_DT_MAX_S."""
+    return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
+
+
+class ImplicitSolver(Solver):
+    """A :class:`Solver` whose step is linearly implicit Euler (module docstring).
+
+    ``dt_s`` has no stability limit; the contact law's linear onset is the one the
+    reference takes at ``dt_safety`` × its explicit bound."""
+
+    integrator = "implicit"
+    kernel_modules = Solver.kernel_modules + (kernels,)
+
+    def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
+                 **kwargs):
+        kwargs.pop("allow_unstable_dt", None)
+        super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
+        self.contact_u_linear = contact_linear_onset(model, self.dt_s)  # the reference's law
+        self.dt_s = float(dt_s)
+        n, dev = model.node_count, model.device
+        mats = lambda: wp.zeros(n, dtype=wp.mat33d, device=dev)  # noqa: E731
+        vecs = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)  # noqa: E731
+        self._diag, self._upper1, self._upper2 = mats(), mats(), mats()
+        self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
+        self._stiff_start, self._stiff_end = mats(), mats()
+        self._rhs, self._y, self._v_solved = vecs(), vecs(), vecs()
+        self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
+                                                                                         device=dev)
+        self._omega_solved = wp.zeros(n, dtype=wp.float64, device=dev)
+        self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
+        self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
+
+    def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
+        """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        dt = self.dt_s if dt is None else dt
+        c = m.contact
+        self.compute_forces(state_in, control.running)
+        # catheter kinematics, releases and pusher advance as the reference has them
+        wp.launch(integrate.integrate_nodes, n, device=dev, inputs=[
+            state_in.x, state_in.v, state_in.free, state_in.advance, self.force, m.fixed, m.coil_of, m.world_of,
+            m.coil_world, m.arc_s, m.inv_mass, m.damping_c, m.damping_k, m.catheter_path, m.catheter_first,
+            m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
+            state_out.x, state_out.v, state_out.free, state_out.advance])
+        if self.coil_contact:
+            wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
+                state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
+                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self._stiff_start, self._stiff_end])
+        wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
+            state_in.x, state_in.v, self.force, state_in.free, m.has_next, m.inv_mass, m.k_stretch, m.rest_length,
+            m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
+            int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
+            self._diag, self._upper1, self._upper2, self._rhs])
+        coils = m.coil_count
+        wp.launch(kernels.solve_coils, coils, device=dev, inputs=[
+            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, self._diag,
+            self._upper1, self._upper2, self._rhs, state_out.v, self._inv_d, self._lower1, self._lower2, self._y,
+            self._v_solved])
+        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
+            state_in.x, self._v_solved, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass,
+            m.damping_c, m.damping_k, dt, state_out.x, state_out.v])
+        wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
+            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.has_next,
+            state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
+            dt, self._spin_c, self._spin_d, self._omega_solved])
+        wp.launch(kernels.spin_frames, n, device=dev, inputs=[
+            state_in.x, state_out.x, state_in.m1, state_in.omega, self._omega_solved, state_out.free, m.has_next,
+            m.world_of, control.running, dt, state_out.m1, state_out.omega])
+        wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
+            self.push_share, m.world_node_range, self.push_accumulator])
+        state_out.time_s = state_in.time_s + dt
+
+    def unstable_reason(self, problem: str, time_s: float) -> str:
+        return (f"{problem} at t = {time_s:.6f} s (implicit step dt = {self.dt_s:.3e} s): reduce simulation.dt_s, "
+                f"or soften the contact (contact.P0_uN, larger contact.c0_mm)")
+
+
+def make_solver(model: Model, integrator: str, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY,
+                allow_unstable_dt: bool = False, **kwargs) -> Solver:
+    """The solver of ``integrator`` ("symplectic": the reference, "implicit")."""
+    if integrator == "implicit":
+        return ImplicitSolver(model, dt_s=dt_s, dt_safety=dt_safety, **kwargs)
+    if integrator != "symplectic":
+        raise ValueError(f"unknown integrator {integrator!r}; use one of {INTEGRATORS}")
+    return Solver(model, dt_s=dt_s, dt_safety=dt_safety, allow_unstable_dt=allow_unstable_dt, **kwargs)

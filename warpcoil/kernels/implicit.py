@@ -1,0 +1,541 @@
+"""Linearly implicit Euler (Baraff & Witkin 1998): the system matrix and its
+per-coil banded solve.
+
+One step, per free node (velocity form, M lumped masses, H ≈ ∂²W/∂x²)::
+
+    (M + dt² H) v* = M v + dt F(x)          (v* of nodes in the catheter: the pusher's)
+    v' = v* damped exactly as the reference step does (damped_speed)
+    x' = x + dt v'
+
+and per free edge, its spin ω (twist inertia J, twist damping b)::
+
+    (J + dt b + dt² H_θ) ω' = J ω + dt T
+
+H is a positive semi-definite approximation of the Hessian, banded along
+each coil (3×3 blocks, bandwidth 2), so every coil is solved by one thread
+with a block LDLᵀ factorisation (sequential along the coil, parallel across
+coils and worlds; no sums across threads, so an ensemble member equals its
+single run):
+
+* stretching: the exact edge Hessian k_s [(1 − l̄/l)₊ (I − t tᵀ) + t tᵀ]
+  (its negative part for a compressed edge dropped);
+* bending: Gauss–Newton, k_b Jᵀ J with κ ≈ t₁ − t₀ (exact for small bends of
+  a straight rod: the squared second difference);
+* contact: per contact, the law's stiffness k(h) along the normal n. A wall
+  contact adds k n nᵀ to its node; a coil–coil contact (gap gradient w over
+  the two edges' four nodes, Σ|w| = 2) adds 2 k |w_a| n nᵀ to each node a
+  (Gershgorin: the diagonal dominates the pair's true k w wᵀ ⊗ n nᵀ, so the
+  off-band coupling can be left out without losing stability);
+* twist: k_t on the twist difference of neighbouring edges, plus the bending
+  energy's dependence on the frame angle (Gauss–Newton ½ k_b |K̄|²), a
+  tridiagonal system per coil.
+
+For a mode of stiffness k whose matrix entry is a ≥ k/2 the step is stable
+at any dt (the amplification matrix has determinant m/(m + dt² a) < 1 and
+trace ≥ −1 − det), so H may approximate the Hessian as long as it does not
+underestimate it by more than half.
+"""
+
+import warp as wp
+
+from .contact import (
+    NO_LIST,
+    bonded,
+    contact_stiffness,
+    edge_in_contact_pass,
+    edge_is_obstacle,
+    from_fixed,
+    segment_closest_params,
+    to_fixed,
+    vec3l,
+)
+from .elastic import bonded_span
+from .integrate import damped_speed
+from .rod import F64_0, F64_1, director_normal, edge_valid, rotate_about, transport, vertex_valid
+
+
+@wp.func
+def sym_outer(n: wp.vec3d, k: wp.float64) -> wp.mat33d:
+    return k * wp.outer(n, n)
+
+
+@wp.func
+def edge_stretch_hessian(x: wp.array(dtype=wp.vec3d), k_stretch: wp.array(dtype=wp.float64),
+                         rest_length: wp.array(dtype=wp.float64), e: int) -> wp.mat33d:
+    """∂²W_s/∂x_{e+1}² of edge e (µN/mm), its compressive (negative) part dropped."""
+    d = x[e + 1] - x[e]
+    length = wp.length(d)
+    t = d / length
+    tt = wp.outer(t, t)
+    lateral = wp.max(F64_1 - rest_length[e] / length, F64_0)
+    eye = wp.identity(n=3, dtype=wp.float64)
+    return k_stretch[e] * (lateral * (eye - tt) + tt)
+
+
+@wp.func
+def edge_jacobian(x: wp.array(dtype=wp.vec3d), e: int) -> wp.mat33d:
+    """∂t_e/∂x_{e+1} = (I − t tᵀ)/|e| (1/mm)."""
+    d = x[e + 1] - x[e]
+    length = wp.length(d)
+    t = d / length
+    return (wp.identity(n=3, dtype=wp.float64) - wp.outer(t, t)) / length
+
+
+@wp.func
+def vertex_jacobian(x: wp.array(dtype=wp.vec3d), j: int, node: int) -> wp.mat33d:
+    """∂(t_j − t_{j-1})/∂x_node for node j−1, j or j+1 of vertex j."""
+    if node == j - 1:
+        return edge_jacobian(x, j - 1)
+    if node == j + 1:
+        return edge_jacobian(x, j)
+    return -(edge_jacobian(x, j - 1) + edge_jacobian(x, j))
+
+
+@wp.func
+def bend_block(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), k_bend: wp.array(dtype=wp.float64),
+               j: int, a: int, b: int) -> wp.mat33d:
+    """Gauss–Newton block (a, b) of vertex j's bending Hessian, k_b J_aᵀ J_b (zero
+    when j is not a vertex or a, b are not among its nodes)."""
+    zero = wp.mat33d()
+    if j < 1 or j + 1 >= has_next.shape[0]:
+        return zero
+    if not vertex_valid(has_next, j):
+        return zero
+    if a < j - 1 or a > j + 1 or b < j - 1 or b > j + 1:
+        return zero
+    return k_bend[j] * (vertex_jacobian(x, j, a) * vertex_jacobian(x, j, b))
+
+
+@wp.func
+def fold_stiffness(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
+                   node_radius: wp.array(dtype=wp.float64), i: int, span: int, p0: wp.float64, c0: wp.float64,
+                   u_linear: wp.float64) -> wp.mat33d:
+    """Diagonal (Gershgorin, 2 k n nᵀ) stiffness of node i's fold contacts (elastic.fold_force)."""
+    h = wp.mat33d()
+    for side in range(2):
+        j = i + 2 * span
+        first = i
+        if side == 1:
+            j = i - 2 * span
+            first = j
+        if bonded_span(has_next, first, 2 * span):
+            delta = x[i] - x[j]
+            dist = wp.length(delta)
+            if dist > wp.float64(1.0e-12):
+                k = contact_stiffness(dist - node_radius[i] - node_radius[j], p0, c0, u_linear)
+                h = h + sym_outer(delta / dist, wp.float64(2.0) * k)
+    return h
+
+
+@wp.func
+def to_fixed_sym(m: wp.mat33d):
+    """A symmetric 3×3 block as two fixed-point vectors (diagonal, then xy xz yz)."""
+    return to_fixed(wp.vec3d(m[0, 0], m[1, 1], m[2, 2])), to_fixed(wp.vec3d(m[0, 1], m[0, 2], m[1, 2]))
+
+
+@wp.func
+def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
+    d = from_fixed(diag)
+    o = from_fixed(off)
+    return wp.mat33d(d[0], o[0], o[1], o[0], d[1], o[2], o[1], o[2], d[2])
+
+
+@wp.func
+def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                   fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                   mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
+                   c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+    """Diagonal stiffness blocks (start, end node of edge a) of edge b's contact on
+    edge a, for exactly the pairs contact.pair_contact evaluates."""
+    start = wp.mat33d()
+    end = wp.mat33d()
+    if edge_is_obstacle(free, has_next, fixed, b):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        pb0 = x[b]
+        pb1 = x[b + 1]
+        apart = wp.length(mid[a] - mid[b])
+        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+            st = segment_closest_params(pa0, pa1, pb0, pb1)
+            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+            dist = wp.length(delta)
+            gap = dist - node_radius[a] - node_radius[b]
+            if gap < c0 and dist > wp.float64(1.0e-12):
+                nn = sym_outer(delta / dist, wp.float64(2.0) * contact_stiffness(gap, p0, c0, u_linear))
+                start = (F64_1 - st[0]) * nn
+                end = st[0] * nn
+    return start, end
+
+
+@wp.kernel
+def edge_contact_stiffness(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.array(dtype=wp.float64),
+    grid_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+):
+    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
+    as contact.edge_contact finds its partners; fixed-point sums, so the result
+    does not depend on the order the partners are found in."""
+    a = wp.tid()
+    s_diag = vec3l()
+    s_off = vec3l()
+    e_diag = vec3l()
+    e_off = vec3l()
+    w = world_of[a]
+    radius = query_radius[w]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
+        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        listed = neighbour_count[a]
+        if listed != NO_LIST:
+            for k in range(listed):
+                start, end = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, neighbours[a, k],
+                                            reach_a, p0, c0, u_linear, radius)
+                d, o = to_fixed_sym(start)
+                s_diag = s_diag + d
+                s_off = s_off + o
+                d, o = to_fixed_sym(end)
+                e_diag = e_diag + d
+                e_off = e_off + o
+        else:
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+            b = int(0)
+            while wp.hash_grid_query_next(query, b):
+                if not bonded(coil_of, exclusion, a, b):
+                    start, end = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, p0,
+                                                c0, u_linear, radius)
+                    d, o = to_fixed_sym(start)
+                    s_diag = s_diag + d
+                    s_off = s_off + o
+                    d, o = to_fixed_sym(end)
+                    e_diag = e_diag + d
+                    e_off = e_off + o
+    stiff_start[a] = from_fixed_sym(s_diag, s_off)
+    stiff_end[a] = from_fixed_sym(e_diag, e_off)
+
+
+@wp.kernel
+def assemble_blocks(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    force: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    k_stretch: wp.array(dtype=wp.float64),
+    rest_length: wp.array(dtype=wp.float64),
+    k_bend: wp.array(dtype=wp.float64),
+    wall_force: wp.array(dtype=wp.vec3d),
+    wall_distance: wp.array(dtype=wp.float64),
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+    coil_contact: int,
+    node_radius: wp.array(dtype=wp.float64),
+    fold_span: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    dt: wp.float64,
+    diag: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    rhs: wp.array(dtype=wp.vec3d),
+):
+    """Row i of M + dt² H: its diagonal block and its blocks (i, i+1), (i, i+2)
+    (g, µN·s²/mm), and M v + dt F (g·mm/s)."""
+    i = wp.tid()
+    n = x.shape[0]
+    h = wp.mat33d()
+    u1 = wp.mat33d()
+    u2 = wp.mat33d()
+    if has_next[i] != 0:
+        ks = edge_stretch_hessian(x, k_stretch, rest_length, i)
+        h = h + ks
+        u1 = u1 - ks
+    if i >= 1:
+        if has_next[i - 1] != 0:
+            h = h + edge_stretch_hessian(x, k_stretch, rest_length, i - 1)
+    for j in range(i - 1, i + 2):
+        h = h + bend_block(x, has_next, k_bend, j, i, i)
+    if i + 1 < n:
+        u1 = u1 + bend_block(x, has_next, k_bend, i, i, i + 1) + bend_block(x, has_next, k_bend, i + 1, i, i + 1)
+    if i + 2 < n:
+        u2 = u2 + bend_block(x, has_next, k_bend, i + 1, i, i + 2)
+    if free[i] != 0:
+        fw = wall_force[i]
+        magnitude = wp.length(fw)
+        if magnitude > F64_0:
+            k = contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear)
+            h = h + sym_outer(fw / magnitude, k)
+        if coil_contact != 0:
+            if has_next[i] != 0:
+                h = h + stiff_start[i]
+            if i >= 1:
+                if has_next[i - 1] != 0:
+                    h = h + stiff_end[i - 1]
+        h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
+    mass = F64_1 / inv_mass[i]
+    dt2 = dt * dt
+    diag[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
+    upper1[i] = dt2 * u1
+    upper2[i] = dt2 * u2
+    rhs[i] = mass * v[i] + dt * force[i]
+
+
+@wp.func
+def unknown(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), i: int) -> bool:
+    return free[i] != 0 and fixed[i] == 0
+
+
+@wp.kernel
+def solve_coils(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    diag: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    rhs: wp.array(dtype=wp.vec3d),
+    v_known: wp.array(dtype=wp.vec3d),
+    inv_d: wp.array(dtype=wp.mat33d),
+    lower1: wp.array(dtype=wp.mat33d),
+    lower2: wp.array(dtype=wp.mat33d),
+    y: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    """One coil: (M + dt² H) v* = M v + dt F for its free nodes, the others held at
+    ``v_known`` (their coupling moved to the right side), by block LDLᵀ:
+    L₁ = block (i, i−1) of L, L₂ = (i, i−2), D⁻¹ per node."""
+    c = wp.tid()
+    if running[coil_world[c]] == 0:
+        return
+    first = coil_first[c]
+    last = coil_last[c]
+    eye = wp.identity(n=3, dtype=wp.float64)
+    zero = wp.mat33d()
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    for i in range(first, last + 1):
+        if not unknown(free, fixed, i):
+            inv_d[i] = eye
+            lower1[i] = zero
+            lower2[i] = zero
+            y[i] = v_known[i]
+            continue
+        b = rhs[i]
+        a1 = zero  # block (i, i−1) among the unknowns
+        a2 = zero  # block (i, i−2)
+        if i - 1 >= first:
+            blk = wp.transpose(upper1[i - 1])
+            if unknown(free, fixed, i - 1):
+                a1 = blk
+            else:
+                b = b - blk * v_known[i - 1]
+        if i - 2 >= first:
+            blk = wp.transpose(upper2[i - 2])
+            if unknown(free, fixed, i - 2):
+                a2 = blk
+            else:
+                b = b - blk * v_known[i - 2]
+        if i + 1 <= last:
+            if not unknown(free, fixed, i + 1):
+                b = b - upper1[i] * v_known[i + 1]
+        if i + 2 <= last:
+            if not unknown(free, fixed, i + 2):
+                b = b - upper2[i] * v_known[i + 2]
+        l2 = zero
+        l1 = zero
+        yi = b
+        d = diag[i]
+        if i - 2 >= first:
+            l2 = a2 * inv_d[i - 2]
+            yi = yi - l2 * y[i - 2]
+            d = d - a2 * wp.transpose(l2)
+        if i - 1 >= first:
+            c1 = a1
+            if i - 2 >= first:
+                c1 = a1 - a2 * wp.transpose(lower1[i - 1])
+            l1 = c1 * inv_d[i - 1]
+            yi = yi - l1 * y[i - 1]
+            d = d - c1 * wp.transpose(l1)
+        inv_d[i] = wp.inverse(d)
+        lower1[i] = l1
+        lower2[i] = l2
+        y[i] = yi
+    next1 = zv
+    next2 = zv
+    for k in range(last - first + 1):
+        i = last - k
+        vi = inv_d[i] * y[i]
+        if i + 1 <= last:
+            vi = vi - wp.transpose(lower1[i + 1]) * next1
+        if i + 2 <= last:
+            vi = vi - wp.transpose(lower2[i + 2]) * next2
+        if not unknown(free, fixed, i):
+            vi = v_known[i]
+        v_out[i] = vi
+        next2 = next1
+        next1 = vi
+
+
+@wp.func
+def spin_free(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), e: int) -> bool:
+    """Edge e spins (as integrate.update_frames has it): it exists and both nodes are free."""
+    if not edge_valid(has_next, e):
+        return False
+    return free[e] != 0 and free[e + 1] != 0
+
+
+@wp.kernel
+def solve_spin(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    omega: wp.array(dtype=wp.float64),
+    torque: wp.array(dtype=wp.float64),
+    inv_inertia: wp.array(dtype=wp.float64),
+    twist_damping: wp.array(dtype=wp.float64),
+    k_twist: wp.array(dtype=wp.float64),
+    k_bend: wp.array(dtype=wp.float64),
+    rest_K0: wp.array(dtype=wp.vec2d),
+    rest_K1: wp.array(dtype=wp.vec2d),
+    dt: wp.float64,
+    scratch_c: wp.array(dtype=wp.float64),
+    scratch_d: wp.array(dtype=wp.float64),
+    omega_out: wp.array(dtype=wp.float64),
+):
+    """One coil's edge spins (rad/s): (J + dt b + dt² H_θ) ω' = J ω + dt T, H_θ
+    tridiagonal (twist k_t between neighbouring edges; bending ½ k_b |K̄|² on
+    each edge of a vertex); edges that do not spin keep ω' = 0. Thomas algorithm."""
+    c = wp.tid()
+    if running[coil_world[c]] == 0:
+        return
+    first = coil_first[c]
+    last = coil_last[c]
+    dt2 = dt * dt
+    half = wp.float64(0.5)
+    prev_c = F64_0
+    prev_d = F64_0
+    for e in range(first, last):
+        if not spin_free(free, has_next, e):
+            scratch_c[e] = F64_0
+            scratch_d[e] = F64_0
+            prev_c = F64_0
+            prev_d = F64_0
+            continue
+        inertia = F64_1 / inv_inertia[e]
+        h = F64_0
+        lower = F64_0
+        upper = F64_0
+        if vertex_valid(has_next, e):  # vertex e: edges e−1, e
+            h = h + half * k_bend[e] * wp.length_sq(rest_K1[e]) + k_twist[e]
+            if spin_free(free, has_next, e - 1):
+                lower = -dt2 * k_twist[e]
+        if e + 1 < has_next.shape[0]:
+            if vertex_valid(has_next, e + 1):  # vertex e+1: edges e, e+1
+                h = h + half * k_bend[e + 1] * wp.length_sq(rest_K0[e + 1]) + k_twist[e + 1]
+                if spin_free(free, has_next, e + 1):
+                    upper = -dt2 * k_twist[e + 1]
+        a = inertia + dt * twist_damping[e] + dt2 * h
+        r = inertia * omega[e] + dt * torque[e]
+        denom = a - lower * prev_c
+        prev_c = upper / denom
+        prev_d = (r - lower * prev_d) / denom
+        scratch_c[e] = prev_c
+        scratch_d[e] = prev_d
+    following = F64_0
+    for k in range(last - first):
+        e = last - 1 - k
+        w = F64_0
+        if spin_free(free, has_next, e):
+            w = scratch_d[e] - scratch_c[e] * following
+        omega_out[e] = w
+        following = w
+    omega_out[last] = F64_0
+
+
+@wp.kernel
+def finish_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_solved: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    """Free node i: the solved velocity, damped exactly as the reference step damps
+    (implicit, along the velocity), then x' = x + dt v'. Other nodes keep what
+    integrate.integrate_nodes gave them (catheter, clamp, stopped world)."""
+    i = wp.tid()
+    if running[world_of[i]] == 0 or not unknown(free_out, fixed, i):
+        return
+    v = v_solved[i]
+    speed = wp.length(v)
+    if speed > F64_0:
+        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+    v_out[i] = v
+    x_out[i] = x_in[i] + dt * v
+
+
+@wp.kernel
+def spin_frames(
+    x_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    m1_in: wp.array(dtype=wp.vec3d),
+    omega_in: wp.array(dtype=wp.float64),
+    omega_solved: wp.array(dtype=wp.float64),
+    free_out: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    dt: wp.float64,
+    m1_out: wp.array(dtype=wp.vec3d),
+    omega_out: wp.array(dtype=wp.float64),
+):
+    """As integrate.update_frames, with the solved spin: transport each edge's
+    director to its new tangent, then turn it by ω' dt (spinning edges only)."""
+    i = wp.tid()
+    if running[world_of[i]] == 0:
+        m1_out[i] = m1_in[i]
+        omega_out[i] = omega_in[i]
+        return
+    if not edge_valid(has_next, i):
+        m1_out[i] = m1_in[i]
+        omega_out[i] = F64_0
+        return
+    t_old = wp.normalize(x_in[i + 1] - x_in[i])
+    t_new = wp.normalize(x_out[i + 1] - x_out[i])
+    m = transport(m1_in[i], t_old, t_new)
+    omega = F64_0
+    if spin_free(free_out, has_next, i):
+        omega = omega_solved[i]
+        m = rotate_about(m, t_new, omega * dt)
+    m1_out[i] = director_normal(m, t_new)
+    omega_out[i] = omega
