@@ -61,10 +61,9 @@ class ImplicitSolver(Solver):
         self._diag, self._upper1, self._upper2 = mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
-        self._rhs, self._y, self._v_solved = vecs(), vecs(), vecs()
+        self._rhs, self._y = vecs(), vecs()
         self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
                                                                                          device=dev)
-        self._omega_solved = wp.zeros(n, dtype=wp.float64, device=dev)
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
 
@@ -95,17 +94,11 @@ class ImplicitSolver(Solver):
         wp.launch(kernels.solve_coils, coils, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, self._diag,
             self._upper1, self._upper2, self._rhs, state_out.v, self._inv_d, self._lower1, self._lower2, self._y,
-            self._v_solved])
-        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-            state_in.x, self._v_solved, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass,
-            m.damping_c, m.damping_k, dt, state_out.x, state_out.v])
+            state_in.x, m.inv_mass, m.damping_c, m.damping_k, dt, state_out.x])
         wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.has_next,
             state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
-            dt, self._spin_c, self._spin_d, self._omega_solved])
-        wp.launch(kernels.spin_frames, n, device=dev, inputs=[
-            state_in.x, state_out.x, state_in.m1, state_in.omega, self._omega_solved, state_out.free, m.has_next,
-            m.world_of, control.running, dt, state_out.m1, state_out.omega])
+            state_in.x, state_out.x, state_in.m1, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt

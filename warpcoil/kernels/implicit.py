@@ -82,28 +82,22 @@ def edge_jacobian(x: wp.array(dtype=wp.vec3d), e: int) -> wp.mat33d:
 
 
 @wp.func
-def vertex_jacobian(x: wp.array(dtype=wp.vec3d), j: int, node: int) -> wp.mat33d:
-    """∂(t_j − t_{j-1})/∂x_node for node j−1, j or j+1 of vertex j."""
-    if node == j - 1:
-        return edge_jacobian(x, j - 1)
-    if node == j + 1:
-        return edge_jacobian(x, j)
-    return -(edge_jacobian(x, j - 1) + edge_jacobian(x, j))
+def edge_jacobian_or_zero(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), e: int) -> wp.mat33d:
+    if e < 0 or e >= has_next.shape[0]:
+        return wp.mat33d()
+    if has_next[e] == 0:
+        return wp.mat33d()
+    return edge_jacobian(x, e)
 
 
 @wp.func
-def bend_block(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), k_bend: wp.array(dtype=wp.float64),
-               j: int, a: int, b: int) -> wp.mat33d:
-    """Gauss–Newton block (a, b) of vertex j's bending Hessian, k_b J_aᵀ J_b (zero
-    when j is not a vertex or a, b are not among its nodes)."""
-    zero = wp.mat33d()
+def vertex_bends(has_next: wp.array(dtype=wp.int32), k_bend: wp.array(dtype=wp.float64), j: int) -> wp.float64:
+    """k_b of vertex j, 0 where j is not a vertex."""
     if j < 1 or j + 1 >= has_next.shape[0]:
-        return zero
+        return F64_0
     if not vertex_valid(has_next, j):
-        return zero
-    if a < j - 1 or a > j + 1 or b < j - 1 or b > j + 1:
-        return zero
-    return k_bend[j] * (vertex_jacobian(x, j, a) * vertex_jacobian(x, j, b))
+        return F64_0
+    return k_bend[j]
 
 
 @wp.func
@@ -271,12 +265,17 @@ def assemble_blocks(
     if i >= 1:
         if has_next[i - 1] != 0:
             h = h + edge_stretch_hessian(x, k_stretch, rest_length, i - 1)
-    for j in range(i - 1, i + 2):
-        h = h + bend_block(x, has_next, k_bend, j, i, i)
-    if i + 1 < n:
-        u1 = u1 + bend_block(x, has_next, k_bend, i, i, i + 1) + bend_block(x, has_next, k_bend, i + 1, i, i + 1)
-    if i + 2 < n:
-        u2 = u2 + bend_block(x, has_next, k_bend, i + 1, i, i + 2)
+    # bending (Gauss–Newton): vertex j has J = (G_{j-1}, −G_{j-1} − G_j, G_j), G_e = ∂t_e/∂x_{e+1}
+    g_1 = edge_jacobian_or_zero(x, has_next, i - 1)
+    g0 = edge_jacobian_or_zero(x, has_next, i)
+    g1 = edge_jacobian_or_zero(x, has_next, i + 1)
+    kb_prev = vertex_bends(has_next, k_bend, i - 1)  # vertex i−1: node i is its next node
+    kb_mid = vertex_bends(has_next, k_bend, i)  # vertex i: node i is its middle node
+    kb_next = vertex_bends(has_next, k_bend, i + 1)  # vertex i+1: node i is its previous node
+    mid_i = -(g_1 + g0)
+    h = h + kb_prev * (g_1 * g_1) + kb_mid * (mid_i * mid_i) + kb_next * (g0 * g0)
+    u1 = u1 + kb_mid * (mid_i * g0) - kb_next * (g0 * (g0 + g1))
+    u2 = u2 + kb_next * (g0 * g1)
     if free[i] != 0:
         fw = wall_force[i]
         magnitude = wp.length(fw)
@@ -320,11 +319,19 @@ def solve_coils(
     lower1: wp.array(dtype=wp.mat33d),
     lower2: wp.array(dtype=wp.mat33d),
     y: wp.array(dtype=wp.vec3d),
-    v_out: wp.array(dtype=wp.vec3d),
+    x_in: wp.array(dtype=wp.vec3d),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
 ):
     """One coil: (M + dt² H) v* = M v + dt F for its free nodes, the others held at
-    ``v_known`` (their coupling moved to the right side), by block LDLᵀ:
-    L₁ = block (i, i−1) of L, L₂ = (i, i−2), D⁻¹ per node."""
+    ``v_known`` (their coupling moved to the right side), by block LDLᵀ
+    (L₁ = block (i, i−1) of L, L₂ = (i, i−2), D⁻¹ per node); then each free node's
+    v* is damped exactly as the reference step damps (implicit, along the
+    velocity) and x' = x + dt v'. Nodes held keep what integrate.integrate_nodes
+    gave them in ``v_known`` (= v_out) and ``x_out``."""
     c = wp.tid()
     if running[coil_world[c]] == 0:
         return
@@ -389,11 +396,17 @@ def solve_coils(
             vi = vi - wp.transpose(lower1[i + 1]) * next1
         if i + 2 <= last:
             vi = vi - wp.transpose(lower2[i + 2]) * next2
-        if not unknown(free, fixed, i):
-            vi = v_known[i]
-        v_out[i] = vi
-        next2 = next1
-        next1 = vi
+        if unknown(free, fixed, i):
+            next2 = next1
+            next1 = vi
+            speed = wp.length(vi)
+            if speed > F64_0:
+                vi = vi * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+            v_known[i] = vi
+            x_out[i] = x_in[i] + dt * vi
+        else:
+            next2 = next1
+            next1 = v_known[i]
 
 
 @wp.func
@@ -420,19 +433,29 @@ def solve_spin(
     k_bend: wp.array(dtype=wp.float64),
     rest_K0: wp.array(dtype=wp.vec2d),
     rest_K1: wp.array(dtype=wp.vec2d),
+    x_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    m1_in: wp.array(dtype=wp.vec3d),
     dt: wp.float64,
     scratch_c: wp.array(dtype=wp.float64),
     scratch_d: wp.array(dtype=wp.float64),
+    m1_out: wp.array(dtype=wp.vec3d),
     omega_out: wp.array(dtype=wp.float64),
 ):
     """One coil's edge spins (rad/s): (J + dt b + dt² H_θ) ω' = J ω + dt T, H_θ
     tridiagonal (twist k_t between neighbouring edges; bending ½ k_b |K̄|² on
-    each edge of a vertex); edges that do not spin keep ω' = 0. Thomas algorithm."""
+    each edge of a vertex), by the Thomas algorithm; edges that do not spin
+    keep ω' = 0. Then, as integrate.update_frames: each edge's director is
+    carried to its new tangent by parallel transport and turned by ω' dt.
+    A stopped world keeps its directors and spins."""
     c = wp.tid()
-    if running[coil_world[c]] == 0:
-        return
     first = coil_first[c]
     last = coil_last[c]
+    if running[coil_world[c]] == 0:
+        for e in range(first, last + 1):
+            m1_out[e] = m1_in[e]
+            omega_out[e] = omega[e]
+        return
     dt2 = dt * dt
     half = wp.float64(0.5)
     prev_c = F64_0
@@ -465,77 +488,20 @@ def solve_spin(
         scratch_c[e] = prev_c
         scratch_d[e] = prev_d
     following = F64_0
-    for k in range(last - first):
-        e = last - 1 - k
+    for k in range(last - first + 1):
+        e = last - k
+        if not edge_valid(has_next, e):
+            m1_out[e] = m1_in[e]
+            omega_out[e] = F64_0
+            following = F64_0
+            continue
+        t_old = wp.normalize(x_in[e + 1] - x_in[e])
+        t_new = wp.normalize(x_out[e + 1] - x_out[e])
+        m = transport(m1_in[e], t_old, t_new)
         w = F64_0
         if spin_free(free, has_next, e):
             w = scratch_d[e] - scratch_c[e] * following
+            m = rotate_about(m, t_new, w * dt)
+        m1_out[e] = director_normal(m, t_new)
         omega_out[e] = w
         following = w
-    omega_out[last] = F64_0
-
-
-@wp.kernel
-def finish_nodes(
-    x_in: wp.array(dtype=wp.vec3d),
-    v_solved: wp.array(dtype=wp.vec3d),
-    free_out: wp.array(dtype=wp.int32),
-    fixed: wp.array(dtype=wp.int32),
-    world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    damping_c: wp.array(dtype=wp.float64),
-    damping_k: wp.float64,
-    dt: wp.float64,
-    x_out: wp.array(dtype=wp.vec3d),
-    v_out: wp.array(dtype=wp.vec3d),
-):
-    """Free node i: the solved velocity, damped exactly as the reference step damps
-    (implicit, along the velocity), then x' = x + dt v'. Other nodes keep what
-    integrate.integrate_nodes gave them (catheter, clamp, stopped world)."""
-    i = wp.tid()
-    if running[world_of[i]] == 0 or not unknown(free_out, fixed, i):
-        return
-    v = v_solved[i]
-    speed = wp.length(v)
-    if speed > F64_0:
-        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
-    v_out[i] = v
-    x_out[i] = x_in[i] + dt * v
-
-
-@wp.kernel
-def spin_frames(
-    x_in: wp.array(dtype=wp.vec3d),
-    x_out: wp.array(dtype=wp.vec3d),
-    m1_in: wp.array(dtype=wp.vec3d),
-    omega_in: wp.array(dtype=wp.float64),
-    omega_solved: wp.array(dtype=wp.float64),
-    free_out: wp.array(dtype=wp.int32),
-    has_next: wp.array(dtype=wp.int32),
-    world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
-    dt: wp.float64,
-    m1_out: wp.array(dtype=wp.vec3d),
-    omega_out: wp.array(dtype=wp.float64),
-):
-    """As integrate.update_frames, with the solved spin: transport each edge's
-    director to its new tangent, then turn it by ω' dt (spinning edges only)."""
-    i = wp.tid()
-    if running[world_of[i]] == 0:
-        m1_out[i] = m1_in[i]
-        omega_out[i] = omega_in[i]
-        return
-    if not edge_valid(has_next, i):
-        m1_out[i] = m1_in[i]
-        omega_out[i] = F64_0
-        return
-    t_old = wp.normalize(x_in[i + 1] - x_in[i])
-    t_new = wp.normalize(x_out[i + 1] - x_out[i])
-    m = transport(m1_in[i], t_old, t_new)
-    omega = F64_0
-    if spin_free(free_out, has_next, i):
-        omega = omega_solved[i]
-        m = rotate_about(m, t_new, omega * dt)
-    m1_out[i] = director_normal(m, t_new)
-    omega_out[i] = omega
