@@ -84,9 +84,9 @@ class ImplicitSolver(Solver):
                 state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                self._stiff_start, self._stiff_end])
+                self.coil_contacts, self._stiff_start, self._stiff_end])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
-            state_in.x, state_in.v, self.force, state_in.free, m.has_next, m.inv_mass, m.k_stretch, m.rest_length,
+            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.inv_mass, m.k_stretch, m.rest_length,
             m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._upper1, self._upper2, self._rhs])

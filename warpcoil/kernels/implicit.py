@@ -181,12 +181,15 @@ def edge_contact_stiffness(
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
+    touching: wp.array(dtype=wp.int32),
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
-    as contact.edge_contact finds its partners; fixed-point sums, so the result
-    does not depend on the order the partners are found in."""
+    as contact.edge_contact finds its partners, for the edges it found touching
+    (``touching``: its per-edge count of touching pairs at the same state);
+    fixed-point sums, so the result does not depend on the order the partners
+    are found in."""
     a = wp.tid()
     s_diag = vec3l()
     s_off = vec3l()
@@ -194,7 +197,7 @@ def edge_contact_stiffness(
     e_off = vec3l()
     w = world_of[a]
     radius = query_radius[w]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and touching[a] > 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         listed = neighbour_count[a]
         if listed != NO_LIST:
@@ -230,6 +233,7 @@ def assemble_blocks(
     v: wp.array(dtype=wp.vec3d),
     force: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
+    free_next: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     k_stretch: wp.array(dtype=wp.float64),
@@ -252,12 +256,25 @@ def assemble_blocks(
     rhs: wp.array(dtype=wp.vec3d),
 ):
     """Row i of M + dt² H: its diagonal block and its blocks (i, i+1), (i, i+2)
-    (g, µN·s²/mm), and M v + dt F (g·mm/s)."""
+    (g, µN·s²/mm), and M v + dt F (g·mm/s). Rows with no node within two that is
+    free before or after the step (deep in the catheter: no coupling to an
+    unknown) are M alone."""
     i = wp.tid()
     n = x.shape[0]
     h = wp.mat33d()
     u1 = wp.mat33d()
     u2 = wp.mat33d()
+    mass = F64_1 / inv_mass[i]
+    near_free = bool(False)
+    for j in range(wp.max(i - 2, 0), wp.min(i + 3, n)):
+        if free[j] != 0 or free_next[j] != 0:
+            near_free = True
+    if not near_free:
+        diag[i] = mass * wp.identity(n=3, dtype=wp.float64)
+        upper1[i] = h
+        upper2[i] = h
+        rhs[i] = mass * v[i] + dt * force[i]
+        return
     if has_next[i] != 0:
         ks = edge_stretch_hessian(x, k_stretch, rest_length, i)
         h = h + ks
@@ -289,7 +306,6 @@ def assemble_blocks(
                 if has_next[i - 1] != 0:
                     h = h + stiff_end[i - 1]
         h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
-    mass = F64_1 / inv_mass[i]
     dt2 = dt * dt
     diag[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
     upper1[i] = dt2 * u1
