@@ -38,3 +38,7 @@ def test_free_release_from_catheter_forms_the_helix():
 
 def test_undamped_energy_is_conserved():
     assert_rows_pass(validation.energy_conservation())
+
+
+def test_implicit_step_converges_damps_as_stated_and_keeps_the_static_cases():
+    assert_rows_pass(validation.implicit_cases())

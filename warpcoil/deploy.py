@@ -249,7 +249,7 @@ class Ensemble:
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
-                                f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+                                f"steps per frame, integrator) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
         self.solver = make_solver(self.model, self.integrator, steps[0][0], dt_safety=sims[0].dt_safety,
                                   allow_unstable_dt=sims[0].allow_unstable_dt)
