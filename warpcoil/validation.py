@@ -252,15 +252,19 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DE
 
 
 def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
-                 segment_length_mm: float | None = None, mass_scale: float = 1.0) -> list[CaseResult]:
-    """The helical coil packed in a straight catheter and pushed out into empty space."""
+                 segment_length_mm: float | None = None, mass_scale: float = 1.0,
+                 integrator: str = "symplectic") -> list[CaseResult]:
+    """The helical coil packed in a straight catheter and pushed out into empty space
+    (``integrator`` "implicit": at its default step for this push speed)."""
     spec = _helix_spec(segment_length_mm)
     settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s, mass_scale=mass_scale)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
     control = Control.create(model, active_coil=0, push_speed_mm_s=push_speed_mm_s)
-    stepper = Stepper(Solver(model, dt_safety=dt_safety), packed_state(model), control, chunk=1000)
+    dt = implicit_step_s(model, push_speed_mm_s) if integrator == "implicit" else None
+    stepper = Stepper(make_solver(model, integrator, dt, dt_safety=dt_safety), packed_state(model), control,
+                      chunk=1000 if integrator == "symplectic" else 20)
     coil_length = float(model.arc_s.numpy()[-1])
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
