@@ -32,6 +32,9 @@ INTEGRATORS = ("symplectic", "implicit")
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
 IMPLICIT_ADVANCE_PER_C0 = 0.2
 IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+# coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
+# is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
+IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 
 
 def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
@@ -52,6 +55,7 @@ class ImplicitSolver(Solver):
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  **kwargs):
         kwargs.pop("allow_unstable_dt", None)
+        kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
         self.contact_u_linear = contact_linear_onset(model, self.dt_s)  # the reference's law
         self.dt_s = float(dt_s)
@@ -74,11 +78,11 @@ class ImplicitSolver(Solver):
         c = m.contact
         self.compute_forces(state_in, control.running)
         # catheter kinematics, releases and pusher advance as the reference has them
-        wp.launch(integrate.integrate_nodes, n, device=dev, inputs=[
-            state_in.x, state_in.v, state_in.free, state_in.advance, self.force, m.fixed, m.coil_of, m.world_of,
-            m.coil_world, m.arc_s, m.inv_mass, m.damping_c, m.damping_k, m.catheter_path, m.catheter_first,
-            m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
-            state_out.x, state_out.v, state_out.free, state_out.advance])
+        wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
+            state_in.x, state_in.v, state_in.free, state_in.advance, m.fixed, m.coil_of, m.world_of, m.coil_world,
+            m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
+            control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
+            state_out.advance])
         if self.coil_contact:
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,

@@ -50,7 +50,7 @@ from .contact import (
     vec3l,
 )
 from .elastic import bonded_span
-from .integrate import damped_speed
+from .integrate import catheter_point, coil_advance, damped_speed, pushed
 from .rod import F64_0, F64_1, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
 
@@ -313,6 +313,66 @@ def assemble_blocks(
     rhs[i] = mass * v[i] + dt * force[i]
 
 
+@wp.kernel
+def hold_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
+    free_in: wp.array(dtype=wp.int32),
+    advance_in: wp.array(dtype=wp.float64),
+    fixed: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    arc_s: wp.array(dtype=wp.float64),
+    catheter_path: wp.array(dtype=wp.vec3d),
+    catheter_first: wp.array(dtype=wp.int32),
+    catheter_count: wp.array(dtype=wp.int32),
+    active_coil: wp.array(dtype=wp.int32),
+    push_speed: wp.array(dtype=wp.float64),
+    running: wp.array(dtype=wp.int32),
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    advance_out: wp.array(dtype=wp.float64),
+):
+    """integrate.integrate_nodes without the free nodes' update: the pusher advance,
+    the nodes behind the tip on the catheter centerline at the pusher's speed,
+    clamped nodes at rest, a stopped world unchanged; free nodes are only
+    flagged (free_out = 1), the coil solve moves them."""
+    i = wp.tid()
+    if i < advance_in.shape[0]:
+        cw = coil_world[i]
+        if running[cw] != 0:
+            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
+        else:
+            advance_out[i] = advance_in[i]
+    w = world_of[i]
+    if running[w] == 0:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+        free_out[i] = free_in[i]
+        return
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    if fixed[i] != 0:
+        x_out[i] = x_in[i]
+        v_out[i] = zero
+        free_out[i] = 0
+        return
+    c = coil_of[i]
+    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_speed[w] * dt) - arc_s[i]
+    if sigma < F64_0:
+        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
+        x_out[i] = p
+        if pushed(active_coil, coil_world, c):
+            v_out[i] = push_speed[w] * direction
+        else:
+            v_out[i] = zero
+        free_out[i] = 0
+        return
+    free_out[i] = 1
+
+
 @wp.func
 def unknown(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), i: int) -> bool:
     return free[i] != 0 and fixed[i] == 0
@@ -346,7 +406,7 @@ def solve_coils(
     ``v_known`` (their coupling moved to the right side), by block LDLᵀ
     (L₁ = block (i, i−1) of L, L₂ = (i, i−2), D⁻¹ per node); then each free node's
     v* is damped exactly as the reference step damps (implicit, along the
-    velocity) and x' = x + dt v'. Nodes held keep what integrate.integrate_nodes
+    velocity) and x' = x + dt v'. Nodes held keep what hold_nodes
     gave them in ``v_known`` (= v_out) and ``x_out``."""
     c = wp.tid()
     if running[coil_world[c]] == 0:
