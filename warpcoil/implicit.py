@@ -35,6 +35,8 @@ IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's dampin
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
+CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
+PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
 def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
@@ -53,7 +55,7 @@ class ImplicitSolver(Solver):
     kernel_modules = Solver.kernel_modules + (kernels,)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
-                 **kwargs):
+                 cg_iterations: int = CG_ITERATIONS, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -62,10 +64,17 @@ class ImplicitSolver(Solver):
         n, dev = model.node_count, model.device
         mats = lambda: wp.zeros(n, dtype=wp.mat33d, device=dev)  # noqa: E731
         vecs = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)  # noqa: E731
-        self._diag, self._upper1, self._upper2 = mats(), mats(), mats()
+        self.cg_iterations = int(cg_iterations)
+        self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
-        self._rhs, self._y = vecs(), vecs()
+        self._rhs, self._y, self._v, self._r, self._z, self._p, self._q = (vecs() for _ in range(7))
+        self._rz = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
+        self._pair_count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self._pair_b = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.int32, device=dev)
+        self._pair_st = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec2d, device=dev)
+        self._pair_k = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.float64, device=dev)
+        self._pair_n = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec3d, device=dev)
         self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
                                                                                          device=dev)
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
@@ -88,17 +97,18 @@ class ImplicitSolver(Solver):
                 state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                self.coil_contacts, self._stiff_start, self._stiff_end])
+                self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
-            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.inv_mass, m.k_stretch, m.rest_length,
-            m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
+            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.inv_mass, m.k_stretch,
+            m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
-            self._diag, self._upper1, self._upper2, self._rhs])
+            self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
+        self._solve_velocities(state_in, state_out, control, dt)
+        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
+            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, m.damping_c,
+            m.damping_k, dt, state_out.x, state_out.v])
         coils = m.coil_count
-        wp.launch(kernels.solve_coils, coils, device=dev, inputs=[
-            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, self._diag,
-            self._upper1, self._upper2, self._rhs, state_out.v, self._inv_d, self._lower1, self._lower2, self._y,
-            state_in.x, m.inv_mass, m.damping_c, m.damping_k, dt, state_out.x])
         wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.has_next,
             state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
@@ -106,6 +116,35 @@ class ImplicitSolver(Solver):
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
+
+    def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
+        """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
+        gradients per world, started at the old velocities, preconditioned by each
+        coil's banded factorisation (``cg_iterations`` iterations)."""
+        m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
+        free, running = state_out.free, control.running
+        coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
+        wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
+            self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
+        wp.launch(kernels.start_velocity, n, device=dev, inputs=[
+            state_in.v, state_out.v, free, m.fixed, m.world_of, running, self._v])
+        product_args = [free, m.fixed, m.has_next, m.world_of, running, self._diag_exact, self._upper1,
+                        self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                        self._pair_st, self._pair_k, self._pair_n, dt]
+        precondition_args = coil_args + [self._inv_d, self._lower1, self._lower2, self._r, self._y, self._z]
+        wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + product_args + [self._r])
+        wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
+        wp.launch(kernels.pcg_begin, m.world_count, device=dev, inputs=[
+            m.world_node_range, running, self._r, self._z, self._p, self._rz])
+        for k in range(self.cg_iterations):
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._p, self._rhs, 0] + product_args
+                      + [self._q])
+            wp.launch(kernels.pcg_advance, m.world_count, device=dev, inputs=[
+                m.world_node_range, running, self._p, self._q, self._rz, self._v, self._r])
+            if k + 1 < self.cg_iterations:
+                wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
+                wp.launch(kernels.pcg_direction, m.world_count, device=dev, inputs=[
+                    m.world_node_range, running, self._r, self._z, self._rz, self._p])
 
     def unstable_reason(self, problem: str, time_s: float) -> str:
         return (f"{problem} at t = {time_s:.6f} s (implicit step dt = {self.dt_s:.3e} s): reduce simulation.dt_s, "

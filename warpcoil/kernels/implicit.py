@@ -54,6 +54,9 @@ from .integrate import catheter_point, coil_advance, damped_speed, pushed
 from .rod import F64_0, F64_1, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
 
+OVERFLOW = wp.constant(-1)  # an edge with more touching pairs than its record holds
+
+
 @wp.func
 def sym_outer(n: wp.vec3d, k: wp.float64) -> wp.mat33d:
     return k * wp.outer(n, n)
@@ -139,10 +142,16 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), 
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64):
-    """Diagonal stiffness blocks (start, end node of edge a) of edge b's contact on
-    edge a, for exactly the pairs contact.pair_contact evaluates."""
+    """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
+    evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
+    pair itself (1 if touching, closest-point parameters (s, t), the law's
+    stiffness k, the unit normal n from b to a)."""
     start = wp.mat33d()
     end = wp.mat33d()
+    hit = int(0)
+    st = wp.vec2d(F64_0, F64_0)
+    k = F64_0
+    normal = wp.vec3d(F64_0, F64_0, F64_0)
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
@@ -155,10 +164,42 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), 
             dist = wp.length(delta)
             gap = dist - node_radius[a] - node_radius[b]
             if gap < c0 and dist > wp.float64(1.0e-12):
-                nn = sym_outer(delta / dist, wp.float64(2.0) * contact_stiffness(gap, p0, c0, u_linear))
+                hit = 1
+                k = contact_stiffness(gap, p0, c0, u_linear)
+                normal = delta / dist
+                nn = sym_outer(normal, wp.float64(2.0) * k)
                 start = (F64_1 - st[0]) * nn
                 end = st[0] * nn
-    return start, end
+    return start, end, hit, st, k, normal
+
+
+@wp.func
+def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: wp.vec3d,
+                pair_count: wp.array(dtype=wp.int32), pair_b: wp.array2d(dtype=wp.int32),
+                pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
+                pair_n: wp.array2d(dtype=wp.vec3d)):
+    """Keep edge a's touching pairs sorted by partner b (so sums over them run in
+    an order that does not depend on how the partners were found); more than
+    the record holds: count OVERFLOW (the pairs then enter only through the
+    Gershgorin diagonal)."""
+    count = pair_count[a]
+    if hit == 0 or count == OVERFLOW:
+        return
+    if count >= pair_b.shape[1]:
+        pair_count[a] = OVERFLOW
+        return
+    slot = count
+    while slot > 0 and pair_b[a, slot - 1] > b:
+        pair_b[a, slot] = pair_b[a, slot - 1]
+        pair_st[a, slot] = pair_st[a, slot - 1]
+        pair_k[a, slot] = pair_k[a, slot - 1]
+        pair_n[a, slot] = pair_n[a, slot - 1]
+        slot = slot - 1
+    pair_b[a, slot] = b
+    pair_st[a, slot] = st
+    pair_k[a, slot] = k
+    pair_n[a, slot] = normal
+    pair_count[a] = count + 1
 
 
 @wp.kernel
@@ -184,13 +225,20 @@ def edge_contact_stiffness(
     touching: wp.array(dtype=wp.int32),
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
+    pair_count: wp.array(dtype=wp.int32),
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_k: wp.array2d(dtype=wp.float64),
+    pair_n: wp.array2d(dtype=wp.vec3d),
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
     as contact.edge_contact finds its partners, for the edges it found touching
     (``touching``: its per-edge count of touching pairs at the same state);
     fixed-point sums, so the result does not depend on the order the partners
-    are found in."""
+    are found in. Each touching pair is also recorded (``record_pair``) for the
+    exact product with the contact stiffness."""
     a = wp.tid()
+    pair_count[a] = 0
     s_diag = vec3l()
     s_off = vec3l()
     e_diag = vec3l()
@@ -202,8 +250,10 @@ def edge_contact_stiffness(
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
-                start, end = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, neighbours[a, k],
-                                            reach_a, p0, c0, u_linear, radius)
+                b = neighbours[a, k]
+                start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, b,
+                                                                 reach_a, p0, c0, u_linear, radius)
+                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
                 d, o = to_fixed_sym(start)
                 s_diag = s_diag + d
                 s_off = s_off + o
@@ -215,8 +265,9 @@ def edge_contact_stiffness(
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    start, end = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, p0,
-                                                c0, u_linear, radius)
+                    start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a,
+                                                                     b, reach_a, p0, c0, u_linear, radius)
+                    record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
                     d, o = to_fixed_sym(start)
                     s_diag = s_diag + d
                     s_off = s_off + o
@@ -251,12 +302,14 @@ def assemble_blocks(
     u_linear: wp.float64,
     dt: wp.float64,
     diag: wp.array(dtype=wp.mat33d),
+    diag_exact: wp.array(dtype=wp.mat33d),
     upper1: wp.array(dtype=wp.mat33d),
     upper2: wp.array(dtype=wp.mat33d),
     rhs: wp.array(dtype=wp.vec3d),
 ):
-    """Row i of M + dt² H: its diagonal block and its blocks (i, i+1), (i, i+2)
-    (g, µN·s²/mm), and M v + dt F (g·mm/s). Rows with no node within two that is
+    """Row i of M + dt² H: its diagonal block (``diag_exact``; ``diag`` with the
+    Gershgorin coil–coil contact added, for the preconditioner) and its blocks
+    (i, i+1), (i, i+2) (g, µN·s²/mm), and M v + dt F (g·mm/s). Rows with no node within two that is
     free before or after the step (deep in the catheter: no coupling to an
     unknown) are M alone."""
     i = wp.tid()
@@ -271,6 +324,7 @@ def assemble_blocks(
             near_free = True
     if not near_free:
         diag[i] = mass * wp.identity(n=3, dtype=wp.float64)
+        diag_exact[i] = diag[i]
         upper1[i] = h
         upper2[i] = h
         rhs[i] = mass * v[i] + dt * force[i]
@@ -299,14 +353,15 @@ def assemble_blocks(
         if magnitude > F64_0:
             k = contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear)
             h = h + sym_outer(fw / magnitude, k)
-        if coil_contact != 0:
-            if has_next[i] != 0:
-                h = h + stiff_start[i]
-            if i >= 1:
-                if has_next[i - 1] != 0:
-                    h = h + stiff_end[i - 1]
         h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     dt2 = dt * dt
+    diag_exact[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
+    if free[i] != 0 and coil_contact != 0:  # the preconditioner's Gershgorin coil–coil contact
+        if has_next[i] != 0:
+            h = h + stiff_start[i]
+        if i >= 1:
+            if has_next[i - 1] != 0:
+                h = h + stiff_end[i - 1]
     diag[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
     upper1[i] = dt2 * u1
     upper2[i] = dt2 * u2
@@ -378,8 +433,15 @@ def unknown(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), i: 
     return free[i] != 0 and fixed[i] == 0
 
 
+@wp.func
+def solving(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
+            running: wp.array(dtype=wp.int32), i: int) -> bool:
+    """Node i is an unknown of this step's system: free, not clamped, its world running."""
+    return unknown(free, fixed, i) and running[world_of[i]] != 0
+
+
 @wp.kernel
-def solve_coils(
+def factor_coils(
     coil_first: wp.array(dtype=wp.int32),
     coil_last: wp.array(dtype=wp.int32),
     coil_world: wp.array(dtype=wp.int32),
@@ -389,25 +451,13 @@ def solve_coils(
     diag: wp.array(dtype=wp.mat33d),
     upper1: wp.array(dtype=wp.mat33d),
     upper2: wp.array(dtype=wp.mat33d),
-    rhs: wp.array(dtype=wp.vec3d),
-    v_known: wp.array(dtype=wp.vec3d),
     inv_d: wp.array(dtype=wp.mat33d),
     lower1: wp.array(dtype=wp.mat33d),
     lower2: wp.array(dtype=wp.mat33d),
-    y: wp.array(dtype=wp.vec3d),
-    x_in: wp.array(dtype=wp.vec3d),
-    inv_mass: wp.array(dtype=wp.float64),
-    damping_c: wp.array(dtype=wp.float64),
-    damping_k: wp.float64,
-    dt: wp.float64,
-    x_out: wp.array(dtype=wp.vec3d),
 ):
-    """One coil: (M + dt² H) v* = M v + dt F for its free nodes, the others held at
-    ``v_known`` (their coupling moved to the right side), by block LDLᵀ
-    (L₁ = block (i, i−1) of L, L₂ = (i, i−2), D⁻¹ per node); then each free node's
-    v* is damped exactly as the reference step damps (implicit, along the
-    velocity) and x' = x + dt v'. Nodes held keep what hold_nodes
-    gave them in ``v_known`` (= v_out) and ``x_out``."""
+    """One coil's banded preconditioner P (the blocks with the Gershgorin contact
+    diagonal), restricted to its unknowns, as block LDLᵀ: L₁ = block (i, i−1)
+    of L, L₂ = (i, i−2), D⁻¹ per node; a held node's row is the identity."""
     c = wp.tid()
     if running[coil_world[c]] == 0:
         return
@@ -415,74 +465,279 @@ def solve_coils(
     last = coil_last[c]
     eye = wp.identity(n=3, dtype=wp.float64)
     zero = wp.mat33d()
-    zv = wp.vec3d(F64_0, F64_0, F64_0)
     for i in range(first, last + 1):
         if not unknown(free, fixed, i):
             inv_d[i] = eye
             lower1[i] = zero
             lower2[i] = zero
-            y[i] = v_known[i]
             continue
-        b = rhs[i]
         a1 = zero  # block (i, i−1) among the unknowns
         a2 = zero  # block (i, i−2)
         if i - 1 >= first:
-            blk = wp.transpose(upper1[i - 1])
             if unknown(free, fixed, i - 1):
-                a1 = blk
-            else:
-                b = b - blk * v_known[i - 1]
+                a1 = wp.transpose(upper1[i - 1])
         if i - 2 >= first:
-            blk = wp.transpose(upper2[i - 2])
             if unknown(free, fixed, i - 2):
-                a2 = blk
-            else:
-                b = b - blk * v_known[i - 2]
-        if i + 1 <= last:
-            if not unknown(free, fixed, i + 1):
-                b = b - upper1[i] * v_known[i + 1]
-        if i + 2 <= last:
-            if not unknown(free, fixed, i + 2):
-                b = b - upper2[i] * v_known[i + 2]
+                a2 = wp.transpose(upper2[i - 2])
         l2 = zero
         l1 = zero
-        yi = b
         d = diag[i]
         if i - 2 >= first:
             l2 = a2 * inv_d[i - 2]
-            yi = yi - l2 * y[i - 2]
             d = d - a2 * wp.transpose(l2)
         if i - 1 >= first:
             c1 = a1
             if i - 2 >= first:
                 c1 = a1 - a2 * wp.transpose(lower1[i - 1])
             l1 = c1 * inv_d[i - 1]
-            yi = yi - l1 * y[i - 1]
             d = d - c1 * wp.transpose(l1)
         inv_d[i] = wp.inverse(d)
         lower1[i] = l1
         lower2[i] = l2
+
+
+@wp.kernel
+def precondition(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    inv_d: wp.array(dtype=wp.mat33d),
+    lower1: wp.array(dtype=wp.mat33d),
+    lower2: wp.array(dtype=wp.mat33d),
+    r: wp.array(dtype=wp.vec3d),
+    y: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+):
+    """z = P⁻¹ r on one coil (forward and back substitution through its LDLᵀ);
+    zero on held nodes."""
+    c = wp.tid()
+    if running[coil_world[c]] == 0:
+        return
+    first = coil_first[c]
+    last = coil_last[c]
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    for i in range(first, last + 1):
+        yi = zv
+        if unknown(free, fixed, i):
+            yi = r[i]
+            if i - 1 >= first:
+                yi = yi - lower1[i] * y[i - 1]
+            if i - 2 >= first:
+                yi = yi - lower2[i] * y[i - 2]
         y[i] = yi
     next1 = zv
     next2 = zv
     for k in range(last - first + 1):
         i = last - k
-        vi = inv_d[i] * y[i]
-        if i + 1 <= last:
-            vi = vi - wp.transpose(lower1[i + 1]) * next1
-        if i + 2 <= last:
-            vi = vi - wp.transpose(lower2[i + 2]) * next2
+        zi = zv
         if unknown(free, fixed, i):
-            next2 = next1
-            next1 = vi
-            speed = wp.length(vi)
-            if speed > F64_0:
-                vi = vi * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
-            v_known[i] = vi
-            x_out[i] = x_in[i] + dt * vi
-        else:
-            next2 = next1
-            next1 = v_known[i]
+            zi = inv_d[i] * y[i]
+            if i + 1 <= last:
+                zi = zi - wp.transpose(lower1[i + 1]) * next1
+            if i + 2 <= last:
+                zi = zi - wp.transpose(lower2[i + 2]) * next2
+        z[i] = zi
+        next2 = next1
+        next1 = zi
+
+
+@wp.func
+def pair_product(x: wp.array(dtype=wp.vec3d), a: int, k: int, pair_b: wp.array2d(dtype=wp.int32),
+                 pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
+                 pair_n: wp.array2d(dtype=wp.vec3d)) -> wp.vec3d:
+    """k n (n · ∂g/∂x x) of edge a's k-th recorded pair (the gap's rate along its normal, times k)."""
+    b = pair_b[a, k]
+    st = pair_st[a, k]
+    n = pair_n[a, k]
+    rate = (F64_1 - st[0]) * x[a] + st[0] * x[a + 1] - (F64_1 - st[1]) * x[b] - st[1] * x[b + 1]
+    return (pair_k[a, k] * wp.dot(n, rate)) * n
+
+
+@wp.kernel
+def system_product(
+    x: wp.array(dtype=wp.vec3d),
+    b: wp.array(dtype=wp.vec3d),
+    residual: int,
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    diag_exact: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+    pair_count: wp.array(dtype=wp.int32),
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_k: wp.array2d(dtype=wp.float64),
+    pair_n: wp.array2d(dtype=wp.vec3d),
+    dt: wp.float64,
+    out: wp.array(dtype=wp.vec3d),
+):
+    """Row i of A x, A = M + dt² (H + K_c) with the coil–coil contact stiffness
+    K_c exact (each recorded pair's k wᵀw ⊗ n nᵀ, summed in partner order;
+    an overflowed edge's pairs through the Gershgorin diagonal); with
+    ``residual``, b − A x instead. Zero on rows that are not unknowns."""
+    i = wp.tid()
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    if not solving(free, fixed, world_of, running, i):
+        out[i] = zv
+        return
+    n = x.shape[0]
+    y = diag_exact[i] * x[i]
+    if i + 1 < n:
+        y = y + upper1[i] * x[i + 1]
+    if i + 2 < n:
+        y = y + upper2[i] * x[i + 2]
+    if i >= 1:
+        y = y + wp.transpose(upper1[i - 1]) * x[i - 1]
+    if i >= 2:
+        y = y + wp.transpose(upper2[i - 2]) * x[i - 2]
+    contact = zv
+    if has_next[i] != 0:  # edge i: node i is its start
+        count = pair_count[i]
+        if count == OVERFLOW:
+            contact = contact + stiff_start[i] * x[i]
+        for k in range(wp.max(count, 0)):
+            contact = contact + (F64_1 - pair_st[i, k][0]) * pair_product(x, i, k, pair_b, pair_st, pair_k,
+                                                                          pair_n)
+    if i >= 1:
+        if has_next[i - 1] != 0:  # edge i−1: node i is its end
+            count = pair_count[i - 1]
+            if count == OVERFLOW:
+                contact = contact + stiff_end[i - 1] * x[i]
+            for k in range(wp.max(count, 0)):
+                contact = contact + pair_st[i - 1, k][0] * pair_product(x, i - 1, k, pair_b, pair_st, pair_k,
+                                                                        pair_n)
+    y = y + dt * dt * contact
+    if residual != 0:
+        y = b[i] - y
+    out[i] = y
+
+
+@wp.kernel
+def pcg_begin(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    r: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+    p: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+):
+    """One world: p = z, rz = r·z (a fixed-order sum over its nodes)."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    total = F64_0
+    for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
+        total = total + wp.dot(r[i], z[i])
+        p[i] = z[i]
+    rz[w] = total
+
+
+@wp.kernel
+def pcg_advance(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    p: wp.array(dtype=wp.vec3d),
+    q: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+    x: wp.array(dtype=wp.vec3d),
+    r: wp.array(dtype=wp.vec3d),
+):
+    """One world: α = r·z / p·q (q = A p), x += α p, r −= α q."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    first = world_node_range[w, 0]
+    last = world_node_range[w, 1]
+    pq = F64_0
+    for i in range(first, last + 1):
+        pq = pq + wp.dot(p[i], q[i])
+    alpha = F64_0
+    if pq > F64_0:
+        alpha = rz[w] / pq
+    for i in range(first, last + 1):
+        x[i] = x[i] + alpha * p[i]
+        r[i] = r[i] - alpha * q[i]
+
+
+@wp.kernel
+def pcg_direction(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    r: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+    p: wp.array(dtype=wp.vec3d),
+):
+    """One world: β = r·z (new) / r·z (old), p = z + β p."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    first = world_node_range[w, 0]
+    last = world_node_range[w, 1]
+    total = F64_0
+    for i in range(first, last + 1):
+        total = total + wp.dot(r[i], z[i])
+    beta = F64_0
+    if rz[w] > F64_0:
+        beta = total / rz[w]
+    for i in range(first, last + 1):
+        p[i] = z[i] + beta * p[i]
+    rz[w] = total
+
+
+@wp.kernel
+def start_velocity(
+    v_in: wp.array(dtype=wp.vec3d),
+    v_held: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    v: wp.array(dtype=wp.vec3d),
+):
+    """The solve's start: unknowns at their old velocity, held nodes at theirs."""
+    i = wp.tid()
+    if solving(free, fixed, world_of, running, i):
+        v[i] = v_in[i]
+    else:
+        v[i] = v_held[i]
+
+
+@wp.kernel
+def finish_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_solved: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    """Unknown node i: the solved velocity, damped exactly as the reference step
+    damps (implicit, along the velocity), then x' = x + dt v'. Held nodes keep
+    what hold_nodes gave them."""
+    i = wp.tid()
+    if not solving(free, fixed, world_of, running, i):
+        return
+    v = v_solved[i]
+    speed = wp.length(v)
+    if speed > F64_0:
+        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+    v_out[i] = v
+    x_out[i] = x_in[i] + dt * v
 
 
 @wp.func
