@@ -174,3 +174,42 @@ def test_scene_key_integrator(tmp_path: Path):
     with pytest.raises(SceneError) as caught:
         load_scene(bad)
     assert "simulation.integrator" in str(caught.value) and "bad.toml" in str(caught.value)
+
+
+def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
+    """Two free rods pressed across each other: after enough iterations the
+    velocities solve (M + dt² (H + K_c)) v' = M v + dt F with K_c the pairs'
+    exact k wᵀw ⊗ n nᵀ (off the band: it couples the two coils), which is
+    symmetric (each pair recorded from both sides)."""
+    spec = CoilSpec(length_mm=3.0, segment_length_mm=0.3)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0))
+    s = np.arange(11) * 0.3 - 1.5
+    first = np.stack([s, 0 * s, 0 * s], axis=1)
+    second = np.stack([0 * s + 0.05, s + 0.02, 0 * s + spec.d - 0.01], axis=1)  # 0.01 mm overlap
+    for rod in (first, second):
+        builder.add_coil(spec, rod)
+    model = builder.finalize()
+    x0 = np.concatenate([first, second])
+    dt = 2.0e-4
+    solver = ImplicitSolver(model, dt_s=dt, cg_iterations=60)
+    state, out = state_from_positions(model, x0), new_state_like(model)
+    solver.allocate_neighbour_grid(state)
+    solver.step(state, out, Control.create(model))
+    n = model.node_count
+    a = blocks_dense(solver, n)
+    counts = solver._pair_count.numpy()
+    assert counts.sum() >= 2 and (counts >= 0).all()
+    pb, pst, pk, pn = (getattr(solver, f"_pair_{k}").numpy() for k in ("b", "st", "k", "n"))
+    for e in range(n):
+        for k in range(counts[e]):
+            b, (s_, t_) = pb[e, k], pst[e, k]
+            w = {e: 1 - s_, e + 1: s_}
+            other = {b: -(1 - t_), b + 1: -t_}
+            nn = np.outer(pn[e, k], pn[e, k])
+            for i, wi in w.items():
+                for j, wj in {**w, **other}.items() if not set(w) & set(other) else []:
+                    a[3 * i:3 * i + 3, 3 * j:3 * j + 3] += dt**2 * pk[e, k] * wi * wj * nn
+    assert np.allclose(a, a.T, rtol=0, atol=1e-12 * np.abs(a).max())
+    residual = a @ out.v.numpy().ravel() - solver._rhs.numpy().ravel()
+    assert np.abs(residual).max() <= 1e-8 * np.abs(solver._rhs.numpy()).max()
+    assert np.abs(a - np.diag(np.diag(a)))[:33, 33:].max() > 0.0  # the coils are coupled

@@ -217,7 +217,12 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         settings.update({"push 100 mm/s": variant(push=100.0), "mass scale 100": variant(mass_scale=100.0),
                          "l0 2d": variant(l0_factor=2.0)})
     for label, scene in settings.items():
-        (shape, steps, ke_ratio), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius), repeats)
+        try:
+            (shape, steps, ke_ratio), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius), repeats)
+        except RuntimeError as failure:  # reported as a row, not a crash of the whole sweep
+            rows.append(Row(case, label, label.startswith("default"), 0, math.nan, math.inf, str(failure),
+                            not_default="did not complete", floor=floor))
+            continue
         error, detail = shape_error(shape, reference, loop_mm)
         not_default = (L0_IS_THE_MODEL if label.startswith("l0") else
                        MASS_SCALING_CHANGES_DYNAMICS if label.startswith("mass") else
