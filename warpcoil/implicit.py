@@ -100,7 +100,8 @@ class ImplicitSolver(Solver):
                 self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
-            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.inv_mass, m.k_stretch,
+            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
+            m.inv_mass, m.k_stretch,
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
@@ -110,8 +111,8 @@ class ImplicitSolver(Solver):
             m.damping_k, dt, state_out.x, state_out.v])
         coils = m.coil_count
         wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
-            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.has_next,
-            state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
+            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,
+            m.clamp_tangent, state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
             state_in.x, state_out.x, state_in.m1, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])

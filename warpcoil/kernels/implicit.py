@@ -51,7 +51,7 @@ from .contact import (
 )
 from .elastic import bonded_span
 from .integrate import catheter_point, coil_advance, damped_speed, pushed
-from .rod import F64_0, F64_1, director_normal, edge_valid, rotate_about, transport, vertex_valid
+from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
 
 OVERFLOW = wp.constant(-1)  # an edge with more touching pairs than its record holds
@@ -94,11 +94,19 @@ def edge_jacobian_or_zero(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=
 
 
 @wp.func
-def vertex_bends(has_next: wp.array(dtype=wp.int32), k_bend: wp.array(dtype=wp.float64), j: int) -> wp.float64:
+def bends(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d), j: int) -> bool:
+    """Vertex j bends: an interior node, or a coil's first node clamped with its
+    tangent (its previous edge virtual and fixed, so its G is zero)."""
+    if j < 0 or j + 1 >= has_next.shape[0]:
+        return False
+    return vertex_valid(has_next, j) or clamp_vertex(clamp_tangent, j)
+
+
+@wp.func
+def vertex_bends(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d),
+                 k_bend: wp.array(dtype=wp.float64), j: int) -> wp.float64:
     """k_b of vertex j, 0 where j is not a vertex."""
-    if j < 1 or j + 1 >= has_next.shape[0]:
-        return F64_0
-    if not vertex_valid(has_next, j):
+    if not bends(has_next, clamp_tangent, j):
         return F64_0
     return k_bend[j]
 
@@ -286,6 +294,7 @@ def assemble_blocks(
     free: wp.array(dtype=wp.int32),
     free_next: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
     inv_mass: wp.array(dtype=wp.float64),
     k_stretch: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
@@ -340,9 +349,9 @@ def assemble_blocks(
     g_1 = edge_jacobian_or_zero(x, has_next, i - 1)
     g0 = edge_jacobian_or_zero(x, has_next, i)
     g1 = edge_jacobian_or_zero(x, has_next, i + 1)
-    kb_prev = vertex_bends(has_next, k_bend, i - 1)  # vertex i−1: node i is its next node
-    kb_mid = vertex_bends(has_next, k_bend, i)  # vertex i: node i is its middle node
-    kb_next = vertex_bends(has_next, k_bend, i + 1)  # vertex i+1: node i is its previous node
+    kb_prev = vertex_bends(has_next, clamp_tangent, k_bend, i - 1)  # vertex i−1: node i is its next node
+    kb_mid = vertex_bends(has_next, clamp_tangent, k_bend, i)  # vertex i: node i is its middle node
+    kb_next = vertex_bends(has_next, clamp_tangent, k_bend, i + 1)  # vertex i+1: node i is its previous node
     mid_i = -(g_1 + g0)
     h = h + kb_prev * (g_1 * g_1) + kb_mid * (mid_i * mid_i) + kb_next * (g0 * g0)
     u1 = u1 + kb_mid * (mid_i * g0) - kb_next * (g0 * (g0 + g1))
@@ -741,11 +750,15 @@ def finish_nodes(
 
 
 @wp.func
-def spin_free(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), e: int) -> bool:
-    """Edge e spins (as integrate.update_frames has it): it exists and both nodes are free."""
-    if not edge_valid(has_next, e):
+def spin_free(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+              e: int) -> bool:
+    """Edge e spins (as integrate.update_frames has it): it exists, each node is
+    free or clamped, and not both are clamped."""
+    if e < 0 or not edge_valid(has_next, e):
         return False
-    return free[e] != 0 and free[e + 1] != 0
+    held0 = fixed[e] != 0
+    held1 = fixed[e + 1] != 0
+    return (free[e] != 0 or held0) and (free[e + 1] != 0 or held1) and not (held0 and held1)
 
 
 @wp.kernel
@@ -755,7 +768,9 @@ def solve_spin(
     coil_world: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
     omega: wp.array(dtype=wp.float64),
     torque: wp.array(dtype=wp.float64),
     inv_inertia: wp.array(dtype=wp.float64),
@@ -792,7 +807,7 @@ def solve_spin(
     prev_c = F64_0
     prev_d = F64_0
     for e in range(first, last):
-        if not spin_free(free, has_next, e):
+        if not spin_free(free, fixed, has_next, e):
             scratch_c[e] = F64_0
             scratch_d[e] = F64_0
             prev_c = F64_0
@@ -802,14 +817,14 @@ def solve_spin(
         h = F64_0
         lower = F64_0
         upper = F64_0
-        if vertex_valid(has_next, e):  # vertex e: edges e−1, e
+        if bends(has_next, clamp_tangent, e):  # vertex e: edges e−1 (or a clamp's virtual one), e
             h = h + half * k_bend[e] * wp.length_sq(rest_K1[e]) + k_twist[e]
-            if spin_free(free, has_next, e - 1):
+            if spin_free(free, fixed, has_next, e - 1):
                 lower = -dt2 * k_twist[e]
         if e + 1 < has_next.shape[0]:
             if vertex_valid(has_next, e + 1):  # vertex e+1: edges e, e+1
                 h = h + half * k_bend[e + 1] * wp.length_sq(rest_K0[e + 1]) + k_twist[e + 1]
-                if spin_free(free, has_next, e + 1):
+                if spin_free(free, fixed, has_next, e + 1):
                     upper = -dt2 * k_twist[e + 1]
         a = inertia + dt * twist_damping[e] + dt2 * h
         r = inertia * omega[e] + dt * torque[e]
@@ -830,7 +845,7 @@ def solve_spin(
         t_new = wp.normalize(x_out[e + 1] - x_out[e])
         m = transport(m1_in[e], t_old, t_new)
         w = F64_0
-        if spin_free(free, has_next, e):
+        if spin_free(free, fixed, has_next, e):
             w = scratch_d[e] - scratch_c[e] * following
             m = rotate_about(m, t_new, w * dt)
         m1_out[e] = director_normal(m, t_new)
