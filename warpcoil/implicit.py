@@ -64,6 +64,8 @@ class ImplicitSolver(Solver):
         n, dev = model.node_count, model.device
         mats = lambda: wp.zeros(n, dtype=wp.mat33d, device=dev)  # noqa: E731
         vecs = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)  # noqa: E731
+        if cg_iterations < 1:
+            raise ValueError(f"cg_iterations must be ≥ 1, got {cg_iterations}")
         self.cg_iterations = int(cg_iterations)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
