@@ -2,15 +2,15 @@
 symplectic Euler: the step is set by accuracy, not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
-reference solver's; only the update differs (kernels/implicit.py): each coil's
-free nodes solve (M + dt² H) v* = M v + dt F through the banded block
-factorisation of H (stretching, Gauss–Newton bending, contact along its
-normals), then the reference's exact implicit damping is applied to v*; each
-coil's edge spins solve their tridiagonal system. Twist is the fastest mode
-(inertia m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of a few
-hundred µs the implicit spin update is overdamped, i.e. it relaxes the twist
-to its equilibrium each step (quasi-static twist), which is what its negligible
-inertia means physically.
+reference's; only the update differs (kernels/implicit.py): per world,
+(M + dt² H) v* = M v + dt F is solved by a few preconditioned conjugate-gradient
+iterations (H: stretching, Gauss–Newton bending, contact along its normals,
+coil–coil pairs exactly; preconditioner: each coil's banded block factorisation),
+then the reference's exact implicit damping is applied to v*; each coil's edge
+spins solve their tridiagonal system. Twist is the fastest mode (inertia
+m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of ~100 µs the implicit
+spin update is overdamped, i.e. it relaxes the twist to its equilibrium each
+step (quasi-static twist), which is what its negligible inertia means physically.
 
 The contact law keeps the reference's linear onset (computed for the explicit
 step), so both integrators integrate the same forces.

@@ -1,5 +1,5 @@
-"""Linearly implicit Euler (Baraff & Witkin 1998): the system matrix and its
-per-coil banded solve.
+"""Linearly implicit Euler (Baraff & Witkin 1998): the system, its per-coil
+banded preconditioner and the conjugate-gradient pieces.
 
 One step, per free node (velocity form, M lumped masses, H ≈ ∂²W/∂x²)::
 
@@ -7,33 +7,34 @@ One step, per free node (velocity form, M lumped masses, H ≈ ∂²W/∂x²)::
     v' = v* damped exactly as the reference step does (damped_speed)
     x' = x + dt v'
 
-and per free edge, its spin ω (twist inertia J, twist damping b)::
+and per spinning edge (twist inertia J, twist damping b)::
 
     (J + dt b + dt² H_θ) ω' = J ω + dt T
 
-H is a positive semi-definite approximation of the Hessian, banded along
-each coil (3×3 blocks, bandwidth 2), so every coil is solved by one thread
-with a block LDLᵀ factorisation (sequential along the coil, parallel across
-coils and worlds; no sums across threads, so an ensemble member equals its
-single run):
+H is positive semi-definite:
 
 * stretching: the exact edge Hessian k_s [(1 − l̄/l)₊ (I − t tᵀ) + t tᵀ]
   (its negative part for a compressed edge dropped);
 * bending: Gauss–Newton, k_b Jᵀ J with κ ≈ t₁ − t₀ (exact for small bends of
   a straight rod: the squared second difference);
-* contact: per contact, the law's stiffness k(h) along the normal n. A wall
-  contact adds k n nᵀ to its node; a coil–coil contact (gap gradient w over
-  the two edges' four nodes, Σ|w| = 2) adds 2 k |w_a| n nᵀ to each node a
-  (Gershgorin: the diagonal dominates the pair's true k w wᵀ ⊗ n nᵀ, so the
-  off-band coupling can be left out without losing stability);
+* contact, the law's stiffness k(h) along the normal n: a wall contact adds
+  k n nᵀ to its node; a coil–coil contact (gap gradient w over the two edges'
+  four nodes) adds k w wᵀ ⊗ n nᵀ, applied matrix-free from the recorded pairs
+  (``system_product``); fold contacts a Gershgorin diagonal 2 k n nᵀ;
 * twist: k_t on the twist difference of neighbouring edges, plus the bending
   energy's dependence on the frame angle (Gauss–Newton ½ k_b |K̄|²), a
-  tridiagonal system per coil.
+  tridiagonal system per coil (Thomas algorithm).
+
+Everything but the coil–coil term is banded along each coil (3×3 blocks,
+bandwidth 2). The preconditioner is that band with the coil–coil term replaced
+by its Gershgorin diagonal 2 k |w_a| n nᵀ per node (Σ|w| = 2: it dominates the
+pair's true matrix), factorised by block LDLᵀ, one thread per coil. No sums
+across threads in an order that depends on anything but the world's own nodes,
+so an ensemble member equals its single run.
 
 For a mode of stiffness k whose matrix entry is a ≥ k/2 the step is stable
 at any dt (the amplification matrix has determinant m/(m + dt² a) < 1 and
-trace ≥ −1 − det), so H may approximate the Hessian as long as it does not
-underestimate it by more than half.
+trace ≥ −1 − det).
 """
 
 import warp as wp
