@@ -138,7 +138,7 @@ def test_implicit_deployment_completes_with_far_fewer_steps():
     assert implicit.steps * 5 < explicit.steps
     assert implicit.deployed_length_mm == pytest.approx(explicit.deployed_length_mm)
     assert implicit.min_wall_gap_mm > -0.5 * wc.CoilSpec().d  # no node through the wall
-    assert implicit.max_push_force_uN > 0.0
+    assert implicit.push_force_peak_uN > 0.0
 
 
 def test_ensemble_members_equal_their_single_implicit_runs():
