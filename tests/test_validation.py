@@ -32,9 +32,9 @@ def test_extensible_elastica_reduces_to_the_euler_elastica():
 def test_cantilever_clamped_at_node_0_matches_the_extensible_elastica_at_second_order():
     """Clamp at node 0 (x = 0): the old clamp (first edge, section at its midpoint)
     gave −2.2 % at 50 segments and first order for this placement."""
-    rows = validation.cantilever_cases(resolutions=(25, 50, 100))
+    rows = validation.cantilever_cases(resolutions=(25, 50))
     assert_rows_pass(rows)
-    errors = [r.error for r in rows[:3]]
+    errors = [r.error for r in rows[:2]]
     assert errors[1] <= 5e-4
     assert validation.observed_order(errors) == pytest.approx(2.0, abs=0.3)
 
@@ -57,7 +57,7 @@ def test_end_nodes_carry_half_a_segment():
     builder.add_coil(spec)
     model = builder.finalize()
     mass = 1.0 / model.inv_mass.numpy()
-    assert mass.sum() == pytest.approx(2 * spec.rho * model.rest_length.numpy().sum(), rel=1e-12)
+    assert mass.sum() == pytest.approx(spec.rho * model.rest_length.numpy().sum(), rel=1e-12)  # both coils
     for first, last in zip(model.coil_first, model.coil_last):
         assert mass[first] == pytest.approx(0.5 * mass[first + 1], rel=1e-9)
         assert mass[last] == pytest.approx(0.5 * mass[last - 1], rel=1e-9)
@@ -84,7 +84,7 @@ def test_undamped_energy_is_conserved():
 def test_undamped_3d_helix_energy_error_shrinks_at_least_at_first_order():
     """Shortened: 20 000 steps (``warpcoil validate energy3d`` runs 10⁶)."""
     rows = validation.energy_3d_cases(steps=20_000)
-    assert_rows_pass([rows[-1]])  # the error ratio, default / half step
+    assert_rows_pass([rows[-1]])  # the order from the error ratio, default / half step
     assert rows[2].result < rows[0].result
 
 

