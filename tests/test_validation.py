@@ -81,6 +81,13 @@ def test_undamped_energy_is_conserved():
     assert_rows_pass(validation.energy_conservation())
 
 
+def test_porous_field_volume_and_permeabilities():
+    rows = validation.porous_cases()
+    assert_rows_pass(rows)
+    volume_errors = [r.error for r in rows if "capsule volume" in r.case]
+    assert volume_errors[-1] < volume_errors[0]  # converges as the voxel shrinks
+
+
 def test_undamped_3d_helix_energy_error_shrinks_at_least_at_first_order():
     """Shortened: 20 000 steps (``warpcoil validate energy3d`` runs 10⁶)."""
     rows = validation.energy_3d_cases(steps=20_000)
