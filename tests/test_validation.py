@@ -100,3 +100,7 @@ def test_tip_trajectory_converges_with_the_time_step():
     rows = validation.timestep_convergence(duration_s=0.005, refinements=(1, 2, 4), reference_refinement=16,
                                            sample_steps_at_default=10)
     assert_rows_pass(rows)
+
+
+def test_implicit_step_converges_damps_as_stated_and_keeps_the_static_cases():
+    assert_rows_pass(validation.implicit_cases())
