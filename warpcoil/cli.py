@@ -120,7 +120,8 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     progress.close()
     for recorder in recorders:
         recorder.close()
-    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings})
+    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings},
+                      sac=deployment.anatomy.sac)
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "

@@ -192,7 +192,8 @@ _SIMULATION = {
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),
 }
-_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool)}
+_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool),
+           "porous": _Key(_bool), "porous_voxel_mm": _Key(_positive)}
 _TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
 
 
@@ -330,6 +331,13 @@ class _Reader:
                 raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
         return self.build(WallSpec, values, "wall")
 
+    def output(self, document: dict[str, Any]) -> OutputSettings:
+        output = self.section(document, "output", _OUTPUT, OutputSettings)
+        if output.porous and "wall" not in document:
+            raise self.error("output.porous", "the porous field fills the sac, and there is no [wall]",
+                             "add a [wall] table (and a [neck] to cut the sac), or set porous = false")
+        return output
+
     def scene(self, document: dict[str, Any]) -> Scene:
         for key in document:
             if key not in _TABLES:
@@ -343,7 +351,7 @@ class _Reader:
             wall=self.wall(document) if "wall" in document else None,
             contact=self.section(document, "contact", _CONTACT, ContactSettings),
             simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
-            output=self.section(document, "output", _OUTPUT, OutputSettings),
+            output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
             source=self.source,
