@@ -77,7 +77,10 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
-        self.stall_force_uN = sim.stall_force_uN  # None: no force criterion
+        # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
+        self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
+        self.stall_force_uN = (sim.stall_force_uN if sim.stall_force_uN is not None
+                               else sim.stall_force_ratio * self.self_deployment_force_uN)
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -198,8 +201,9 @@ class Ensemble:
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
         """Why the member's deployment has stalled (None while it has not): the coil in
         the sac fills more than stall_packing of it (coils cannot pack that densely, so
-        more coil can only pass through coil), or (when the scene sets stall_force_uN)
-        the frame-mean push force has stayed above it for the stall window.
+        more coil can only pass through coil), or the frame-mean push force has stayed
+        above the stall force (stall_force_ratio × the self-deployment force, or
+        stall_force_uN) in every frame of the stall window.
         ``advance``: the member's coils' pusher advance (mm)."""
         sim, k = member.scene.simulation, member.active
         if k < 0:
@@ -217,14 +221,17 @@ class Ensemble:
         if sac and packing > sim.stall_packing:
             return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
                     f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
-        if member.stall_force_uN is None or frame.push_force_mean_uN <= member.stall_force_uN:
+        if frame.push_force_mean_uN <= member.stall_force_uN:
             member.resisted_since_s = None
             return None
         if member.resisted_since_s is None:
             member.resisted_since_s = frame.time_s - frame_s
         if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
             return None
-        return (f"stalled: {where}: the mean push force stayed above stall_force_uN = {member.stall_force_uN:g} µN "
+        limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
+                 f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
+                 f"{member.self_deployment_force_uN:.4g} µN = {member.stall_force_uN:.4g} µN")
+        return (f"stalled: {where}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")
 

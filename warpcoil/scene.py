@@ -185,6 +185,7 @@ _SIMULATION = {
     "allow_unstable_dt": _Key(_bool),
     "mass_scale": _Key(_positive),
     "jam_force_uN": _Key(_positive),
+    "stall_force_ratio": _Key(_positive),
     "stall_force_uN": _Key(_positive),
     "stall_window_s": _Key(_positive),
     "stall_packing": _Key(_fraction),
