@@ -204,17 +204,19 @@ def cantilever_cases(resolutions=(25, 50, 100)) -> list[CaseResult]:
 
 # --- helix recovery and free release -----------------------------------------
 HELIX = dict(length_mm=60.0, loop_diameter_mm=3.0, pitch_mm=0.6)
+TIGHT_HELIX = dict(length_mm=30.0, loop_diameter_mm=3.0, pitch_mm=REFERENCE_D_MM + 0.01)  # turns 10 µm apart
 
 
-def _helix_spec(segment_length_mm: float | None = None) -> CoilSpec:
-    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", segment_length_mm=segment_length_mm, **HELIX)
+def _helix_spec(segment_length_mm: float | None = None, helix: dict = HELIX) -> CoilSpec:
+    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", segment_length_mm=segment_length_mm, **helix)
 
 
-def _helix_rows(label: str, points: np.ndarray) -> list[CaseResult]:
+def _helix_rows(label: str, points: np.ndarray, helix: dict = HELIX, pitch_tolerance: float = 3e-2
+                ) -> list[CaseResult]:
     fit = fit_helix(points)
     return [
-        _row(f"{label}: loop diameter (mm)", HELIX["loop_diameter_mm"], fit.loop_diameter_mm, 1e-2),
-        _row(f"{label}: pitch (mm)", HELIX["pitch_mm"], fit.pitch_mm, 3e-2),
+        _row(f"{label}: loop diameter (mm)", helix["loop_diameter_mm"], fit.loop_diameter_mm, 1e-2),
+        _row(f"{label}: pitch (mm)", helix["pitch_mm"], fit.pitch_mm, pitch_tolerance),
     ]
 
 
@@ -225,26 +227,30 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
     return state.x.numpy()
 
 
-def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY) -> list[CaseResult]:
-    """A 60 mm helical coil started straight, free ends, damped to rest."""
-    spec = _helix_spec(segment_length_mm)
+def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, coil_contact: bool) -> np.ndarray:
+    """Rest positions of a helical coil started straight, free ends, damped to rest."""
+    spec = _helix_spec(segment_length_mm, helix)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
     builder.add_coil(spec)
     model = builder.finalize()
     n = model.node_count
     straight = np.zeros((n, 3))
     straight[:, 0] = model.arc_s.numpy()
-    # elastic only: a straight start is no physical state, and its whipping release
-    # would tangle the coil through self-contact (free_release has contact on)
-    stepper = Stepper(Solver(model, coil_contact=False, dt_safety=dt_safety), state_from_positions(model, straight),
-                      Control.create(model), chunk=1000)
-    return _helix_rows("helix recovery", _settle(stepper, max_steps=4_000_000))
+    stepper = Stepper(Solver(model, coil_contact=coil_contact, dt_safety=dt_safety),
+                      state_from_positions(model, straight), Control.create(model), chunk=1000)
+    return _settle(stepper, max_steps=4_000_000)
 
 
-def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
-                 segment_length_mm: float | None = None, mass_scale: float = 1.0) -> list[CaseResult]:
-    """The helical coil packed in a straight catheter and pushed out into empty space."""
-    spec = _helix_spec(segment_length_mm)
+def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY) -> list[CaseResult]:
+    """A 60 mm helical coil started straight, free ends, damped to rest (elastic only:
+    a straight start is no physical state; ``tight_pitch`` runs it with contact)."""
+    return _helix_rows("helix recovery", _recovered(segment_length_mm, dt_safety, HELIX, coil_contact=False))
+
+
+def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float | None, mass_scale: float,
+              helix: dict) -> np.ndarray:
+    """Rest positions of a helical coil packed in a straight catheter and pushed out into empty space."""
+    spec = _helix_spec(segment_length_mm, helix)
     settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s, mass_scale=mass_scale)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
@@ -255,7 +261,25 @@ def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_S
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
     control.set_active_coil(-1)  # detached: the pusher stops
-    return _helix_rows("free release", _settle(stepper, max_steps=stepper.steps + 4_000_000))
+    return _settle(stepper, max_steps=stepper.steps + 4_000_000)
+
+
+def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
+                 segment_length_mm: float | None = None, mass_scale: float = 1.0) -> list[CaseResult]:
+    """The helical coil packed in a straight catheter and pushed out into empty space."""
+    return _helix_rows("free release", _released(push_speed_mm_s, dt_safety, segment_length_mm, mass_scale, HELIX))
+
+
+def tight_pitch() -> list[CaseResult]:
+    """A helix whose turns are 10 µm apart (pitch d + 10 µm, below the default
+    contact onset c0 = 0.1 d = 29 µm), with coil contact on: pushed into free space,
+    and released from straight. Both must come to rest in the pre-shape (loop
+    diameter and pitch within 1 %): neighbouring turns of the rest shape do not
+    repel each other at rest (docs/FORMULATION.md, rest clearance)."""
+    push = _released(100.0, DEFAULT_DT_SAFETY, None, 1.0, TIGHT_HELIX)
+    recovery = _recovered(None, DEFAULT_DT_SAFETY, TIGHT_HELIX, coil_contact=True)
+    return (_helix_rows("tight pitch, pushed out (contact)", push, TIGHT_HELIX, 1e-2)
+            + _helix_rows("tight pitch, recovery from straight (contact)", recovery, TIGHT_HELIX, 1e-2))
 
 
 # --- energy ---------------------------------------------------------------------
@@ -287,6 +311,7 @@ CASES = {
     "cantilever": cantilever_cases,
     "helix": helix_recovery,
     "release": free_release,
+    "tight-pitch": tight_pitch,
     "energy": energy_conservation,
 }
 
