@@ -36,7 +36,9 @@ Differences in *method* (not in the model):
   1e-3 of the mean edge length. The twin always computes the exact distance
   but then applies the kernel's search window (``wall_search_mm`` beyond the
   contact range, with the per-node side cache), because that window decides
-  which nodes feel a force.
+  which nodes feel a force. A node in the lumen within its contact range then
+  gets the feature sum over *every* face, edge and vertex (Warp: those in a
+  ``wp.mesh_query_aabb`` box around the node; the others contribute zero).
 
 Units: mm, g, s; forces µN, torques µN·mm, energies nJ.
 """
