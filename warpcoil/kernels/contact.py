@@ -649,11 +649,9 @@ def edge_contact(
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
 ):
-    """Segment–segment contact on edge a (so a segment cannot slip between two
-    nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
-    closest points of a and every other edge b of the same ensemble member near
-    it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
-    the barycentric weight of p_a. Candidates: a's neighbour list from the last
+    """Coil–coil contact on edge a's nodes: the node–capsule terms (:func:`pair_contact`)
+    joining a and every other edge b of the same ensemble member near it; reports
+    the smallest capsule–capsule gap and the pairs closer than c0. Candidates: a's neighbour list from the last
     build (every edge whose midpoint was within query radius + skin then, so
     every edge whose midpoint is now within its world's ``query_radius`` while no midpoint
     has moved half the skin), or, when the list overflowed, the grid of that
