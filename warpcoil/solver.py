@@ -289,7 +289,7 @@ class Solver:
         if self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.wall_mesh, m.wall_face_first,
-                m.wall_origin, m.wall_vertices, m.wall_faces, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self.wall_force,
@@ -301,7 +301,7 @@ class Solver:
             else:
                 self._build_grid()
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
+                state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
