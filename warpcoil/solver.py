@@ -64,12 +64,10 @@ class StepBound:
 
 
 def _contact_inv_mass(model: Model, nodes: slice) -> np.ndarray:
-    """1/g per node for the contact terms: a node's contact stiffness grows with its
-    share of the coil (coil–coil forces reach a node through its edges, one at a
-    coil end), so an end node of half mass counts as an interior one."""
-    has_next = model.has_next.numpy()[nodes]
-    edges = has_next + np.concatenate([[0], has_next[:-1]])
-    return model.inv_mass.numpy()[nodes] * np.maximum(edges, 1) / 2.0
+    """1/g per node for the contact terms: every node, an end node of half mass too,
+    meets the full contact law (the wall law per node; coil–coil as node–segment
+    terms), so its own mass sets its contact frequency."""
+    return model.inv_mass.numpy()[nodes]
 
 
 def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
