@@ -36,7 +36,9 @@ Differences in *method* (not in the model):
   1e-3 of the mean edge length. The twin always computes the exact distance
   but then applies the kernel's search window (``wall_search_mm`` beyond the
   contact range, with the per-node side cache), because that window decides
-  which nodes feel a force.
+  which nodes feel a force. A node in the lumen within its contact range then
+  gets the feature sum over *every* face, edge and vertex (Warp: those in a
+  ``wp.mesh_query_aabb`` box around the node; the others contribute zero).
 
 Units: mm, g, s; forces µN, torques µN·mm, energies nJ.
 """
@@ -246,6 +248,7 @@ class NumpyTwin:
         self.catheter_path = model.catheter_path.numpy()
         self.catheter_axis = np.asarray(model.catheter_axis, dtype=np.float64)
         self.node_radius = model.node_radius.numpy()
+        self.rest_x = model.rest_positions.astype(np.float64)
         c = model.contact
         self.p0, self.c0, self.exclusion = float(c.p0_uN), float(c.c0_mm), int(c.exclusion_edges)
         self.u_linear = contact_linear_onset(model, self.dt)  # solver.py: the law's linear onset for this step
@@ -296,8 +299,12 @@ class NumpyTwin:
         reach = np.where(side < 0, FAR_MM, self.node_radius[nodes] + self.c0 + self.wall_search_mm)
         signed, inward = self.wall.query(x[nodes])
         found = np.abs(signed) < reach  # the BVH query finds faces strictly within its max_dist
-        magnitude = contact_force_magnitude(signed - self.node_radius[nodes], self.p0, self.c0, self.u_linear)
-        force[nodes] = np.where(col(found), col(magnitude) * inward, 0.0)
+        radius = self.node_radius[nodes]
+        magnitude = contact_force_magnitude(signed - radius, self.p0, self.c0, self.u_linear)
+        outside = found & (signed <= 0.0)  # pushed back along the closest face's normal
+        force[nodes] = np.where(col(outside), col(magnitude) * inward, 0.0)
+        near = found & (signed > 0.0) & (signed < radius + self.c0)
+        force[nodes[near]] = self.wall.feature_sum(x[nodes[near]], radius[near], self.p0, self.c0, self.u_linear)
         self.wall_side[nodes] = np.where(found, (signed > 0.0).astype(np.int32), side)
         self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
         return force
@@ -324,13 +331,64 @@ class NumpyTwin:
             pairs_b.append(others[ib])
         return np.concatenate(pairs_a), np.concatenate(pairs_b)
 
+    def counted(self, free: np.ndarray, e: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """contact.py ``counted``: edge e (−1: none) is an obstacle, not bonded to ``other``."""
+        ok = e >= 0
+        e_ = np.where(ok, e, 0)
+        free_next = np.append(free[1:], 0)
+        fixed_next = np.append(self.fixed[1:], True)
+        obstacle = self.has_next & (((free != 0) | (free_next != 0)) | (~self.fixed & ~fixed_next))
+        bonded = (self.coil_of[e_] == self.coil_of[other]) & (np.abs(e_ - other) <= self.exclusion)
+        return ok & obstacle[e_] & ~bonded
+
+    def joint(self, free: np.ndarray, k: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """contact.py ``joint``: 1.0 where node k joins edges k − 1 and k that ``other`` touches."""
+        inner = (k >= 1) & self.has_next[k] & self.has_next[np.maximum(k - 1, 0)]
+        both = self.counted(free, np.where(inner, k - 1, -1), other) & self.counted(free, np.where(inner, k, -1),
+                                                                                    other)
+        return (inner & both).astype(np.float64)
+
+    def offset_gap(self, gap: np.ndarray, same: np.ndarray, rest_gap: np.ndarray) -> np.ndarray:
+        """contact.py ``rest_offset`` added to the gaps of same-coil terms."""
+        return gap + np.where(same, np.clip(self.c0 - rest_gap, 0.0, self.c0), 0.0)
+
+    def node_segment(self, x: np.ndarray, j: np.ndarray, b: np.ndarray):
+        """contact.py ``node_segment_term``: ½ the law between node j and capsule b
+        (force on j) and the parameter t of the closest point on b."""
+        def closest(points, p0, p1):
+            e = p1 - p0
+            t = np.clip(dot(points - p0, e) / np.maximum(dot(e, e), 1e-300), 0.0, 1.0)
+            return p0 + col(t) * e, t
+        cp, t = closest(x[j], x[b], x[b + 1])
+        delta = x[j] - cp
+        dist = length(delta)
+        r = self.node_radius[j] + self.node_radius[b]
+        rest_cp, _ = closest(self.rest_x[j], self.rest_x[b], self.rest_x[b + 1])
+        gap = self.offset_gap(dist - r, self.coil_of[j] == self.coil_of[b], length(self.rest_x[j] - rest_cp) - r)
+        on = (gap < self.c0) & (dist > 1.0e-12)
+        f = col(np.where(on, 0.5 * contact_force_magnitude(gap, self.p0, self.c0, self.u_linear)
+                         / np.where(on, dist, 1.0), 0.0)) * delta
+        return f, t
+
+    def node_node(self, x: np.ndarray, j: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """contact.py ``node_node_term``: the law between node spheres j and k (force on j)."""
+        delta = x[j] - x[k]
+        dist = length(delta)
+        r = self.node_radius[j] + self.node_radius[k]
+        gap = self.offset_gap(dist - r, self.coil_of[j] == self.coil_of[k], length(self.rest_x[j] - self.rest_x[k]) - r)
+        on = (gap < self.c0) & (dist > 1.0e-12)
+        return col(np.where(on, contact_force_magnitude(gap, self.p0, self.c0, self.u_linear)
+                            / np.where(on, dist, 1.0), 0.0)) * delta
+
     def edge_contact(self, x: np.ndarray, free: np.ndarray):
-        """contact.py ``edge_contact``: segment–segment contact on every edge a in
-        the contact pass (it exists and has a free node) against the other such
-        edges b near it (:meth:`candidate_pairs`): the law of the surface gap
-        between their closest points, along p_a − p_b, split between a's start
-        and end node by the barycentric weight of p_a. Returns the per-edge
-        (start, end) forces; counts each edge's touching pairs. Edges in the
+        """contact.py ``edge_contact`` / ``pair_contact``: for every edge a in the
+        contact pass (it exists and has a free node) and every other edge b near it
+        (:meth:`candidate_pairs`), the forces on a's nodes of the coil–coil terms
+        joining a's and b's nodes: ½ the law between each node a owns (its start,
+        and its end at a coil's end) and capsule b, minus the joint corrections
+        with b's nodes, and the reactions of b's nodes against capsule a, split by
+        the closest point's parameter. Returns the per-edge (start, end) forces;
+        counts each edge's touching pairs (segment gap < c0). Edges in the
         catheter are obstacles (they take no force)."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
@@ -339,17 +397,36 @@ class NumpyTwin:
         in_pass = self.has_next & ((free != 0) | (free_next != 0))  # edge_in_contact_pass
         obstacle = in_pass | (self.has_next & ~self.fixed & ~fixed_next)  # edge_is_obstacle: also in the catheter
         a, b = self.candidate_pairs(x, np.flatnonzero(in_pass), np.flatnonzero(obstacle))
-        pa0, pa1, pb0, pb1 = x[a], x[a + 1], x[b], x[b + 1]
-        s, t = segment_closest_params(pa0, pa1, pb0, pb1)
-        delta = pa0 + col(s) * (pa1 - pa0) - pb0 - col(t) * (pb1 - pb0)
-        dist = length(delta)
-        gap = dist - self.node_radius[a] - self.node_radius[b]
-        touching = (gap < self.c0) & (dist > 1.0e-12)
-        a, s, delta, dist, gap = a[touching], s[touching], delta[touching], dist[touching], gap[touching]
-        f = col(contact_force_magnitude(gap, self.p0, self.c0, self.u_linear) / dist) * delta  # on edge a from edge b
-        np.add.at(force_start, a, col(1.0 - s) * f)
-        np.add.at(force_end, a, col(s) * f)
-        np.add.at(self.coil_contacts, a, 1)
+        s, t = segment_closest_params(x[a], x[a + 1], x[b], x[b + 1])
+        gap = length(x[a] + col(s) * (x[a + 1] - x[a]) - x[b] - col(t) * (x[b + 1] - x[b])) \
+            - self.node_radius[a] - self.node_radius[b]
+        np.add.at(self.coil_contacts, a, (gap < self.c0).astype(np.int32))
+        last = lambda e: ~self.has_next[e + 1]  # noqa: E731  the edge also owns its coil's last node
+        f_start, f_end = np.zeros((len(a), 3)), np.zeros((len(a), 3))
+        for m in (0, 1):  # a's nodes against capsule b and b's joints
+            on = np.ones(len(a), bool) if m == 0 else last(a)
+            j = a + m
+            f, _ = self.node_segment(x, j, b)
+            joint_j = self.joint(free, j, b)
+            for q in (0, 1):
+                k = b + q
+                weight = 0.5 * (self.joint(free, k, a) + joint_j)
+                if q == 1:
+                    weight = np.where(last(b), weight, 0.0)
+                f = f - col(weight) * self.node_node(x, j, np.minimum(k, self.n - 1))
+            f = np.where(col(on), f, 0.0)
+            if m == 0:
+                f_start += f
+            else:
+                f_end += f
+        for q in (0, 1):  # b's nodes against capsule a: the reaction on a's nodes
+            on = np.ones(len(a), bool) if q == 0 else last(b)
+            f, t_a = self.node_segment(x, np.minimum(b + q, self.n - 1), a)
+            f = np.where(col(on), f, 0.0)
+            f_start -= col(1.0 - t_a) * f
+            f_end -= col(t_a) * f
+        np.add.at(force_start, a, f_start)
+        np.add.at(force_end, a, f_end)
         return force_start, force_end
 
     def gather_contact(self, free: np.ndarray, wall_force: np.ndarray, force_start: np.ndarray,
@@ -618,6 +695,7 @@ class _WallTwin:
         self.origin = np.asarray(wall.origin, dtype=np.float64)
         self.vertices = wall.vertices.numpy().astype(np.float64)  # relative to origin
         self.faces = wall.faces.numpy().reshape(-1, 3).astype(np.int64)
+        self.owners = np.asarray(wall.owners)
         tri = self.vertices[self.faces]  # (F, 3 corners, 3)
         e0, e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], tri[:, 2] - tri[:, 1]
         normal = cross(e0, e1)
@@ -677,6 +755,33 @@ class _WallTwin:
             k = feature == feat
             n[k] = self.edge_normal[face[k], corner]
         return n
+
+    def feature_sum(self, p_abs: np.ndarray, radius: np.ndarray, p0: float, c0: float, u_linear: float) -> np.ndarray:
+        """contact.py ``wall_feature_sum``: Σ_faces − Σ_edges + Σ_vertices of the law of
+        the distance to each closed face, edge and vertex (each edge and vertex once)."""
+        p = p_abs - self.origin
+        tri = self.vertices[self.faces]  # (F, 3, 3)
+        force = np.zeros_like(p)
+
+        def add(closest, sign):  # closest: (points, features, 3)
+            delta = p[:, None, :] - closest
+            dist = length(delta)
+            on = (dist < (radius + c0)[:, None]) & (dist > 1.0e-12)
+            gap = dist - radius[:, None]
+            magnitude = np.where(on, contact_force_magnitude(gap, p0, c0, u_linear) / np.where(on, dist, 1.0), 0.0)
+            return sign * (magnitude[..., None] * delta).sum(axis=1)
+
+        u, v, w, _ = closest_point_to_triangle(tri[None, :, 0], tri[None, :, 1], tri[None, :, 2], p[:, None, :])
+        force += add(col(u) * tri[None, :, 0] + col(v) * tri[None, :, 1] + col(w) * tri[None, :, 2], 1.0)
+        edges = np.concatenate([self.faces[self.owners & flag != 0][:, pair]
+                                for flag, pair in ((1, [0, 1]), (2, [1, 2]), (4, [2, 0]))])
+        e0, e1 = self.vertices[edges[:, 0]][None], self.vertices[edges[:, 1]][None]
+        seg = e1 - e0
+        t = np.clip(dot(p[:, None, :] - e0, seg) / dot(seg, seg), 0.0, 1.0)
+        force += add(e0 + col(t) * seg, -1.0)
+        corners = np.concatenate([self.faces[self.owners & flag != 0][:, k] for k, flag in enumerate((8, 16, 32))])
+        force += add(np.broadcast_to(self.vertices[corners][None], (len(p), len(corners), 3)), 1.0)
+        return force
 
     def query(self, p_abs: np.ndarray):
         """contact.py ``wall_query``: signed distance (mm, > 0 inside the lumen) of

@@ -43,6 +43,7 @@ class WallModel:
     mesh: wp.Mesh
     vertices: wp.array  # vec3d, mm, relative to origin
     faces: wp.array  # int32, flat (3 per triangle), wound with outward normals
+    owners: np.ndarray  # int32 per triangle: the edges and vertices it counts in the wall's feature sum
     origin: np.ndarray  # mm
     volume_mm3: float
     vertices_mm: np.ndarray  # absolute, for output
@@ -57,8 +58,28 @@ class WallModel:
         mesh = wp.Mesh(points=wp.array(local.astype(np.float32), dtype=wp.vec3, device=device),
                        indices=wp.array(faces.ravel(), dtype=wp.int32, device=device))
         return WallModel(mesh=mesh, vertices=wp.array(local, dtype=wp.vec3d, device=device),
-                         faces=wp.array(faces.ravel(), dtype=wp.int32, device=device), origin=origin,
+                         faces=wp.array(faces.ravel(), dtype=wp.int32, device=device),
+                         owners=feature_owners(faces), origin=origin,
                          volume_mm3=float(volume_mm3), vertices_mm=vertices_mm, faces_np=faces)
+
+
+def feature_owners(faces: np.ndarray) -> np.ndarray:
+    """Per triangle abc, the flags (contact.OWN_EDGE_AB … OWN_VERTEX_C) of the edges
+    and vertices it counts in the wall's feature sum: each edge and each vertex
+    is counted once, by the lowest-numbered triangle that holds it."""
+    faces = np.asarray(faces, dtype=np.int64)
+    count = len(faces)
+    owners = np.zeros(count, np.int32)
+    index = np.repeat(np.arange(count), 3)
+    edges = np.sort(np.stack([faces.ravel(), np.roll(faces, -1, axis=1).ravel()], axis=1), axis=1)  # ab, bc, ca
+    _, first, edge_id = np.unique(edges, axis=0, return_index=True, return_inverse=True)
+    owns_edge = (index[first][edge_id.ravel()] == index).reshape(count, 3)
+    owners |= (owns_edge * np.array([1, 2, 4])).sum(axis=1).astype(np.int32)
+    first_face = np.full(int(faces.max()) + 1, count)
+    np.minimum.at(first_face, faces.ravel(), index)
+    for k, flag in enumerate((8, 16, 32)):  # vertices a, b, c
+        owners[first_face[faces[:, k]] == np.arange(count)] |= flag
+    return owners
 
 
 @dataclass(frozen=True)
@@ -102,6 +123,7 @@ class Model:
     coil_first: np.ndarray  # first node of each coil
     coil_last: np.ndarray  # last node of each coil
     rest_positions: np.ndarray  # (N, 3) pre-shapes, back to back
+    rest_x: wp.array  # the same on the device (vec3d, mm): rest clearances of coil–coil pairs
     # topology and per-node data
     has_next: wp.array
     coil_of: wp.array
@@ -146,6 +168,7 @@ class Model:
     wall_origin: wp.array  # vec3d per world
     wall_vertices: wp.array  # every distinct wall's vertices (float64, relative to its origin), back to back
     wall_faces: wp.array  # ... and faces (indices into wall_vertices), flat
+    wall_owners: wp.array  # ... and per face the edges and vertices it counts (contact.wall_feature_sum)
 
     @property
     def node_count(self) -> int:
@@ -396,7 +419,7 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
     n = int(node_counts.sum())
     model = Model(
         device=device, coils=tuple(c for w in worlds for c in w["coils"]), coil_first=coil_first,
-        coil_last=coil_last, rest_positions=cat("rest"),
+        coil_last=coil_last, rest_positions=cat("rest"), rest_x=arr(cat("rest"), wp.vec3d),
         has_next=arr(cat("has_next"), wp.int32), coil_of=arr(coil_of, wp.int32), arc_s=arr(cat("arc_s"), wp.float64),
         fixed=arr(cat("fixed"), wp.int32), clamp_tangent=arr(cat("clamp_tangent"), wp.vec3d),
         clamp_director=arr(np.zeros((n, 3)), wp.vec3d), inv_mass=arr(1.0 / cat("mass"), wp.float64),
@@ -438,7 +461,7 @@ def _ensemble_walls(meshes: list, device) -> tuple[dict, list]:
     face and origin (id 0 where a world has no wall)."""
     distinct: dict[int, WallModel] = {}
     face_first: dict[int, int] = {}
-    vertices, faces = [], []
+    vertices, faces, owners = [], [], []
     vertex_base = face_base = 0
     for mesh in meshes:
         if mesh is None or id(mesh) in distinct:
@@ -448,6 +471,7 @@ def _ensemble_walls(meshes: list, device) -> tuple[dict, list]:
         face_first[id(mesh)] = face_base
         vertices.append(model.vertices_mm - model.origin)
         faces.append(model.faces_np.ravel() + vertex_base)
+        owners.append(model.owners)
         vertex_base += len(model.vertices_mm)
         face_base += len(model.faces_np)
     models = [None if m is None else distinct[id(m)] for m in meshes]
@@ -459,4 +483,5 @@ def _ensemble_walls(meshes: list, device) -> tuple[dict, list]:
         wall_origin=arr(np.array([np.zeros(3) if m is None else m.origin for m in models]), wp.vec3d),
         wall_vertices=arr(np.concatenate(vertices) if vertices else np.zeros((1, 3)), wp.vec3d),
         wall_faces=arr(np.concatenate(faces).astype(np.int32) if faces else np.zeros(3, np.int32), wp.int32),
+        wall_owners=arr(np.concatenate(owners).astype(np.int32) if owners else np.zeros(1, np.int32), wp.int32),
     ), models

@@ -78,7 +78,9 @@ class ContactSettings:
 
     P0_uN: force at zero clearance (≈ 13 kPa mean local pressure × a node's
     patch d·l0 ≈ 1e3 µN). c0_mm: clearance where contact starts (default
-    0.1·d, a few times the wall's RMS roughness).
+    0.1·d, a few times the wall's RMS roughness); two parts of one coil that are
+    closer than c0 in its pre-shape begin contact at their rest clearance, so a
+    tight pitch is not pushed open (docs/FORMULATION.md, rest clearance).
     """
 
     P0_uN: float = 1.0e3

@@ -64,12 +64,10 @@ class StepBound:
 
 
 def _contact_inv_mass(model: Model, nodes: slice) -> np.ndarray:
-    """1/g per node for the contact terms: a node's contact stiffness grows with its
-    share of the coil (coil–coil forces reach a node through its edges, one at a
-    coil end), so an end node of half mass counts as an interior one."""
-    has_next = model.has_next.numpy()[nodes]
-    edges = has_next + np.concatenate([[0], has_next[:-1]])
-    return model.inv_mass.numpy()[nodes] * np.maximum(edges, 1) / 2.0
+    """1/g per node for the contact terms: every node, an end node of half mass too,
+    meets the full contact law (the wall law per node; coil–coil as node–segment
+    terms), so its own mass sets its contact frequency."""
+    return model.inv_mass.numpy()[nodes]
 
 
 def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
@@ -289,7 +287,7 @@ class Solver:
         if self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.wall_mesh, m.wall_face_first,
-                m.wall_origin, m.wall_vertices, m.wall_faces, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self.wall_force,
@@ -301,7 +299,7 @@ class Solver:
             else:
                 self._build_grid()
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
-                state.x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
+                state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,

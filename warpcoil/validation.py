@@ -332,17 +332,19 @@ def frequency_cases(resolutions=(25, 50, 100), length_mm: float = 20.0) -> list[
 
 # --- helix recovery and free release -----------------------------------------
 HELIX = dict(length_mm=60.0, loop_diameter_mm=3.0, pitch_mm=0.6)
+TIGHT_HELIX = dict(length_mm=30.0, loop_diameter_mm=3.0, pitch_mm=REFERENCE_D_MM + 0.01)  # turns 10 µm apart
 
 
-def _helix_spec(segment_length_mm: float | None = None) -> CoilSpec:
-    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", segment_length_mm=segment_length_mm, **HELIX)
+def _helix_spec(segment_length_mm: float | None = None, helix: dict = HELIX) -> CoilSpec:
+    return CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", segment_length_mm=segment_length_mm, **helix)
 
 
-def _helix_rows(label: str, points: np.ndarray) -> list[CaseResult]:
+def _helix_rows(label: str, points: np.ndarray, helix: dict = HELIX, pitch_tolerance: float = 3e-2
+                ) -> list[CaseResult]:
     fit = fit_helix(points)
     return [
-        _row(f"{label}: loop diameter (mm)", HELIX["loop_diameter_mm"], fit.loop_diameter_mm, 1e-2),
-        _row(f"{label}: pitch (mm)", HELIX["pitch_mm"], fit.pitch_mm, 3e-2),
+        _row(f"{label}: loop diameter (mm)", helix["loop_diameter_mm"], fit.loop_diameter_mm, 1e-2),
+        _row(f"{label}: pitch (mm)", helix["pitch_mm"], fit.pitch_mm, pitch_tolerance),
     ]
 
 
@@ -353,31 +355,37 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
     return state.x.numpy()
 
 
-def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
-                   integrator: str = "symplectic") -> list[CaseResult]:
-    """A 60 mm helical coil started straight, free ends, damped to rest."""
-    spec = _helix_spec(segment_length_mm)
-    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
+def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, coil_contact: bool,
+               damping_uN_per_mm: float = 5.0, integrator: str = "symplectic") -> np.ndarray:
+    """Rest positions of a helical coil started straight, free ends, damped to rest."""
+    spec = _helix_spec(segment_length_mm, helix)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=damping_uN_per_mm))
     builder.add_coil(spec)
     model = builder.finalize()
     n = model.node_count
     straight = np.zeros((n, 3))
     straight[:, 0] = model.arc_s.numpy()
-    # elastic only: a straight start is no physical state, and its whipping release
-    # would tangle the coil through self-contact (free_release has contact on)
-    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=False),
+    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact),
                       state_from_positions(model, straight), Control.create(model), chunk=1000)
+    return _settle(stepper, max_steps=4_000_000)
+
+
+def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
+                   integrator: str = "symplectic") -> list[CaseResult]:
+    """A 60 mm helical coil started straight, free ends, damped to rest (elastic only:
+    a straight start is no physical state; ``tight_pitch`` runs it with contact)."""
     label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step"
-    return _helix_rows(label, _settle(stepper, max_steps=4_000_000))
+    return _helix_rows(label, _recovered(segment_length_mm, dt_safety, HELIX, coil_contact=False,
+                                         integrator=integrator))
 
 
-def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
-                 segment_length_mm: float | None = None, mass_scale: float = 1.0,
-                 integrator: str = "symplectic") -> list[CaseResult]:
-    """The helical coil packed in a straight catheter and pushed out into empty space
-    (``integrator`` "implicit": at its default step for this push speed)."""
-    spec = _helix_spec(segment_length_mm)
-    settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s, mass_scale=mass_scale)
+def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float | None, mass_scale: float,
+              helix: dict, damping_uN_per_mm: float = 5.0, integrator: str = "symplectic") -> np.ndarray:
+    """Rest positions of a helical coil packed in a straight catheter and pushed out into
+    empty space (``integrator`` "implicit": at its default step for this push speed)."""
+    spec = _helix_spec(segment_length_mm, helix)
+    settings = SimulationSettings(damping_uN_per_mm=damping_uN_per_mm, push_speed_mm_s=push_speed_mm_s,
+                                  mass_scale=mass_scale)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
@@ -389,7 +397,64 @@ def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_S
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
     control.set_active_coil(-1)  # detached: the pusher stops
-    return _helix_rows("free release", _settle(stepper, max_steps=stepper.steps + 4_000_000))
+    return _settle(stepper, max_steps=stepper.steps + 4_000_000)
+
+
+def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
+                 segment_length_mm: float | None = None, mass_scale: float = 1.0,
+                 integrator: str = "symplectic") -> list[CaseResult]:
+    """The helical coil packed in a straight catheter and pushed out into empty space."""
+    label = "free release" if integrator == "symplectic" else f"free release, {integrator} default step"
+    return _helix_rows(label, _released(push_speed_mm_s, dt_safety, segment_length_mm, mass_scale, HELIX,
+                                        integrator=integrator))
+
+
+def tight_pitch() -> list[CaseResult]:
+    """A helix whose turns are 10 µm apart (pitch d + 10 µm, below the default
+    contact onset c0 = 0.1 d = 29 µm), with coil contact on: pushed into free space,
+    and released from straight. Both must come to rest in the pre-shape (loop
+    diameter and pitch within 1 %): neighbouring turns of the rest shape do not
+    repel each other at rest (docs/FORMULATION.md, rest clearance). Default damping
+    (10 µN/mm): at half of it the straight start whips its turns over each other."""
+    damping = SimulationSettings().damping_uN_per_mm
+    push = _released(100.0, DEFAULT_DT_SAFETY, None, 1.0, TIGHT_HELIX, damping)
+    recovery = _recovered(None, DEFAULT_DT_SAFETY, TIGHT_HELIX, True, damping)
+    return (_helix_rows("tight pitch, pushed out (contact)", push, TIGHT_HELIX, 1e-2)
+            + _helix_rows("tight pitch, recovery from straight (contact)", recovery, TIGHT_HELIX, 1e-2))
+
+
+# --- dense packs come to rest ------------------------------------------------------
+DENSE_PACKS = ((0.20, 4.0), (0.30, 3.5))  # packing density, helix loop diameter (mm): wider than the sac
+
+
+def dense_pack(packing: float, loop_diameter_mm: float, length_mm: float = 60.0, seed: int = 1):
+    """A helical coil (d 0.2921 mm, pitch 2d) pushed at default settings into an
+    irregular, faceted, non-convex sac (:func:`warpcoil.faceted_sac.lobulated_sac`,
+    1280 faces, volume π (d/2)² L / packing); returns its RunResult."""
+    from .deploy import Anatomy, Ensemble
+    from .faceted_sac import catheter_tip, lobulated_sac
+    from .settings import OutputSettings, Scene
+
+    coil = CoilSpec(wire_diameter_mm=REFERENCE_D_MM, length_mm=length_mm, loop_diameter_mm=loop_diameter_mm)
+    wall = lobulated_sac(math.pi * (REFERENCE_D_MM / 2.0) ** 2 * length_mm / packing, seed=seed)
+    catheter = CatheterSpec(tip_mm=catheter_tip(wall, seed), direction=(0.0, 0.0, 1.0))
+    scene = Scene(coils=(coil,), catheter=catheter, output=OutputSettings(usd=False))
+    return Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)]).run()[0]
+
+
+def dense_packs() -> list[CaseResult]:
+    """60 mm coils into faceted sacs at 20 % and 30 % packing come to rest: the run
+    completes (kinetic energy below the rest tolerance, ½ M (0.25 mm/s)² ≈ 1.2e-3 nJ)
+    within its 2 s after detachment, at default settings."""
+    rows = []
+    for packing, loop in DENSE_PACKS:
+        result = dense_pack(packing, loop)
+        label = f"dense pack {packing:.0%}, faceted sac"
+        rows.append(_row(f"{label}: packing density", packing, result.packing_density, 1e-2))
+        done = result.status == "completed"
+        rows.append(CaseResult(f"{label}: completed (at rest after {result.simulated_time_s:.2f} s)", 1.0,
+                               float(done), 0.0 if done else 1.0, 0.0))
+    return rows
 
 
 # --- energy ---------------------------------------------------------------------
@@ -648,6 +713,8 @@ CASES = {
     "frequency": frequency_cases,
     "helix": helix_recovery,
     "release": free_release,
+    "tight-pitch": tight_pitch,
+    "dense-pack": dense_packs,
     "energy": energy_conservation,
     "porous": porous_cases,
     "energy3d": energy_3d_cases,

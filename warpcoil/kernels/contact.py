@@ -134,6 +134,123 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     return f, -dist, inward
 
 
+# Feature flags of a wall triangle abc (``owners``): the edges and vertices it counts
+# in the wall's feature sum (each edge and vertex is counted by one of its faces).
+OWN_EDGE_AB = wp.constant(1)
+OWN_EDGE_BC = wp.constant(2)
+OWN_EDGE_CA = wp.constant(4)
+OWN_VERTEX_A = wp.constant(8)
+OWN_VERTEX_B = wp.constant(16)
+OWN_VERTEX_C = wp.constant(32)
+BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes
+
+
+@wp.func
+def closest_on_segment(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d) -> wp.vec3d:
+    ab = b - a
+    length_sq = wp.dot(ab, ab)
+    t = wp.float64(0.0)
+    if length_sq > wp.float64(0.0):
+        t = wp.clamp(wp.dot(p - a, ab) / length_sq, wp.float64(0.0), wp.float64(1.0))
+    return a + t * ab
+
+
+@wp.func
+def closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.vec3d:
+    """Point of triangle abc closest to p, float64 (Ericson, Real-Time Collision
+    Detection, §5.1.5; a degenerate triangle falls back to its edges)."""
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = wp.dot(ab, ap)
+    d2 = wp.dot(ac, ap)
+    if d1 <= wp.float64(0.0) and d2 <= wp.float64(0.0):
+        return a
+    bp = p - b
+    d3 = wp.dot(ab, bp)
+    d4 = wp.dot(ac, bp)
+    if d3 >= wp.float64(0.0) and d4 <= d3:
+        return b
+    vc = d1 * d4 - d3 * d2
+    if vc <= wp.float64(0.0) and d1 >= wp.float64(0.0) and d3 <= wp.float64(0.0):
+        return closest_on_segment(p, a, b)
+    cp = p - c
+    d5 = wp.dot(ab, cp)
+    d6 = wp.dot(ac, cp)
+    if d6 >= wp.float64(0.0) and d5 <= d6:
+        return c
+    vb = d5 * d2 - d1 * d6
+    if vb <= wp.float64(0.0) and d2 >= wp.float64(0.0) and d6 <= wp.float64(0.0):
+        return closest_on_segment(p, a, c)
+    va = d3 * d6 - d5 * d4
+    if va <= wp.float64(0.0) and d4 - d3 >= wp.float64(0.0) and d5 - d6 >= wp.float64(0.0):
+        return closest_on_segment(p, b, c)
+    total = va + vb + vc
+    if not (total > wp.float64(0.0)):  # degenerate (sliver) triangle: nearest of its edges
+        q = closest_on_segment(p, a, b)
+        r = closest_on_segment(p, b, c)
+        if wp.length_sq(p - r) < wp.length_sq(p - q):
+            q = r
+        r = closest_on_segment(p, c, a)
+        if wp.length_sq(p - r) < wp.length_sq(p - q):
+            q = r
+        return q
+    return a + (vb / total) * ab + (vc / total) * ac
+
+
+@wp.func
+def feature_force(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
+                  u_linear: wp.float64) -> vec3l:
+    """The law of the gap |p − closest| − radius along (p − closest)/|p − closest|, fixed point."""
+    delta = p - closest
+    dist = wp.length(delta)
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if dist < radius + c0 and dist > wp.float64(1.0e-12):
+        f = (contact_force_magnitude(dist - radius, p0, c0, u_linear) / dist) * delta
+    return to_fixed(f)
+
+
+@wp.func
+def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
+                     p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.vec3d:
+    """Wall force (µN) on a node sphere at ``p`` (relative to the mesh origin) in the
+    lumen: Σ_faces F(d_f) − Σ_edges F(d_e) + Σ_vertices F(d_v), each the law of the
+    distance from p to that closed face, edge or vertex, along p − its closest point.
+    Where one face is closest (a flat facet, a ridge, a vertex) the terms of the
+    shared edges and vertices cancel the repeats exactly and leave the single
+    closest-point force; in a groove between facets both faces push. Every term
+    is continuous in p with a continuous gradient, so is the sum: the force of a
+    potential with no jumps at facet edges (the closest-face normal of
+    :func:`wall_query` jumps there). Fixed-point sum: order-independent."""
+    reach = radius + c0 + BOX_MARGIN_MM
+    lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
+    upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
+    query = wp.mesh_query_aabb(mesh, lower, upper)
+    f = int(0)
+    total = vec3l()
+    while wp.mesh_query_aabb_next(query, f):
+        k = face_first + f
+        a = vertices[faces[3 * k]]
+        b = vertices[faces[3 * k + 1]]
+        c = vertices[faces[3 * k + 2]]
+        own = owners[k]
+        total = total + feature_force(p, closest_on_triangle(p, a, b, c), radius, p0, c0, u_linear)
+        if own & OWN_EDGE_AB:
+            total = total - feature_force(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
+        if own & OWN_EDGE_BC:
+            total = total - feature_force(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear)
+        if own & OWN_EDGE_CA:
+            total = total - feature_force(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear)
+        if own & OWN_VERTEX_A:
+            total = total + feature_force(p, a, radius, p0, c0, u_linear)
+        if own & OWN_VERTEX_B:
+            total = total + feature_force(p, b, radius, p0, c0, u_linear)
+        if own & OWN_VERTEX_C:
+            total = total + feature_force(p, c, radius, p0, c0, u_linear)
+    return from_fixed(total)
+
+
 @wp.kernel
 def wall_contact(
     x: wp.array(dtype=wp.vec3d),
@@ -146,6 +263,7 @@ def wall_contact(
     origins: wp.array(dtype=wp.vec3d),
     vertices: wp.array(dtype=wp.vec3d),
     faces: wp.array(dtype=wp.int32),
+    owners: wp.array(dtype=wp.int32),
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
@@ -158,9 +276,12 @@ def wall_contact(
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
 ):
-    """Wall force on each free node (µN): the contact law of the gap
-    h = signed distance − d/2, along the inward wall normal (the wall of the
-    node's ensemble member; none where its mesh id is 0).
+    """Wall force on each free node (µN; the wall of the node's ensemble member,
+    none where its mesh id is 0). In the lumen: the contact law summed over the
+    wall's faces, edges and vertices within reach (:func:`wall_feature_sum`; on a
+    flat facet the law of the gap h = distance − d/2 along the facet's normal).
+    Outside the lumen: the law of h = −distance − d/2 along the closest face's
+    inward normal.
 
     The BVH search is limited to ``search_mm`` beyond the contact range: a node
     farther from the wall feels no force, and keeps the side (``inside``: 1 in
@@ -209,7 +330,11 @@ def wall_contact(
                 quiet_steps[i] = 0
             else:
                 quiet_steps[i] = NO_ANCHOR
-            if face != NO_FACE:
+            if face != NO_FACE and signed > wp.float64(0.0):
+                if signed < node_radius[i] + c0:
+                    f = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], x[i] - origins[w],
+                                         node_radius[i], p0, c0, u_linear)
+            elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
                 f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
     elif free[i] == 0:
         inside[i] = -1
@@ -341,12 +466,116 @@ def build_neighbours(
 
 
 @wp.func
-def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
+    """Shift (mm, in [0, c0]) of a same-coil clearance whose rest value ``rest_gap``
+    is below c0: c0 − rest_gap. The law then begins at the rest clearance (at
+    h = 0 if the rest shape has them touching), so neighbouring turns of a tight
+    pre-shape do not repel each other at rest."""
+    return wp.clamp(c0 - rest_gap, wp.float64(0.0), c0)
+
+
+@wp.func
+def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
+                      coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                      j: int, b: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
+    """½ the law of the gap between node sphere j and capsule b (|x_j − closest point
+    of edge b| − r_j − r_b, plus the rest offset of a same-coil pair): (force on
+    node j along x_j − closest point, µN; the closest point's parameter t on b)."""
+    p = x[j]
+    pb0 = x[b]
+    pb1 = x[b + 1]
+    eb = pb1 - pb0
+    t = wp.float64(0.0)
+    length_sq = wp.dot(eb, eb)
+    if length_sq > wp.float64(0.0):
+        t = wp.clamp(wp.dot(p - pb0, eb) / length_sq, wp.float64(0.0), wp.float64(1.0))
+    delta = p - pb0 - t * eb
+    dist = wp.length(delta)
+    gap = dist - node_radius[j] - node_radius[b]
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if gap < c0 and dist > wp.float64(1.0e-12):
+        if coil_of[j] == coil_of[b]:
+            rest = closest_on_segment(rest_x[j], rest_x[b], rest_x[b + 1])
+            gap = gap + rest_offset(wp.length(rest_x[j] - rest) - node_radius[j] - node_radius[b], c0)
+        if gap < c0:
+            f = (wp.float64(0.5) * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+    return f, t
+
+
+@wp.func
+def node_node_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
+                   coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                   j: int, k: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.vec3d:
+    """The law of the gap between node spheres j and k (with a same-coil pair's rest
+    offset), along x_j − x_k: the force on j of the term φ(|x_j − x_k|)."""
+    delta = x[j] - x[k]
+    dist = wp.length(delta)
+    gap = dist - node_radius[j] - node_radius[k]
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if gap < c0 and dist > wp.float64(1.0e-12):
+        if coil_of[j] == coil_of[k]:
+            gap = gap + rest_offset(wp.length(rest_x[j] - rest_x[k]) - node_radius[j] - node_radius[k], c0)
+        if gap < c0:
+            f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+    return f
+
+
+@wp.func
+def counted(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+            coil_of: wp.array(dtype=wp.int32), exclusion: int, e: int, other: int) -> bool:
+    """Edge e is an obstacle that edge ``other`` (and the nodes it owns) touches: it
+    exists, can be touched and is no bonded neighbour of ``other``."""
+    if e < 0:
+        return False
+    if not edge_is_obstacle(free, has_next, fixed, e):
+        return False
+    return not bonded(coil_of, exclusion, other, e)
+
+
+@wp.func
+def joint(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+          coil_of: wp.array(dtype=wp.int32), exclusion: int, k: int, other: int) -> wp.float64:
+    """1 when node k joins two edges (k − 1 and k, one coil) that edge ``other``'s
+    nodes both touch: the chain's capsules overlap in k's sphere, counted once too
+    often in the sum over capsules; else 0."""
+    if k < 1:
+        return wp.float64(0.0)
+    if has_next[k] == 0 or has_next[k - 1] == 0:
+        return wp.float64(0.0)
+    if counted(free, has_next, fixed, coil_of, exclusion, k - 1, other) and \
+            counted(free, has_next, fixed, coil_of, exclusion, k, other):
+        return wp.float64(1.0)
+    return wp.float64(0.0)
+
+
+@wp.func
+def owned_nodes(has_next: wp.array(dtype=wp.int32), e: int) -> int:
+    """Nodes that edge e owns in the contact sums: its start node, and its end node
+    when that is its coil's last node (which has no edge of its own)."""
+    if has_next[e + 1] == 0:
+        return 2
+    return 1
+
+
+@wp.func
+def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                 free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                  fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                 mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
-                 c0: wp.float64, u_linear: wp.float64, far: wp.float64):
-    """Edge b's contact on edge a: (fixed-point shares of a's start and end node,
-    surface gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
+                 mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64,
+                 p0: wp.float64, c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+    """The forces that the terms of the coil–coil energy joining edge a's and edge
+    b's nodes put on a's nodes: (fixed-point shares of a's start and end node,
+    segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
+
+    Energy (each coil a chain of capsules of radius d/2 around its edges, each node
+    a sphere): W = ½ Σ_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
+    the nodes j of one edge and the capsules b and joints k of the other chain,
+    φ the potential of the contact law; the joint terms remove the capsules'
+    overlap at each joint, so a node in front of a straight chain feels the law
+    of its distance to the chain once, and two parallel chains one law per node
+    (P0 per node patch d·l0). Every term is C¹ in the positions (the capsule–capsule
+    closest points jump between segment ends when two segments turn parallel; a
+    node's closest point on a segment does not), so the forces have no jumps.
     Evaluated when the midpoints are within ``far`` (the world's query radius:
     the same cutoff whichever way b was found) and the bounding spheres meet."""
     start = vec3l()
@@ -363,19 +592,33 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), ha
         apart = wp.length(mid[a] - mid[b])
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
-            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
-            dist = wp.length(delta)
-            gap = dist - node_radius[a] - node_radius[b]
-            if gap < c0 and dist > wp.float64(1.0e-12):
-                f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
-                share_start = (wp.float64(1.0) - st[0]) * f
-                share_end = st[0] * f
-                if not (finite_vec(share_start) and finite_vec(share_end)):
-                    bad = 1
-                start = to_fixed(share_start)
-                end = to_fixed(share_end)
+            gap = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            if gap < c0:
                 touching = 1
-            elif not (gap == gap):
+            f_start = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+            f_end = f_start
+            for m in range(owned_nodes(has_next, a)):  # a's nodes against capsule b and b's joints
+                j = a + m
+                f, t = node_segment_term(x, rest_x, coil_of, node_radius, j, b, p0, c0, u_linear)
+                joint_j = joint(free, has_next, fixed, coil_of, exclusion, j, b)
+                for q in range(owned_nodes(has_next, b)):
+                    k = b + q
+                    weight = wp.float64(0.5) * (joint(free, has_next, fixed, coil_of, exclusion, k, a) + joint_j)
+                    if weight > wp.float64(0.0):
+                        f = f - weight * node_node_term(x, rest_x, coil_of, node_radius, j, k, p0, c0, u_linear)
+                if m == 0:
+                    f_start = f_start + f
+                else:
+                    f_end = f_end + f
+            for q in range(owned_nodes(has_next, b)):  # b's nodes against capsule a: the reaction on a's nodes
+                f, t = node_segment_term(x, rest_x, coil_of, node_radius, b + q, a, p0, c0, u_linear)
+                f_start = f_start - (wp.float64(1.0) - t) * f
+                f_end = f_end - t * f
+            if not (finite_vec(f_start) and finite_vec(f_end)):
+                bad = 1
+            start = to_fixed(f_start)
+            end = to_fixed(f_end)
+            if not (gap == gap):
                 bad = 1
     return start, end, gap, touching, bad
 
@@ -383,6 +626,7 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), ha
 @wp.kernel
 def edge_contact(
     x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
@@ -405,11 +649,9 @@ def edge_contact(
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
 ):
-    """Segment–segment contact on edge a (so a segment cannot slip between two
-    nodes): the law of the surface gap h = |p_a − p_b| − (r_a + r_b) between the
-    closest points of a and every other edge b of the same ensemble member near
-    it, along (p_a − p_b)/|p_a − p_b|, split between a's start and end node by
-    the barycentric weight of p_a. Candidates: a's neighbour list from the last
+    """Coil–coil contact on edge a's nodes: the node–capsule terms (:func:`pair_contact`)
+    joining a and every other edge b of the same ensemble member near it; reports
+    the smallest capsule–capsule gap and the pairs closer than c0. Candidates: a's neighbour list from the last
     build (every edge whose midpoint was within query radius + skin then, so
     every edge whose midpoint is now within its world's ``query_radius`` while no midpoint
     has moved half the skin), or, when the list overflowed, the grid of that
@@ -432,8 +674,9 @@ def edge_contact(
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
-                start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a,
-                                                           neighbours[a, k], reach_a, p0, c0, u_linear, radius)
+                start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
+                                                           neighbours[a, k], exclusion, reach_a, p0, c0, u_linear,
+                                                           radius)
                 sum_start = sum_start + start
                 sum_end = sum_end + end
                 gap_min = wp.min(gap_min, gap)
@@ -444,8 +687,8 @@ def edge_contact(
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    start, end, gap, hit, wrong = pair_contact(x, free, has_next, fixed, node_radius, mid, a, b,
-                                                               reach_a, p0, c0, u_linear, radius)
+                    start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
+                                                               exclusion, reach_a, p0, c0, u_linear, radius)
                     sum_start = sum_start + start
                     sum_end = sum_end + end
                     gap_min = wp.min(gap_min, gap)
