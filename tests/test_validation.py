@@ -147,3 +147,7 @@ def test_undamped_step_is_time_reversible():
     back = stepper.state
     assert np.abs(back.x.numpy() - x0).max() < 1e-9 * np.ptp(x0, axis=0).max()
     assert np.abs(back.m1.numpy() - m0).max() < 1e-9
+
+
+def test_implicit_step_converges_damps_as_stated_and_keeps_the_static_cases():
+    assert_rows_pass(validation.implicit_cases())

@@ -22,8 +22,9 @@ import numpy as np
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
+from .implicit import implicit_step_s, make_solver
 from .settings import Scene
-from .solver import Control, Solver, Stepper
+from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
@@ -119,8 +120,10 @@ class Ensemble:
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
-                                f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
-        self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt)
+                                f"steps per frame, integrator) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+        self.integrator = steps[0][3]
+        self.solver = make_solver(self.model, self.integrator, steps[0][0], dt_safety=sims[0].dt_safety,
+                                  allow_unstable_dt=sims[0].allow_unstable_dt)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -163,7 +166,8 @@ class Ensemble:
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
         self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
-        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True)
+        solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
+                             dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -369,18 +373,26 @@ def world_bounds(model: Model) -> list:
     return [stable_step_bound(model, contact_k, model.world_nodes(w)) for w in range(model.world_count)]
 
 
-def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None) -> list[tuple[float, float, int]]:
-    """Per world: (dt_s, contact linear onset, steps per frame) as a single run of
-    its scene would take them."""
+def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None
+                ) -> list[tuple[float, float, int, str]]:
+    """Per world: (dt_s, contact linear onset, steps per frame, integrator) as a
+    single run of its scene would take them (the onset is the explicit step's
+    for either integrator: both integrate the same law)."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
     steps = []
     for w, scene in enumerate(scenes):
         sim = scene.simulation
-        dt = sim.dt_s if sim.dt_s is not None else sim.dt_safety * bounds[w].dt_s
-        steps.append((dt, contact_linear_onset(model, dt, model.world_nodes(w)),
-                      max(2, 2 * round(sim.frame_interval_s / dt / 2))))
+        explicit_dt = sim.dt_safety * bounds[w].dt_s
+        if sim.integrator == "implicit":
+            dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
+            onset_dt = explicit_dt
+        else:
+            dt = sim.dt_s if sim.dt_s is not None else explicit_dt
+            onset_dt = dt
+        steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
+                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator))
     return steps
 
 

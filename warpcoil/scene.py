@@ -179,6 +179,7 @@ _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),
     "damping_speed_mm_s": _Key(_positive),
+    "integrator": _Key(_choice("symplectic", "implicit")),
     "dt_s": _Key(_positive),
     "dt_safety": _Key(_fraction),
     "allow_unstable_dt": _Key(_bool),

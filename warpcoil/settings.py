@@ -100,8 +100,12 @@ class SimulationSettings:
       ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
-    * dt_s: step; None → dt_safety (default 0.9) × the stable bound. A dt above
-      the bound is refused unless allow_unstable_dt.
+    * integrator: "symplectic" (the reference: semi-implicit Euler under the
+      explicit stability bound) or "implicit" (linearly implicit Euler,
+      warpcoil/implicit.py: no stability bound, step set by accuracy).
+    * dt_s: step; None → dt_safety (default 0.9) × the stable bound (symplectic), or
+      the implicit default (the pusher advances 0.2 c0 per step, at most 0.5 ms).
+      A symplectic dt above the bound is refused unless allow_unstable_dt.
     * mass_scale: node masses, twist inertia and damping × this factor (default 1,
       true inertia): a named quasi-static speed-up (the damped, first-order motion
       c·v ≈ F is kept; only inertia grows, and the stable step grows by √scale),
@@ -125,6 +129,7 @@ class SimulationSettings:
     push_speed_mm_s: float = 50.0
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
+    integrator: str = "symplectic"
     dt_s: float | None = None
     dt_safety: float = DEFAULT_DT_SAFETY
     allow_unstable_dt: bool = False

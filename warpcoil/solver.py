@@ -203,6 +203,9 @@ class Solver:
     searched again at least this often (0: every step).
     """
 
+    integrator = "symplectic"
+    kernel_modules = (contact, elastic, integrate)  # loaded before a graph capture
+
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
@@ -497,7 +500,7 @@ class Stepper:
         even = self.chunk - self.chunk % 2
         per_graph = graph_steps(even)
         if self._use_graph and self._graph is None and per_graph:
-            for module in (contact, elastic, integrate):
+            for module in self.solver.kernel_modules:
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
             try:

@@ -19,6 +19,7 @@ from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
 from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
+from .implicit import implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -199,13 +200,19 @@ def extensible_elastica(load_parameter: float, axial_ratio: float, steps: int = 
     return shoot(0.5 * (low + high))[1]
 
 
+def _solver(model, integrator: str, dt_safety: float = DEFAULT_DT_SAFETY, **kwargs) -> Solver:
+    """The reference solver, or the implicit one at its default step (pusher at the default speed)."""
+    dt = implicit_step_s(model, SimulationSettings().push_speed_mm_s) if integrator == "implicit" else None
+    return make_solver(model, integrator, dt, dt_safety=dt_safety, **kwargs)
+
+
 def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0,
-                          dt_safety: float = DEFAULT_DT_SAFETY) -> tuple[float, float]:
+                          dt_safety: float = DEFAULT_DT_SAFETY, integrator: str = "symplectic") -> tuple[float, float]:
     """Tip deflection δ/L of a straight coil clamped at node 0 (x = 0, along +x)
     under a transverse dead load P = load_parameter · EI / L² at its free end,
     damped to rest; returns (result, the extensible elastica's δ/L for its EA).
     Nodes sit at x = k L/n (:meth:`ModelBuilder.clamp`: position and tangent at
-    node 0)."""
+    node 0). ``integrator`` "implicit": at its default step."""
     l0 = length_mm / segments
     spec = CoilSpec(length_mm=length_mm, segment_length_mm=l0)
     rest = np.zeros((segments + 1, 3))
@@ -219,9 +226,10 @@ def cantilever_deflection(segments: int, load_parameter: float, length_mm: float
     load = load_parameter * spec.EI / length_mm**2
     builder.apply_force(0, -1, (0.0, -load, 0.0))
     model = builder.finalize()
-    stepper = Stepper(Solver(model, coil_contact=False, dt_safety=dt_safety), state_from_positions(model, rest),
-                      Control.create(model), chunk=1000)  # a bending straight beam cannot touch itself
-    state, rested = stepper.run_to_rest(1e-14 * load * length_mm, max_steps=4_000_000, min_steps=20_000)
+    solver = _solver(model, integrator, dt_safety, coil_contact=False)  # a bending straight beam cannot touch itself
+    stepper = Stepper(solver, state_from_positions(model, rest), Control.create(model), chunk=1000)
+    min_steps = 20_000 if integrator == "symplectic" else 2_000
+    state, rested = stepper.run_to_rest(1e-14 * load * length_mm, max_steps=4_000_000, min_steps=min_steps)
     if not rested:
         raise RuntimeError("cantilever did not come to rest")
     return float(-state.x.numpy()[-1, 1] / length_mm), extensible_elastica(load_parameter, load / spec.EA)
@@ -345,7 +353,8 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
     return state.x.numpy()
 
 
-def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY) -> list[CaseResult]:
+def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
+                   integrator: str = "symplectic") -> list[CaseResult]:
     """A 60 mm helical coil started straight, free ends, damped to rest."""
     spec = _helix_spec(segment_length_mm)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
@@ -356,21 +365,26 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DE
     straight[:, 0] = model.arc_s.numpy()
     # elastic only: a straight start is no physical state, and its whipping release
     # would tangle the coil through self-contact (free_release has contact on)
-    stepper = Stepper(Solver(model, coil_contact=False, dt_safety=dt_safety), state_from_positions(model, straight),
-                      Control.create(model), chunk=1000)
-    return _helix_rows("helix recovery", _settle(stepper, max_steps=4_000_000))
+    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=False),
+                      state_from_positions(model, straight), Control.create(model), chunk=1000)
+    label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step"
+    return _helix_rows(label, _settle(stepper, max_steps=4_000_000))
 
 
 def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
-                 segment_length_mm: float | None = None, mass_scale: float = 1.0) -> list[CaseResult]:
-    """The helical coil packed in a straight catheter and pushed out into empty space."""
+                 segment_length_mm: float | None = None, mass_scale: float = 1.0,
+                 integrator: str = "symplectic") -> list[CaseResult]:
+    """The helical coil packed in a straight catheter and pushed out into empty space
+    (``integrator`` "implicit": at its default step for this push speed)."""
     spec = _helix_spec(segment_length_mm)
     settings = SimulationSettings(damping_uN_per_mm=5.0, push_speed_mm_s=push_speed_mm_s, mass_scale=mass_scale)
     builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
     control = Control.create(model, active_coil=0, push_speed_mm_s=push_speed_mm_s)
-    stepper = Stepper(Solver(model, dt_safety=dt_safety), packed_state(model), control, chunk=1000)
+    dt = implicit_step_s(model, push_speed_mm_s) if integrator == "implicit" else None
+    stepper = Stepper(make_solver(model, integrator, dt, dt_safety=dt_safety), packed_state(model), control,
+                      chunk=1000 if integrator == "symplectic" else 20)
     coil_length = float(model.arc_s.numpy()[-1])
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
@@ -527,6 +541,104 @@ def timestep_convergence(duration_s: float = 0.05, refinements=(1, 2, 4, 8), ref
     return rows
 
 
+# --- implicit step ------------------------------------------------------------------
+def _relaxing_helix() -> tuple:
+    """A 10 mm helical coil (l0 = d) started as a helix of 20 % wider loops (same
+    segment lengths), damped: model and start positions (a 3D motion with
+    bending and twist)."""
+    spec = CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", length_mm=10.0, loop_diameter_mm=3.0,
+                    pitch_mm=0.6)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=5.0))
+    builder.add_coil(spec)
+    model = builder.finalize()
+    start = preshape.helix(1.2 * spec.loop_diameter_mm, spec.pitch_mm, spec.length_mm, spec.l0)
+    return model, start
+
+
+def _positions_at(model, start: np.ndarray, solver: Solver, time_s: float) -> np.ndarray:
+    """Positions at ``time_s`` (the solver's dt adjusted to an even number of steps)."""
+    steps = 2 * max(1, round(time_s / solver.dt_s / 2))
+    solver.dt_s = time_s / steps
+    stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=steps)
+    return stepper.run_chunk().x.numpy()
+
+
+def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025)) -> list[CaseResult]:
+    """The implicit step against the reference integrator (symplectic Euler at
+    0.005 × its bound) as dt shrinks: RMS node distance at ``time_s`` over the
+    reference's RMS displacement, for dt = factor × the explicit bound, and the
+    observed order log2(e(2 dt)/e(dt)) of the finest pair. Both steps are first
+    order; the implicit one reaches its asymptotic order only once dt resolves
+    the stiffest modes (ω_max dt ≪ 1): the observed order rises towards 1
+    as dt shrinks (0.69, 0.73, 0.77, 0.80 on these pairs)."""
+    model, start = _relaxing_helix()
+    reference = Solver(model, coil_contact=False, dt_safety=0.005)
+    x_ref = _positions_at(model, start, reference, time_s)
+    scale = float(np.sqrt(((x_ref - start) ** 2).sum(axis=1).mean()))
+    bound = reference.bound.dt_s
+    errors = []
+    for f in factors:
+        x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False), time_s)
+        errors.append(float(np.sqrt(((x - x_ref) ** 2).sum(axis=1).mean())) / scale)
+    orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+    rows = [CaseResult(f"implicit vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
+            for f, e in zip(factors, errors)]
+    rows.append(_row("implicit: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
+    rising = all(b > a for a, b in zip(orders, orders[1:]))
+    rows.append(CaseResult("implicit: observed order rises as dt shrinks", 1.0, float(rising),
+                           0.0 if rising else 1.0, 0.0))
+    return rows
+
+
+def implicit_damping(periods: int = 3, samples_per_period: int = 100) -> list[CaseResult]:
+    """Numerical damping of the implicit step at its default dt: undamped free
+    vibration of a 20 mm cantilever (40 segments) in its lowest bending mode,
+    amplitude lost per period (between tip maxima after the first period, when
+    the higher modes the start excites have died out) against the linear theory
+    of the step, 1 − (1 + ω² dt²)^(−π/(ω dt)) (≈ π ω dt), ω measured."""
+    length, segments = 20.0, 40
+    l0 = length / segments
+    spec = CoilSpec(length_mm=length, segment_length_mm=l0)
+    rest = np.zeros((segments + 1, 3))
+    rest[:, 0] = np.arange(segments + 1) * l0
+    xi = rest[:, 0] / length
+    start = rest.copy()
+    start[:, 1] = 0.02 * length * xi**2 * (3.0 - xi) / 2.0  # the static tip-load shape, tip 2 % of L
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0))
+    builder.add_coil(spec, rest)
+    builder.clamp(0, node=0)
+    model = builder.finalize()
+    solver = _solver(model, "implicit", coil_contact=False)
+    dt = solver.dt_s
+    omega_ref = 3.516 * math.sqrt(spec.EI / (spec.rho * length**4))
+    chunk = 2 * max(1, round(2.0 * math.pi / omega_ref / dt / samples_per_period / 2))
+    stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=chunk)
+    count = (periods + 1) * samples_per_period + samples_per_period // 2
+    tip = np.array([stepper.run_chunk().x.numpy()[-1, 1] for _ in range(count)])
+    peaks = []
+    for k in range(1, count - 1):
+        if tip[k] >= tip[k - 1] and tip[k] > tip[k + 1] and tip[k] > 0.5 * tip.max():
+            a, b, c = tip[k - 1], tip[k], tip[k + 1]  # parabola through the three samples
+            shift = 0.5 * (a - c) / (a - 2.0 * b + c)
+            peaks.append((k + shift, b - 0.25 * (a - c) * shift))
+    (t0, a0), (t1, a1) = peaks[0], peaks[-1]
+    cycles = len(peaks) - 1
+    omega = 2.0 * math.pi * cycles / ((t1 - t0) * chunk * dt)
+    loss = 1.0 - (a1 / a0) ** (1.0 / cycles)
+    theory = 1.0 - (1.0 + (omega * dt) ** 2) ** (-math.pi / (omega * dt))
+    return [_row("implicit: lowest bending mode ω (rad/s) vs 3.516 √(EI/ρL⁴)", omega_ref, omega, 5e-2),
+            _row(f"implicit: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
+
+
+def implicit_cases() -> list[CaseResult]:
+    """The implicit step: convergence to the reference, numerical damping, and the
+    cantilever and helix recovery at its default step."""
+    rows = implicit_convergence() + implicit_damping()
+    result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
+    rows.append(_row("implicit default step: cantilever PL²/EI=5, 50 segments: δ/L", reference, result, 5e-3))
+    return rows + helix_recovery(integrator="implicit")
+
+
 CASES = {
     "contact": contact_law,
     "gradient": gradient_cases,
@@ -538,6 +650,7 @@ CASES = {
     "porous": porous_cases,
     "energy3d": energy_3d_cases,
     "timestep": timestep_convergence,
+    "implicit": implicit_cases,
 }
 
 
