@@ -11,6 +11,9 @@ from pathlib import Path
 
 
 DEFAULT_DT_SAFETY = 0.9  # fraction of the stable bound; on the run-time/error Pareto front (BENCHMARKS.md)
+# Step for undamped dynamics by the reference integrator: a quarter of the default, where the
+# energy of a released 3D helix stays within 1 % over 10⁶ steps (docs/FORMULATION.md, "Energy").
+UNDAMPED_DT_SAFETY = 0.25 * DEFAULT_DT_SAFETY
 DEFAULT_MASS_SCALE = 1.0  # true inertia; mass scaling is opt-in (it changes a free release: BENCHMARKS.md)
 
 

@@ -380,6 +380,34 @@ class Solver:
         """Kinetic (free nodes, translation + spin), stretching, bending and twisting energy, nJ (all worlds)."""
         return {k: float(v.sum()) for k, v in self.world_energies(state)[0].items()}
 
+    def synchronous_energies(self, state: State) -> dict[str, float]:
+        """Energies (nJ, all worlds) with the kinetic energy of the velocities *at* t_n.
+
+        The state pairs x_n with v_{n−½} (symplectic Euler: the velocity that
+        carried x_{n−1} to x_n), so ``energies`` pairs quantities half a step
+        apart and its total carries an O(h) error band. Here the translational and
+        spin velocities are time-centred, ½ (v_{n−½} + v_{n+½}), with v_{n+½} the
+        conservative kick of the next step (no damping: a measure for undamped
+        runs), as velocity Verlet reports them; the total's error is O(h²)
+        (docs/FORMULATION.md, "Energy"). Evaluates the forces at ``state``."""
+        m = self.model
+        energies = self.energies(state)
+        self.compute_forces(state)
+        h = self.dt_s
+        inv_mass, inv_inertia = m.inv_mass.numpy(), m.inv_inertia.numpy()
+        free = state.free.numpy() != 0
+        v = state.v.numpy()
+        v_mid = v + 0.5 * h * inv_mass[:, None] * self.force.numpy()
+        fixed = m.fixed.numpy() != 0
+        held = free | fixed
+        spins = np.zeros(m.node_count, dtype=bool)
+        spins[:-1] = (m.has_next.numpy()[:-1] != 0) & held[:-1] & held[1:] & ~(fixed[:-1] & fixed[1:])
+        omega = state.omega.numpy()
+        omega_mid = omega + np.where(spins, 0.5 * h * inv_inertia * self.torque.numpy(), 0.0)
+        energies["kinetic_nJ"] = float(0.5 * ((v_mid**2).sum(axis=1)[free] / inv_mass[free]).sum()
+                                       + 0.5 * (omega_mid**2 / inv_inertia).sum())
+        return energies
+
     def take_push_force(self) -> PushForce:
         """Per world, over the steps since the last call (the solver counts them):
         the push force's signed mean, peak compressive value and RMS (µN,
