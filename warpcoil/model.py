@@ -68,6 +68,14 @@ class ContactModel:
     exclusion_edges: int  # same-coil edges this close along the coil never touch (bonded neighbours)
     fold_span: int  # nodes i and i ± 2·fold_span repel when a coil folds sharply (about 2d apart at rest)
     query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0 (largest of the worlds')
+    friction_wall: float = 0.0  # Coulomb coefficients per pair type (kernels/friction.py)
+    friction_coil: float = 0.0
+    friction_catheter: float = 0.0
+    friction_speed_mm_s: float = 0.01  # regularisation velocity: the fastest a stuck contact creeps
+
+    @property
+    def frictional(self) -> bool:
+        return max(self.friction_wall, self.friction_coil, self.friction_catheter) > 0.0
 
     def stiffness_uN_mm(self, u: float = CONTACT_DESIGN_OVERLAP_U) -> float:
         """−d|F|/dh of the contact law at u (µN/mm)."""
@@ -208,6 +216,7 @@ class ModelBuilder:
         self._rest: list[np.ndarray] = []
         self._fixed: list[int] = []
         self._forces: list[tuple[int, np.ndarray]] = []
+        self._body_acceleration = np.zeros(3)
 
     def add_coil(self, spec: CoilSpec, rest_centerline: np.ndarray | None = None) -> int:
         """Add a coil (rest centerline from its pre-shape unless given, mm); returns its index."""
@@ -233,6 +242,11 @@ class ModelBuilder:
     def apply_force(self, coil: int, node: int, force_uN) -> None:
         """A constant force (µN) on one node; node −1 is the coil's last node."""
         self._forces.append((self._node(coil, node), np.asarray(force_uN, np.float64)))
+
+    def body_acceleration(self, acceleration_mm_s2) -> None:
+        """A uniform body force m·g (µN) on every node, g in mm/s² (m the scaled node mass,
+        so the acceleration it causes does not depend on mass_scale)."""
+        self._body_acceleration = np.asarray(acceleration_mm_s2, np.float64)
 
     def finalize(self, device: str | wp.context.Device | None = None) -> Model:
         """The device-ready Model of this builder's one world."""
@@ -278,13 +292,17 @@ class ModelBuilder:
         external = np.zeros((n, 3))
         for node, f in self._forces:
             external[node] += f
+        external += mass[:, None] * self._body_acceleration
         d = per_coil(lambda c: c.d)
         c0 = self.contact.c0_mm if self.contact.c0_mm is not None else 0.1 * float(d.min())
         contact_model = ContactModel(
             p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
             exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
             fold_span=max(1, int(math.ceil(float(d.max()) / float(edge_len[has_next == 1].mean()) - 1e-6))),
-            query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0)
+            query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0,
+            friction_wall=float(self.contact.friction_wall), friction_coil=float(self.contact.friction_coil),
+            friction_catheter=float(self.contact.friction_catheter),
+            friction_speed_mm_s=float(self.contact.friction_speed_mm_s))
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
             coil_of=coil_of, arc_s=arc_s, fixed=fixed, mass=mass, damping_c=damping_c, external=external,
@@ -318,7 +336,10 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
     contacts = [w["contact"] for w in worlds]
     for key, what in (("p0_uN", "contact P0_uN"), ("c0_mm", "contact c0_mm"),
                       ("exclusion_edges", "bonded-neighbour span (wire diameter / segment length)"),
-                      ("fold_span", "fold span (wire diameter / segment length)")):
+                      ("fold_span", "fold span (wire diameter / segment length)"),
+                      ("friction_wall", "contact friction_wall"), ("friction_coil", "contact friction_coil"),
+                      ("friction_catheter", "contact friction_catheter"),
+                      ("friction_speed_mm_s", "contact friction_speed_mm_s")):
         _shared([{key: getattr(c, key)} for c in contacts], key, what)
     damping_k = _shared(worlds, "damping_k", "simulation.damping_speed_mm_s")
     mass_scale = _shared(worlds, "mass_scale", "simulation.mass_scale")

@@ -63,6 +63,13 @@ def _finite(value: object, base: Path) -> float:
     return float(value)
 
 
+def _nonnegative(value: object, base: Path) -> float:
+    number = _finite(value, base)
+    if number < 0.0:
+        raise _Invalid(f"must be ≥ 0, got {value!r}", "give 0 (none) or a positive value")
+    return number
+
+
 def _fraction(value: object, base: Path) -> float:
     number = _positive(value, base)
     if number > 1.0:
@@ -171,7 +178,9 @@ _COIL = {
     "axial_stiffness_uN": _Key(_positive),
     "stretch_resistant": _Key(_bool),
 }
-_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive)}
+_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "friction_wall": _Key(_nonnegative),
+            "friction_coil": _Key(_nonnegative), "friction_catheter": _Key(_nonnegative),
+            "friction_speed_mm_s": _Key(_positive)}
 _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),

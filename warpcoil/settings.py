@@ -83,6 +83,18 @@ class ContactSettings:
 
     P0_uN: float = 1.0e3
     c0_mm: float | None = None
+    # regularised Coulomb friction (kernels/friction.py), per pair type; 0 = frictionless
+    # (the default: no measured coefficient for Pt–W coils against endothelium or each
+    # other in blood; docs/SCENES.md). friction_speed_mm_s: the regularisation velocity,
+    # the fastest a stuck contact may creep.
+    friction_wall: float = 0.0
+    friction_coil: float = 0.0
+    friction_catheter: float = 0.0
+    friction_speed_mm_s: float = 0.01
+
+    @property
+    def frictional(self) -> bool:
+        return max(self.friction_wall, self.friction_coil, self.friction_catheter) > 0.0
 
 
 @dataclass(frozen=True)

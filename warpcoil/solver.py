@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .kernels import contact, elastic, integrate
+from .kernels import contact, elastic, friction, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
@@ -203,6 +203,10 @@ class Solver:
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
+        c = model.contact
+        self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
+        self.friction = self.coil_friction or (self.has_wall and c.friction_wall > 0.0)
+        self._friction_terms = wp.zeros((n if self.coil_friction else 1, 8), dtype=wp.vec3d, device=dev)
         # Σ and max of the step push force, per world
         self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
@@ -290,12 +294,30 @@ class Solver:
             m.coil_world, m.arc_s, m.inv_mass, m.damping_c, m.damping_k, m.catheter_path, m.catheter_first,
             m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
             state_out.x, state_out.v, state_out.free, state_out.advance])
+        if self.friction:
+            self._apply_friction(state_in, state_out, control.running, dt)
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.has_next,
             m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
+
+    def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
+        """Implicit Coulomb friction on the velocities the integrator predicted
+        (kernels/friction.py), with the contacts found at ``state_in``."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
+        if self.coil_friction:
+            wp.launch(friction.edge_friction, n, device=dev, inputs=[
+                state_in.x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
+                m.node_radius, m.inv_mass, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                c.friction_coil, c.friction_catheter, c.friction_speed_mm_s, dt, self._friction_terms])
+        wp.launch(friction.apply_friction, n, device=dev, inputs=[
+            state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.wall_force,
+            c.friction_wall if self.has_wall else 0.0, c.friction_speed_mm_s, self._friction_terms,
+            int(self.coil_friction), dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
@@ -423,7 +445,7 @@ class Stepper:
         start = self._a.time_s
         per_graph = graph_steps(self.chunk)
         if self._use_graph and self._graph is None:
-            for module in (contact, elastic, integrate):
+            for module in (contact, elastic, friction, integrate):
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
             try:
