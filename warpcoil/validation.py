@@ -281,6 +281,12 @@ def energy_conservation(steps: int = 100_000) -> list[CaseResult]:
     return [CaseResult(f"energy: undamped, {steps} steps, max |ΔE|/E", 0.0, drift, drift, 1e-2)]
 
 
+def friction() -> list[CaseResult]:
+    """Regularised Coulomb friction: incline, capstan, energy (validation_friction.py)."""
+    from .validation_friction import friction_cases
+    return friction_cases()
+
+
 CASES = {
     "contact": contact_law,
     "gradient": gradient_cases,
@@ -288,6 +294,7 @@ CASES = {
     "helix": helix_recovery,
     "release": free_release,
     "energy": energy_conservation,
+    "friction": friction,
 }
 
 
