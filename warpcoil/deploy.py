@@ -45,6 +45,7 @@ class Frame:
     min_wall_gap_mm: float
     min_coil_gap_mm: float
     length_outside_sac_mm: float
+    balloon_inflation: float | None = None  # 1 inflated, 0 deflated; None without a balloon
 
 
 @dataclass
@@ -78,6 +79,8 @@ class RunResult:
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
+    packing_density_in_sac: float | None = None  # coil inside the sac (closed at the neck) / sac volume
+    device: dict | None = None  # assist device: kind, geometry, deflation times
 
     def summary(self) -> dict:
         """The JSON-ready scalars (no frames or positions)."""
@@ -94,6 +97,7 @@ class Anatomy:
     wall: object | None  # warpcoil.wall.WallMesh
     sac: object | None  # warpcoil.sac.Sac
     catheter: CatheterSpec
+    balloon: tuple | None = None  # (stations mm, capped radii mm), warpcoil.devices.balloon_geometry
 
     @property
     def sac_volume_mm3(self) -> float | None:
@@ -121,7 +125,11 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
     if catheter.placement == "neck":
         tip, direction = sacs.catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
         catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    return Anatomy(wall=wall, sac=sac, catheter=catheter)
+    balloon = None
+    if scene.balloon is not None:
+        from .devices import balloon_geometry
+        balloon = balloon_geometry(scene.balloon, wall, str(scene.source))
+    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon)
 
 
 def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
@@ -132,7 +140,7 @@ def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
     shared: dict[tuple, Anatomy] = {}
     anatomies = []
     for scene in scenes:
-        key = (repr(scene.wall), repr(scene.neck))
+        key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon))
         if key not in shared:
             shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
         base = shared[key]
@@ -140,7 +148,12 @@ def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
         if catheter.placement == "neck":
             tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
             catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter))
+        balloon = base.balloon
+        if scene.balloon is not None and repr(scene.balloon) != repr(scenes[0].balloon):
+            from .devices import balloon_geometry
+            balloon = balloon_geometry(scene.balloon, base.wall, str(scene.source))
+        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter,
+                                 balloon=balloon if scene.balloon is not None else None))
     return anatomies
 
 
@@ -148,6 +161,7 @@ def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
     """The builder of a scene's world: coils (pre-shapes), catheter, contact and wall."""
     builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
                            wall=anatomy.wall)
+    builder.balloon = anatomy.balloon
     for coil in scene.coils:
         builder.add_coil(coil)
     return builder
@@ -190,6 +204,9 @@ class Member:
         self.jam_reasons: list[str] = []
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
+        self.balloon = scene.balloon
+        self.deflate_from_s = None if self.balloon is None else self.balloon.deflate_at_s
+        self.inflation = None if self.balloon is None else 1.0
         self.steps = 0
         self.result: RunResult | None = None
 
@@ -297,7 +314,7 @@ class Ensemble:
             stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
             coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
             max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
-            length_outside_sac_mm=outside)
+            length_outside_sac_mm=outside, balloon_inflation=member.inflation)
 
     # --- coil sequence -------------------------------------------------------------
     def _activate(self, member: Member, coil: int) -> None:
@@ -372,7 +389,14 @@ class Ensemble:
         elif active >= 0 and snap.advance[coil] >= member.coil_lengths_mm[active]:
             member.coil_status[active] = "detached"
             self._activate(member, active + 1)
-        if member.active < 0 and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
+        if member.balloon is not None:
+            if member.active < 0 and member.deflate_from_s is None:
+                member.deflate_from_s = snap.time_s  # the last coil detached: deflate now
+            from .devices import deflation
+            member.inflation = deflation(member.balloon, snap.time_s, member.deflate_from_s)
+            self.model.set_inflation(member.world, member.inflation)
+        deflated = member.inflation is None or member.inflation == 0.0
+        if member.active < 0 and deflated and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
             if member.jam_reasons:
                 self._finish(member, JAMMED, "; ".join(member.jam_reasons) + "; then at rest", started, snap)
             else:
@@ -482,7 +506,26 @@ class Ensemble:
             stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
             final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
             regions=self._regions(member, x, free), step_reductions=list(self.step_reductions), frames=frames,
-            positions_mm=[x[s] for s in local])
+            positions_mm=[x[s] for s in local],
+            packing_density_in_sac=self._in_sac_density(member, x, free, outside, sac_volume),
+            device=self._device(member))
+
+    def _in_sac_density(self, member: Member, x, free, outside, sac_volume) -> float | None:
+        """π (d/2)² × the length of free coil inside the sac, over the sac volume."""
+        if not sac_volume or member.anatomy.sac is None:
+            return None
+        inside = free & ~outside
+        return float((math.pi * member.radius[inside] ** 2 * member.segment[inside]).sum()) / sac_volume
+
+    def _device(self, member: Member) -> dict | None:
+        if member.balloon is None:
+            return None
+        stations, radii = member.anatomy.balloon
+        return dict(kind="balloon", nominal_diameter_mm=member.balloon.diameter_mm,
+                    axis_mm=[list(map(float, p)) for p in member.balloon.axis_mm],
+                    inflated_radius_min_mm=float(radii.min()), inflated_radius_max_mm=float(radii.max()),
+                    deflation_started_s=member.deflate_from_s, deflation_time_s=member.balloon.deflation_time_s,
+                    inflation_over_time=[[f.time_s, f.balloon_inflation] for f in member.frames])
 
     def _regions(self, member: Member, x: np.ndarray, free: np.ndarray) -> dict | None:
         """Regional densities of the final coils (only where a neck defines the sac)."""

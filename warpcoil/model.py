@@ -150,6 +150,19 @@ class Model:
     wall_origin: wp.array  # vec3d per world
     wall_vertices: wp.array  # every distinct wall's vertices (float64, relative to its origin), back to back
     wall_faces: wp.array  # ... and faces (indices into wall_vertices), flat
+    # balloon (kernels/devices.py): per world its axis stations, back to back, and their capped radii (mm)
+    balloon_stations: wp.array | None = None
+    balloon_cap_radius: wp.array | None = None
+    balloon_first: wp.array | None = None
+    balloon_count: wp.array | None = None
+    balloon_inflation: wp.array | None = None  # per world, 0..1, set by the host between frames
+
+    @property
+    def has_balloon(self) -> bool:
+        return self.balloon_count is not None and int(self.balloon_count.numpy().max()) >= 2
+
+    def set_inflation(self, world: int, fraction: float) -> None:
+        self.balloon_inflation[world:world + 1].fill_(float(fraction))
 
     @property
     def node_count(self) -> int:
@@ -217,6 +230,7 @@ class ModelBuilder:
         self._fixed: list[int] = []
         self._forces: list[tuple[int, np.ndarray]] = []
         self._body_acceleration = np.zeros(3)
+        self.balloon: tuple[np.ndarray, np.ndarray] | None = None  # (stations mm, capped radii mm)
 
     def add_coil(self, spec: CoilSpec, rest_centerline: np.ndarray | None = None) -> int:
         """Add a coil (rest centerline from its pre-shape unless given, mm); returns its index."""
@@ -309,7 +323,8 @@ class ModelBuilder:
             edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
             twist_damping=damping_c / s.damping_speed_mm_s * winding_r**2, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
-            mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall)
+            mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall,
+            balloon=self.balloon)
 
 
 class EnsembleError(ValueError):
@@ -383,6 +398,13 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         world_node_range=arr(np.stack([node_base, node_base + node_counts - 1], 1).astype(np.int32), wp.int32),
         query_radius_of=arr(query_radius, wp.float64),
         world_walls=wall_models, **walls)
+    balloons = [w["balloon"] or (np.zeros((0, 3)), np.zeros(0)) for w in worlds]
+    counts = np.array([len(b[1]) for b in balloons], np.int32)
+    model.balloon_stations = arr(np.concatenate([b[0] for b in balloons] + [np.zeros((1, 3))]), wp.vec3d)
+    model.balloon_cap_radius = arr(np.concatenate([b[1] for b in balloons] + [np.zeros(1)]), wp.float64)
+    model.balloon_first = arr(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), wp.int32)
+    model.balloon_count = arr(counts, wp.int32)
+    model.balloon_inflation = arr(np.ones(len(worlds)), wp.float64)
     rest_m1 = model.directors_along(model.rest_positions)
     wp.launch(elastic.rest_strains, n, device=device, inputs=[
         model.array(model.rest_positions, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,

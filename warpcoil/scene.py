@@ -17,6 +17,7 @@ from typing import Any, NamedTuple
 from .coil import SHAPES, CoilSpec
 from .settings import (
     CatheterSpec,
+    BalloonSpec,
     ContactSettings,
     NeckSpec,
     OutputSettings,
@@ -195,7 +196,9 @@ _SIMULATION = {
     "frame_interval_s": _Key(_positive),
 }
 _OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool)}
-_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
+_BALLOON = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
+            "deflate_at_s": _Key(_positive), "deflation_time_s": _Key(_positive)}
+_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon")
 
 
 def _unknown(key: str, known: Sequence[str]) -> str:
@@ -310,6 +313,7 @@ class _Reader:
             output=self.section(document, "output", _OUTPUT, OutputSettings),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
+            balloon=self.section(document, "balloon", _BALLOON, BalloonSpec) if "balloon" in document else None,
             source=self.source,
         )
 

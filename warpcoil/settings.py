@@ -63,6 +63,20 @@ class NeckSpec:
 
 
 @dataclass(frozen=True)
+class BalloonSpec:
+    """A compliant balloon across the neck (balloon-assisted coiling): a tube about
+    ``axis_mm`` (a polyline in the parent vessel, mm) whose radius at each station
+    grows to ``diameter_mm``/2 but is capped by the station's distance to the wall.
+    Inflated before the first coil; it deflates over ``deflation_time_s`` starting
+    at ``deflate_at_s`` (None: when the last coil detaches); then the run goes on to rest."""
+
+    axis_mm: tuple[tuple[float, float, float], ...]
+    diameter_mm: float = 4.0
+    deflate_at_s: float | None = None
+    deflation_time_s: float = 0.1
+
+
+@dataclass(frozen=True)
 class RegionSettings:
     """Regional packing densities on a voxel grid of the sac (docs/REGIONS.md);
     None → defaults derived from the coils."""
@@ -158,4 +172,5 @@ class Scene:
     output: OutputSettings = field(default_factory=OutputSettings)
     neck: NeckSpec | None = None
     regions: RegionSettings = field(default_factory=RegionSettings)
+    balloon: BalloonSpec | None = None
     source: Path | None = None  # the TOML file it was read from

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .kernels import contact, elastic, friction, integrate
+from .kernels import contact, devices, elastic, friction, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
@@ -191,6 +191,8 @@ class Solver:
         self._kinetic, self._unhealthy = zeros(wp.float64), zeros(wp.int32)
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
+        self.has_balloon = model.has_balloon
+        self.device_force = zeros(wp.vec3d)  # balloon contact (µN)
         self.wall_distance.fill_(float(contact.FAR_MM))
         self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
         self._wall_slack = zeros(wp.float64)
@@ -205,7 +207,7 @@ class Solver:
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
-        self.friction = self.coil_friction or (self.has_wall and c.friction_wall > 0.0)
+        self.friction = self.coil_friction or ((self.has_wall or self.has_balloon) and c.friction_wall > 0.0)
         self._friction_terms = wp.zeros((n if self.coil_friction else 1, 8), dtype=wp.vec3d, device=dev)
         # Σ and max of the step push force, per world
         self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
@@ -270,6 +272,15 @@ class Solver:
                 self.contact_force])
         elif self.has_wall:
             wp.copy(self.contact_force, self.wall_force)
+        if self.has_balloon:
+            wp.launch(devices.balloon_contact, n, device=dev, inputs=[
+                state.x, state.free, m.world_of, running, m.node_radius, m.balloon_stations, m.balloon_cap_radius,
+                m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self.device_force])
+            if self.coil_contact or self.has_wall:
+                wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
+            else:
+                wp.copy(self.contact_force, self.device_force)
 
     def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
@@ -316,7 +327,7 @@ class Solver:
                 c.friction_coil, c.friction_catheter, c.friction_speed_mm_s, dt, self._friction_terms])
         wp.launch(friction.apply_friction, n, device=dev, inputs=[
             state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.wall_force,
-            c.friction_wall if self.has_wall else 0.0, c.friction_speed_mm_s, self._friction_terms,
+            self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_terms,
             int(self.coil_friction), dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
@@ -445,7 +456,7 @@ class Stepper:
         start = self._a.time_s
         per_graph = graph_steps(self.chunk)
         if self._use_graph and self._graph is None:
-            for module in (contact, elastic, friction, integrate):
+            for module in (contact, devices, elastic, friction, integrate):
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
             try:

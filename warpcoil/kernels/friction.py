@@ -199,6 +199,17 @@ def add_terms(terms: wp.array2d(dtype=wp.vec3d), e: int, row: int, D: mat33d, rh
     return D, rhs + terms[e, row + 3]
 
 
+@wp.func
+def obstacle_damper(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64, dt_inv_m: wp.float64) -> mat33d:
+    """c P of a fixed obstacle pushing with force f (its load and normal)."""
+    load = wp.length(f)
+    if load > F64_0:
+        n = f / load
+        c = friction_coefficient(mu, load, wp.length(tangential(v, n)), dt_inv_m * mu * load, v_reg)
+        return c * (wp.identity(n=3, dtype=wp.float64) - wp.outer(n, n))
+    return mat33d()
+
+
 @wp.kernel
 def apply_friction(
     x_in: wp.array(dtype=wp.vec3d),
@@ -208,6 +219,7 @@ def apply_friction(
     running: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     wall_force: wp.array(dtype=wp.vec3d),
+    device_force: wp.array(dtype=wp.vec3d),
     mu_wall: wp.float64,
     v_reg: wp.float64,
     coil_terms: wp.array2d(dtype=wp.vec3d),
@@ -217,8 +229,9 @@ def apply_friction(
     x_out: wp.array(dtype=wp.vec3d),
 ):
     """v' = (I + dt/m D)⁻¹ (v* + dt/m Σ c P ū) for each free node (v* = ``v_out`` as
-    the integrator left it), then x' = x + dt v'. Wall: the load and normal are
-    the wall force's magnitude and direction, target 0. Coil terms: the node's
+    the integrator left it), then x' = x + dt v'. Wall and balloon (``device_force``,
+    with the wall's coefficient): the load and normal are the force's magnitude and
+    direction, target 0. Coil terms: the node's
     shares of edges i (start) and i − 1 (end)."""
     i = wp.tid()
     if running[world_of[i]] == 0 or free_out[i] == 0:
@@ -227,12 +240,9 @@ def apply_friction(
     D = mat33d()
     rhs = wp.vec3d(F64_0, F64_0, F64_0)
     inv_m = inv_mass[i]
-    f = wall_force[i]
-    load = wp.length(f)
-    if mu_wall > F64_0 and load > F64_0:
-        n = f / load
-        c = friction_coefficient(mu_wall, load, wp.length(tangential(v, n)), dt * mu_wall * load * inv_m, v_reg)
-        D = c * (wp.identity(n=3, dtype=wp.float64) - wp.outer(n, n))
+    if mu_wall > F64_0:
+        D = D + obstacle_damper(wall_force[i], v, mu_wall, v_reg, dt * inv_m)
+        D = D + obstacle_damper(device_force[i], v, mu_wall, v_reg, dt * inv_m)
     if with_coil_terms != 0:
         if has_next[i] != 0:
             D, rhs = add_terms(coil_terms, i, 0, D, rhs)
