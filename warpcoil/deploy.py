@@ -98,6 +98,7 @@ class Anatomy:
     sac: object | None  # warpcoil.sac.Sac
     catheter: CatheterSpec
     balloon: tuple | None = None  # (stations mm, capped radii mm), warpcoil.devices.balloon_geometry
+    stent: tuple | None = None  # (strut starts, ends mm, strut radius mm), warpcoil.devices.stent_struts
 
     @property
     def sac_volume_mm3(self) -> float | None:
@@ -129,7 +130,11 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
     if scene.balloon is not None:
         from .devices import balloon_geometry
         balloon = balloon_geometry(scene.balloon, wall, str(scene.source))
-    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon)
+    stent = None
+    if scene.stent is not None:
+        from .devices import stent_struts
+        stent = (*stent_struts(scene.stent, wall, str(scene.source)), 0.5 * scene.stent.strut_diameter_mm)
+    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon, stent=stent)
 
 
 def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
@@ -140,7 +145,7 @@ def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
     shared: dict[tuple, Anatomy] = {}
     anatomies = []
     for scene in scenes:
-        key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon))
+        key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon), repr(scene.stent))
         if key not in shared:
             shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
         base = shared[key]
@@ -152,8 +157,13 @@ def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
         if scene.balloon is not None and repr(scene.balloon) != repr(scenes[0].balloon):
             from .devices import balloon_geometry
             balloon = balloon_geometry(scene.balloon, base.wall, str(scene.source))
+        stent = base.stent
+        if scene.stent is not None and repr(scene.stent) != repr(scenes[0].stent):
+            from .devices import stent_struts
+            stent = (*stent_struts(scene.stent, base.wall, str(scene.source)), 0.5 * scene.stent.strut_diameter_mm)
         anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter,
-                                 balloon=balloon if scene.balloon is not None else None))
+                                 balloon=balloon if scene.balloon is not None else None,
+                                 stent=stent if scene.stent is not None else None))
     return anatomies
 
 
@@ -162,6 +172,7 @@ def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
     builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
                            wall=anatomy.wall)
     builder.balloon = anatomy.balloon
+    builder.stent = anatomy.stent
     for coil in scene.coils:
         builder.add_coil(coil)
     return builder
@@ -518,6 +529,14 @@ class Ensemble:
         return float((math.pi * member.radius[inside] ** 2 * member.segment[inside]).sum()) / sac_volume
 
     def _device(self, member: Member) -> dict | None:
+        stent = member.scene.stent
+        if stent is not None:
+            starts, ends, _ = member.anatomy.stent
+            return dict(kind="stent", nominal_diameter_mm=stent.diameter_mm, cell_size_mm=stent.cell_size_mm,
+                        strut_diameter_mm=stent.strut_diameter_mm,
+                        axis_mm=[list(map(float, p)) for p in stent.axis_mm], struts=int(len(starts)),
+                        strut_length_mm=float(np.linalg.norm(ends - starts, axis=1).sum()),
+                        state_over_time="fixed (deployed before the first coil, left in place)")
         if member.balloon is None:
             return None
         stations, radii = member.anatomy.balloon

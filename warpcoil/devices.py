@@ -70,3 +70,66 @@ def deflation(spec: BalloonSpec, time_s: float, deflate_from_s: float | None) ->
     if deflate_from_s is None:
         return 1.0
     return float(np.clip(1.0 - (time_s - deflate_from_s) / spec.deflation_time_s, 0.0, 1.0))
+
+
+def _frames(stations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit tangents and two normals per station, parallel-transported along the axis."""
+    tangents = np.gradient(stations, axis=0)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    helper = np.eye(3)[int(np.argmin(np.abs(tangents[0])))]
+    normal = np.cross(tangents[0], helper)
+    normal /= np.linalg.norm(normal)
+    normals = [normal]
+    for t0, t1 in zip(tangents[:-1], tangents[1:]):
+        n = normals[-1] - (normals[-1] @ t1) * t1  # transport: remove the new tangent's component
+        normals.append(n / np.linalg.norm(n))
+    normals = np.asarray(normals)
+    return tangents, normals, np.cross(tangents, normals)
+
+
+def stent_struts(spec, wall, source: str = "scene") -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) of the stent's struts, mm: a diamond lattice of closed cells
+    (axial and circumferential diagonals ≈ ``cell_size_mm``) on the tube about the
+    axis, apposed to the wall (radius = station wall distance − strut radius).
+    Raises DeviceError when the axis leaves the lumen or the stent is smaller than
+    the vessel (it would not appose)."""
+    if wall is None:
+        raise DeviceError(f"{source}: stent: needs a [wall] (the vessel it is deployed in); fix: add [wall] or "
+                          f"remove [stent]")
+    stations = resample(np.asarray(spec.axis_mm, np.float64))
+    distance = wall_distances_mm(wall, stations)
+    worst = int(np.argmin(distance))
+    if distance[worst] <= spec.strut_diameter_mm:
+        raise DeviceError(
+            f"{source}: stent.axis: the point {np.round(stations[worst], 3).tolist()} is "
+            f"{'outside the lumen' if distance[worst] <= 0 else 'against the wall'} (wall distance "
+            f"{distance[worst]:.3f} mm); fix: move the axis onto the parent vessel's centreline")
+    if 2.0 * distance.max() > spec.diameter_mm:
+        raise DeviceError(
+            f"{source}: stent.diameter_mm = {spec.diameter_mm:g} mm is smaller than the vessel "
+            f"({2.0 * distance.max():.2f} mm across at {np.round(stations[int(np.argmax(distance))], 3).tolist()}): "
+            f"it would not appose; fix: diameter_mm ≥ {2.0 * distance.max():.2f}, or a shorter axis")
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(stations, axis=0), axis=1))])
+    radius = distance - 0.5 * spec.strut_diameter_mm
+    tangents, normals, binormals = _frames(stations)
+    around = max(3, int(round(2.0 * np.pi * float(np.median(radius)) / spec.cell_size_mm)))
+    rings = max(2, int(arc[-1] // (0.5 * spec.cell_size_mm)) + 1)
+
+    def node(i: int, j: int) -> np.ndarray:
+        s = min(j * 0.5 * spec.cell_size_mm, arc[-1])
+        k = min(int(np.searchsorted(arc, s, side="right")) - 1, len(arc) - 2)
+        f = (s - arc[k]) / (arc[k + 1] - arc[k])
+        centre = (1 - f) * stations[k] + f * stations[k + 1]
+        r = (1 - f) * radius[k] + f * radius[k + 1]
+        angle = 2.0 * np.pi * (i + 0.5 * (j % 2)) / around
+        n, b = normals[k], binormals[k]
+        return centre + r * (np.cos(angle) * n + np.sin(angle) * b)
+
+    starts, ends = [], []
+    for j in range(rings - 1):
+        for i in range(around):
+            step = -1 if j % 2 == 0 else 1  # to the two nodes of the next ring half a cell around
+            for other in (i, i + step):
+                starts.append(node(i, j))
+                ends.append(node(other % around, j + 1))
+    return np.asarray(starts), np.asarray(ends)

@@ -157,6 +157,17 @@ class Model:
     balloon_count: wp.array | None = None
     balloon_inflation: wp.array | None = None  # per world, 0..1, set by the host between frames
 
+    # stent struts (fixed rods), every world's back to back
+    strut_start: wp.array | None = None
+    strut_end: wp.array | None = None
+    strut_world: wp.array | None = None
+    strut_radius_mm: float = 0.0
+    strut_host: tuple | None = None  # (starts, ends, world) numpy, for output
+
+    @property
+    def has_stent(self) -> bool:
+        return self.strut_host is not None and len(self.strut_host[0]) > 0
+
     @property
     def has_balloon(self) -> bool:
         return self.balloon_count is not None and int(self.balloon_count.numpy().max()) >= 2
@@ -231,6 +242,7 @@ class ModelBuilder:
         self._forces: list[tuple[int, np.ndarray]] = []
         self._body_acceleration = np.zeros(3)
         self.balloon: tuple[np.ndarray, np.ndarray] | None = None  # (stations mm, capped radii mm)
+        self.stent: tuple[np.ndarray, np.ndarray, float] | None = None  # (strut starts, ends mm, strut radius mm)
 
     def add_coil(self, spec: CoilSpec, rest_centerline: np.ndarray | None = None) -> int:
         """Add a coil (rest centerline from its pre-shape unless given, mm); returns its index."""
@@ -324,7 +336,7 @@ class ModelBuilder:
             twist_damping=damping_c / s.damping_speed_mm_s * winding_r**2, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
             mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall,
-            balloon=self.balloon)
+            balloon=self.balloon, stent=self.stent)
 
 
 class EnsembleError(ValueError):
@@ -405,6 +417,15 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
     model.balloon_first = arr(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), wp.int32)
     model.balloon_count = arr(counts, wp.int32)
     model.balloon_inflation = arr(np.ones(len(worlds)), wp.float64)
+    stents = [(w["stent"], k) for k, w in enumerate(worlds) if w["stent"] is not None]
+    if stents:
+        starts = np.concatenate([s[0] for s, _ in stents])
+        ends = np.concatenate([s[1] for s, _ in stents])
+        world = np.concatenate([np.full(len(s[0]), k, np.int32) for s, k in stents])
+        model.strut_start, model.strut_end = arr(starts, wp.vec3d), arr(ends, wp.vec3d)
+        model.strut_world = arr(world, wp.int32)
+        model.strut_radius_mm = max(float(s[2]) for s, _ in stents)
+        model.strut_host = (starts, ends, world)
     rest_m1 = model.directors_along(model.rest_positions)
     wp.launch(elastic.rest_strains, n, device=device, inputs=[
         model.array(model.rest_positions, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,

@@ -18,6 +18,7 @@ from .coil import SHAPES, CoilSpec
 from .settings import (
     CatheterSpec,
     BalloonSpec,
+    StentSpec,
     ContactSettings,
     NeckSpec,
     OutputSettings,
@@ -198,7 +199,9 @@ _SIMULATION = {
 _OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool)}
 _BALLOON = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
             "deflate_at_s": _Key(_positive), "deflation_time_s": _Key(_positive)}
-_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon")
+_STENT = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
+          "cell_size_mm": _Key(_positive), "strut_diameter_mm": _Key(_positive)}
+_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon", "stent")
 
 
 def _unknown(key: str, known: Sequence[str]) -> str:
@@ -301,6 +304,8 @@ class _Reader:
         for key in document:
             if key not in _TABLES:
                 raise self.error(key, "unknown top-level table or key", _unknown(key, _TABLES))
+        if "balloon" in document and "stent" in document:
+            raise self.error("balloon / stent", "both devices are given", "keep one of [balloon] and [stent]")
         coils = document.get("coil")
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
@@ -314,6 +319,7 @@ class _Reader:
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
             balloon=self.section(document, "balloon", _BALLOON, BalloonSpec) if "balloon" in document else None,
+            stent=self.section(document, "stent", _STENT, StentSpec) if "stent" in document else None,
             source=self.source,
         )
 

@@ -77,6 +77,22 @@ class BalloonSpec:
 
 
 @dataclass(frozen=True)
+class StentSpec:
+    """A stent left across the neck (stent-assisted coiling): fixed struts of
+    ``strut_diameter_mm`` forming closed diamond cells of ``cell_size_mm`` (both
+    diagonals) on a tube about ``axis_mm`` (the parent vessel's centreline, mm),
+    apposed to the wall: radius per station = its wall distance − the strut radius
+    (a self-expanding stent of nominal ``diameter_mm`` must be at least the vessel's
+    diameter everywhere). Defaults: a 4.5 mm closed-cell intracranial stent with
+    70 µm struts and 1.5 mm cells (the scale of Enterprise-type stents)."""
+
+    axis_mm: tuple[tuple[float, float, float], ...]
+    diameter_mm: float = 4.5
+    cell_size_mm: float = 1.5
+    strut_diameter_mm: float = 0.07
+
+
+@dataclass(frozen=True)
 class RegionSettings:
     """Regional packing densities on a voxel grid of the sac (docs/REGIONS.md);
     None → defaults derived from the coils."""
@@ -173,4 +189,5 @@ class Scene:
     neck: NeckSpec | None = None
     regions: RegionSettings = field(default_factory=RegionSettings)
     balloon: BalloonSpec | None = None
+    stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from

@@ -192,7 +192,19 @@ class Solver:
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
         self.has_balloon = model.has_balloon
-        self.device_force = zeros(wp.vec3d)  # balloon contact (µN)
+        self.device_force = zeros(wp.vec3d)  # balloon or stent contact (µN)
+        self.has_stent = model.has_stent and coil_contact
+        if self.has_stent:  # a static grid of strut midpoints, grouped by world
+            starts, ends, _ = model.strut_host
+            mids = model.array(0.5 * (starts + ends), wp.vec3d)
+            half_strut = 0.5 * float(np.linalg.norm(ends - starts, axis=1).max())
+            # every strut whose closest point can be within c0 of an edge stretched up to 10 %
+            self._strut_query_mm = (0.55 * float(model.rest_length.numpy().max()) + float(
+                model.node_radius.numpy().max()) + model.contact.c0_mm + half_strut + model.strut_radius_mm)
+            strut_cells = int(min(64, max(4, 2 * round(len(starts) ** (1.0 / 3.0)))))
+            self._strut_grid = wp.HashGrid(strut_cells, strut_cells, strut_cells, device=dev, dtype=wp.float64)
+            self._strut_grid.build(mids, self._strut_query_mm, groups=model.strut_world)
+            self._strut_force_start, self._strut_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         self.wall_distance.fill_(float(contact.FAR_MM))
         self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
         self._wall_slack = zeros(wp.float64)
@@ -207,7 +219,8 @@ class Solver:
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
-        self.friction = self.coil_friction or ((self.has_wall or self.has_balloon) and c.friction_wall > 0.0)
+        self.friction = self.coil_friction or (
+            (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
         self._friction_terms = wp.zeros((n if self.coil_friction else 1, 8), dtype=wp.vec3d, device=dev)
         # Σ and max of the step push force, per world
         self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
@@ -272,6 +285,14 @@ class Solver:
                 self.contact_force])
         elif self.has_wall:
             wp.copy(self.contact_force, self.wall_force)
+        if self.has_stent:
+            wp.launch(devices.strut_contact, n, device=dev, inputs=[
+                state.x, state.free, m.has_next, m.world_of, running, m.node_radius, self._strut_grid.id,
+                m.strut_start, m.strut_end, m.strut_radius_mm, self._strut_query_mm, c.p0_uN, c.c0_mm,
+                self.contact_u_linear, self._strut_force_start, self._strut_force_end])
+            wp.launch(devices.gather_edge_forces, n, device=dev, inputs=[
+                state.free, m.has_next, self._strut_force_start, self._strut_force_end, self.device_force])
+            wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
         if self.has_balloon:
             wp.launch(devices.balloon_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.balloon_stations, m.balloon_cap_radius,
