@@ -128,3 +128,35 @@ def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
                               "--quiet", "--no-usd"], stdout=out, stderr=subprocess.STDOUT)
     assert rc == 2
     assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
+
+
+@pytest.mark.parametrize("device", ["balloon", "stent"])
+def test_cli_runs_an_assisted_scene_and_reports_the_device(tmp_path, device):
+    """A 5 mm coil into a 4 mm sphere with the device through it, clear of the catheter path."""
+    from pxr import Usd
+    import json
+
+    table = ('[balloon]\naxis = [[-1.2, 0.8, -0.3], [1.2, 0.8, -0.3]]\ndiameter_mm = 0.8\ndeflation_time_s = 0.02\n'
+             if device == "balloon" else
+             '[stent]\naxis = [[-0.02, 0.013, -1.5], [0.02, 0.013, 1.5]]\ndiameter_mm = 4.5\ncell_size_mm = 1.5\n')
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n'
+                     '[[coil]]\nshape = "helix"\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\n'
+                     'length_mm = 5\n[simulation]\npush_speed_mm_s = 100.0\nframe_interval_s = 0.005\n'
+                     '[output]\npng = true\n' + table)
+    out, log = tmp_path / "out", tmp_path / "log.txt"
+    with log.open("w") as stream:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(out), "--quiet"],
+                             stdout=stream, stderr=subprocess.STDOUT)
+    assert rc == 0, log.read_text()
+    result = json.loads((out / "result.json").read_text())
+    assert result["device"]["kind"] == device
+    assert 0.0 <= result["packing_density_in_sac"] <= result["packing_density"] + 1e-12
+    stage = Usd.Stage.Open(str(out / "deployment.usdc"))
+    prim = stage.GetPrimAtPath("/World/Balloon" if device == "balloon" else "/World/Stent")
+    assert prim.IsValid()
+    assert (out / "summary.png").stat().st_size > 0
+    if device == "balloon":
+        inflation = [f for _, f in result["device"]["inflation_over_time"]]
+        assert inflation[0] == 1.0 and inflation[-1] == 0.0  # deflated before the run ended
+        assert result["device"]["deflation_started_s"] is not None

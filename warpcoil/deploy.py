@@ -79,7 +79,7 @@ class RunResult:
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
-    packing_density_in_sac: float | None = None  # coil inside the sac (closed at the neck) / sac volume
+    packing_density_in_sac: float | None = None  # π(d/2)² (deployed − herniated length) / sac volume
     device: dict | None = None  # assist device: kind, geometry, deflation times
 
     def summary(self) -> dict:
@@ -518,15 +518,10 @@ class Ensemble:
             final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
             regions=self._regions(member, x, free), step_reductions=list(self.step_reductions), frames=frames,
             positions_mm=[x[s] for s in local],
-            packing_density_in_sac=self._in_sac_density(member, x, free, outside, sac_volume),
+            packing_density_in_sac=(sum(math.pi * (c["wire_diameter_mm"] / 2.0) ** 2 * max(
+                c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
+                if sac_volume else None),
             device=self._device(member))
-
-    def _in_sac_density(self, member: Member, x, free, outside, sac_volume) -> float | None:
-        """π (d/2)² × the length of free coil inside the sac, over the sac volume."""
-        if not sac_volume or member.anatomy.sac is None:
-            return None
-        inside = free & ~outside
-        return float((math.pi * member.radius[inside] ** 2 * member.segment[inside]).sum()) / sac_volume
 
     def _device(self, member: Member) -> dict | None:
         stent = member.scene.stent

@@ -96,9 +96,11 @@ def write_summary_png(
     wire_diameters_mm: list[float],
     coil_boundaries_mm: list[float] | None = None,
     title: str = "",
+    devices: list | None = None,
 ) -> None:
     """Two 3D views of the final coils in the wall, push force and packing density
-    against deployed length, as one PNG of FIGSIZE_IN at DPI, written atomically."""
+    against deployed length, as one PNG of FIGSIZE_IN at DPI, written atomically.
+    ``devices``: an assist device as (points mm, width mm, colour, label) polylines."""
     if len(coils_mm) != len(wire_diameters_mm):
         raise ValueError(f"{len(coils_mm)} coils but {len(wire_diameters_mm)} wire diameters")
     vertices = np.asarray(wall_vertices_mm, dtype=float).reshape(-1, 3)
@@ -120,8 +122,11 @@ def write_summary_png(
     scale = min(pt_per_mm, MAX_LINEWIDTH_PT / diameters.max()) if len(diameters) else 0.0
     linewidths_pt = np.maximum(diameters * scale, 0.5).tolist()
     for column, view in enumerate(VIEWS_DEG):
-        lines = _draw_3d(fig.add_subplot(grid[0, column], projection="3d"), triangles, coils_mm,
-                         linewidths_pt, low, high, view)
+        ax = fig.add_subplot(grid[0, column], projection="3d")
+        lines = _draw_3d(ax, triangles, coils_mm, linewidths_pt, low, high, view)
+        for points, width_mm, color, label in devices or []:
+            ax.plot(*np.asarray(points).T, color=color, linewidth=max(width_mm * pt_per_mm, 0.4), zorder=1.5,
+                    label=label)
     if lines:
         fig.axes[0].legend(lines, [f"coil {k}, {d:g} mm wire" for k, d in enumerate(diameters)],
                            loc="upper left", fontsize=8)

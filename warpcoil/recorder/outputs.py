@@ -77,6 +77,7 @@ class UsdFrames:
     def __init__(self, path: Path, coil_nodes: list[slice], widths_mm: list[float],
                  wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float):
         self.coil_nodes = coil_nodes
+        self.balloon = False  # the model has a balloon (its inflation is recorded per frame)
         self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
                                     wall_faces, time_codes_per_second=1.0 / frame_interval_s)
 
@@ -84,16 +85,41 @@ class UsdFrames:
     def for_model(path: Path, model: Model, frame_interval_s: float) -> "UsdFrames":
         """Every coil of a one-world model, with its wall."""
         wall = model.wall
-        return UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
-                         wall.vertices_mm if wall is not None else None, wall.faces_np if wall is not None else None,
-                         frame_interval_s)
+        frames = UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
+                           wall.vertices_mm if wall is not None else None,
+                           wall.faces_np if wall is not None else None, frame_interval_s)
+        if model.has_stent:
+            starts, ends, _ = model.strut_host
+            frames.recorder.add_stent(starts, ends, 2.0 * model.strut_radius_mm)
+        if model.has_balloon:
+            count = int(model.balloon_count.numpy()[0])
+            frames.recorder.add_balloon(model.balloon_stations.numpy()[:count],
+                                        model.balloon_cap_radius.numpy()[:count])
+            frames.balloon = True
+        return frames
 
     def __call__(self, frame: Frame, state: State) -> None:
         x = state.x.numpy()
         self.recorder.add_frame(frame.time_s, [x[s] for s in self.coil_nodes])
+        if self.balloon and frame.balloon_inflation is not None:
+            self.recorder.set_balloon(frame.time_s, frame.balloon_inflation)
 
     def close(self) -> None:
         self.recorder.close()
+
+
+def _device_lines(scene: Scene, wall) -> list:
+    """The scene's assist device as (points (K, 3) mm, line width in mm, colour, label) polylines
+    for the summary picture: each stent strut, or the balloon's axis at its inflated diameter."""
+    from ..devices import balloon_geometry, stent_struts
+
+    if scene.stent is not None:
+        starts, ends = stent_struts(scene.stent, wall)
+        return [(np.stack([a, b]), scene.stent.strut_diameter_mm, "0.45", None) for a, b in zip(starts, ends)]
+    if scene.balloon is not None:
+        stations, radii = balloon_geometry(scene.balloon, wall)
+        return [(stations, 2.0 * float(np.median(radii)), (0.3, 0.6, 0.9, 0.25), "balloon (inflated)")]
+    return []
 
 
 def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None) -> None:
@@ -117,5 +143,5 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
             out / SUMMARY_PNG, wall.vertices_mm if wall is not None else np.zeros((0, 3)),
             wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
             result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
-            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %")
+            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %", devices=_device_lines(scene, wall))
     write_result_json(out / RESULT_JSON, result, extra)
