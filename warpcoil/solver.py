@@ -221,7 +221,7 @@ class Solver:
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
             (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
-        self._friction_terms = wp.zeros((n if self.coil_friction else 1, 8), dtype=wp.vec3d, device=dev)
+        self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
         # Σ and max of the step push force, per world
         self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
@@ -343,13 +343,14 @@ class Solver:
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=[
                 state_in.x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.inv_mass, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                c.friction_coil, c.friction_catheter, c.friction_speed_mm_s, dt, self._friction_terms])
+                m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
+                self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
+                c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
+                c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])
         wp.launch(friction.apply_friction, n, device=dev, inputs=[
-            state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.wall_force,
-            self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_terms,
-            int(self.coil_friction), dt, state_out.v, state_out.x])
+            state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts,
+            self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start,
+            self._friction_end, int(self.coil_friction), dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
