@@ -15,6 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .devices import deflation
 from .kernels.contact import FAR_MM
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .settings import CatheterSpec, Scene
@@ -403,7 +404,6 @@ class Ensemble:
         if member.balloon is not None:
             if member.active < 0 and member.deflate_from_s is None:
                 member.deflate_from_s = snap.time_s  # the last coil detached: deflate now
-            from .devices import deflation
             member.inflation = deflation(member.balloon, snap.time_s, member.deflate_from_s)
             self.model.set_inflation(member.world, member.inflation)
         deflated = member.inflation is None or member.inflation == 0.0
