@@ -9,163 +9,28 @@ unstable). Units mm, g, s, µN, nJ.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
-from dataclasses import asdict, dataclass, field, replace
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
 
+from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
-from .kernels.contact import FAR_MM
+from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .settings import CatheterSpec, Scene
+from .settings import Scene
 from .solver import Control, Solver, Stepper
 from .state import State, new_state_like, packed_state
 
-COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
+COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
-
-
-@dataclass
-class Frame:
-    """What a run reports per recorded frame."""
-
-    time_s: float
-    deployed_length_mm: float
-    push_force_uN: float  # mean over the frame's steps
-    push_force_max_uN: float  # largest single step
-    kinetic_nJ: float
-    bend_nJ: float
-    twist_nJ: float
-    stretch_nJ: float
-    wall_contacts: int  # free nodes with wall gap < c0
-    coil_contacts: int  # edge pairs with gap < c0
-    max_wall_force_uN: float
-    min_wall_gap_mm: float
-    min_coil_gap_mm: float
-    length_outside_sac_mm: float
-    balloon_inflation: float | None = None  # 1 inflated, 0 deflated; None without a balloon
-
-
-@dataclass
-class RunResult:
-    """End-of-run report (MODEL.md, "What a run reports"); keys carry their units."""
-
-    status: str
-    reason: str
-    steps: int
-    dt_s: float
-    step_bound_s: float
-    mass_scale: float
-    wall_time_s: float
-    simulated_time_s: float
-    coil_length_mm: float
-    deployed_length_mm: float
-    sac_volume_mm3: float | None
-    packing_density: float | None
-    length_outside_sac_mm: float
-    min_wall_gap_mm: float
-    min_coil_gap_mm: float
-    max_wall_force_uN: float
-    max_push_force_uN: float  # largest frame-mean push force (single steps ring: see the frames)
-    stored_energy_nJ: float
-    final_kinetic_nJ: float
-    final_bend_nJ: float
-    final_twist_nJ: float
-    final_stretch_nJ: float
-    coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
-    regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
-    step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
-    frames: list[Frame] = field(default_factory=list, repr=False)
-    positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
-    packing_density_in_sac: float | None = None  # π(d/2)² (deployed − herniated length) / sac volume
-    device: dict | None = None  # assist device: kind, geometry, deflation times
-
-    def summary(self) -> dict:
-        """The JSON-ready scalars (no frames or positions)."""
-        d = asdict(self)
-        d.pop("frames")
-        d.pop("positions_mm")
-        return d
-
-
-@dataclass
-class Anatomy:
-    """The wall and, with a [neck], the sac it closes off; the catheter as placed."""
-
-    wall: object | None  # warpcoil.wall.WallMesh
-    sac: object | None  # warpcoil.sac.Sac
-    catheter: CatheterSpec
-    balloon: tuple | None = None  # (stations mm, capped radii mm), warpcoil.devices.balloon_geometry
-    stent: tuple | None = None  # (strut starts, ends mm, strut radius mm), warpcoil.devices.stent_struts
-
-    @property
-    def sac_volume_mm3(self) -> float | None:
-        if self.sac is not None:
-            return self.sac.volume_mm3
-        return self.wall.volume_mm3 if self.wall is not None else None
-
-
-def resolve_anatomy(scene: Scene) -> Anatomy:
-    """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
-    from . import sac as sacs
-    from .wall import load_wall
-
-    wall = load_wall(scene.wall) if scene.wall is not None else None
-    sac = None
-    if scene.neck is not None:
-        hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
-        if scene.neck.contour is not None:
-            neck = sacs.neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
-        else:
-            neck = sacs.neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
-                                        wall, sac_side_point_mm=hint)
-        sac = sacs.sac_from_neck(wall, neck)
-    catheter = scene.catheter
-    if catheter.placement == "neck":
-        tip, direction = sacs.catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-        catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    balloon = None
-    if scene.balloon is not None:
-        from .devices import balloon_geometry
-        balloon = balloon_geometry(scene.balloon, wall, str(scene.source))
-    stent = None
-    if scene.stent is not None:
-        from .devices import stent_struts
-        stent = (*stent_struts(scene.stent, wall, str(scene.source)), 0.5 * scene.stent.strut_diameter_mm)
-    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon, stent=stent)
-
-
-def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
-    """:func:`resolve_anatomy` for each scene; scenes with the same wall and neck
-    share one wall mesh and sac (read and cut once, one BVH on the device)."""
-    from .sac import catheter_from_neck
-
-    shared: dict[tuple, Anatomy] = {}
-    anatomies = []
-    for scene in scenes:
-        key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon), repr(scene.stent))
-        if key not in shared:
-            shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
-        base = shared[key]
-        catheter = scene.catheter
-        if catheter.placement == "neck":
-            tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-            catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-        balloon = base.balloon
-        if scene.balloon is not None and repr(scene.balloon) != repr(scenes[0].balloon):
-            from .devices import balloon_geometry
-            balloon = balloon_geometry(scene.balloon, base.wall, str(scene.source))
-        stent = base.stent
-        if scene.stent is not None and repr(scene.stent) != repr(scenes[0].stent):
-            from .devices import stent_struts
-            stent = (*stent_struts(scene.stent, base.wall, str(scene.source)), 0.5 * scene.stent.strut_diameter_mm)
-        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter,
-                                 balloon=balloon if scene.balloon is not None else None,
-                                 stent=stent if scene.stent is not None else None))
-    return anatomies
 
 
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
@@ -214,11 +79,13 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
+        self.stall_force_uN = sim.stall_force_uN  # None: no force criterion
+        self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
         self.balloon = scene.balloon
         self.deflate_from_s = None if self.balloon is None else self.balloon.deflate_at_s
-        self.inflation = None if self.balloon is None else 1.0
+        self.inflation = None if self.balloon is None else 1.0  # 1 inflated .. 0 deflated
         self.steps = 0
         self.result: RunResult | None = None
 
@@ -232,25 +99,6 @@ class Member:
         released = float((free == 1) @ self.mass_g)
         speed = self.scene.simulation.push_speed_mm_s
         return self.stored_energy_nJ + self.pusher_work_nJ + 0.5 * released * speed**2 + 1.0
-
-    def in_sac(self, points_mm: np.ndarray) -> np.ndarray:
-        from .sac import inside_sac
-
-        return inside_sac(self.anatomy.sac, points_mm)
-
-
-@dataclass
-class Snapshot:
-    """Host copies of the solver arrays a frame's measurement reads (all worlds)."""
-
-    time_s: float
-    x: np.ndarray
-    free: np.ndarray
-    advance: np.ndarray
-    wall_distance: np.ndarray
-    wall_force: np.ndarray
-    coil_gap: np.ndarray
-    coil_contacts: np.ndarray
 
 
 class Ensemble:
@@ -291,42 +139,6 @@ class Ensemble:
         self.step_reductions: list[str] = []
         self._steps_before = 0  # steps of chunks dropped by a step halving
         self._work_before = (0.0, 0.0)  # a single run's pusher work and advance at the last frame
-
-    # --- measurement ---------------------------------------------------------
-    def _snapshot(self, state: State) -> Snapshot:
-        s = self.solver
-        s.compute_contacts(state, wall_search_mm=float(FAR_MM), running=self.control.running)  # exact distances
-        arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
-        return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
-
-    def _measure(self, member: Member, snap: Snapshot, energies: dict, push: tuple[float, float]) -> Frame:
-        """Frame quantities of one member at the snapshot."""
-        w, sl, m = member.world, member.nodes, self.model
-        free = snap.free[sl] == 1
-        advance = snap.advance[member.coils.start:member.coils.stop]
-        deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
-        c0 = m.contact.c0_mm
-        wall_gap = np.inf
-        wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
-        if m.world_walls[w] is not None and free.any():
-            centre = snap.wall_distance[sl][free]
-            gaps = centre - member.radius[free]
-            wall_gap = float(gaps.min())
-            wall_contacts = int((gaps < c0).sum())
-            max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
-            outside = float(member.segment[free][centre < 0.0].sum())
-        if member.anatomy.sac is not None and free.any():
-            outside = float(member.segment[free][~member.in_sac(snap.x[sl][free])].sum())
-        in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
-        coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (self.solver.coil_contact and free.any()) else np.inf
-        return Frame(
-            time_s=snap.time_s, deployed_length_mm=deployed, push_force_uN=float(push[0]),
-            push_force_max_uN=float(push[1]), kinetic_nJ=float(energies["kinetic_nJ"][w]),
-            bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
-            stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
-            coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
-            max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
-            length_outside_sac_mm=outside, balloon_inflation=member.inflation)
 
     # --- coil sequence -------------------------------------------------------------
     def _activate(self, member: Member, coil: int) -> None:
@@ -378,23 +190,64 @@ class Ensemble:
 
     # --- the run ---------------------------------------------------------------
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
-        if status in (TIMEOUT, FAILED) and member.jam_reasons:
+        if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
         member.steps = self._steps_before + self.stepper.steps
-        member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
+        member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
+                                   snap, self.step_reductions)
         self.control.stop(member.world)
 
+    def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
+        """Why the member's deployment has stalled (None while it has not): the coil in
+        the sac fills more than stall_packing of it (coils cannot pack that densely, so
+        more coil can only pass through coil), or (when the scene sets stall_force_uN)
+        the frame-mean push force has stayed above it for the stall window.
+        ``advance``: the member's coils' pusher advance (mm)."""
+        sim, k = member.scene.simulation, member.active
+        if k < 0:
+            member.resisted_since_s = None
+            return None
+        areas = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in member.scene.coils])
+        deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
+        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
+        sac = member.anatomy.sac_volume_mm3
+        packing = in_sac / sac if sac else 0.0
+        where = (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "
+                 f"{member.coil_lengths_mm.sum():.2f} mm deployed" + (f", packing density {100 * packing:.1f} %"
+                                                                       if sac else ""))
+        fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
+        if sac and packing > sim.stall_packing:
+            return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
+                    f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
+        if member.stall_force_uN is None or frame.push_force_mean_uN <= member.stall_force_uN:
+            member.resisted_since_s = None
+            return None
+        if member.resisted_since_s is None:
+            member.resisted_since_s = frame.time_s - frame_s
+        if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
+            return None
+        return (f"stalled: {where}: the mean push force stayed above stall_force_uN = {member.stall_force_uN:g} µN "
+                f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
+                f"µN), a resistance that does not let up; {fix}")
+
     def _advance_member(self, member: Member, frame: Frame, started: float, snap: Snapshot) -> None:
-        """After a frame: jam, detach and next coil, rest, timeout."""
+        """After a frame: stall, jam, detach and next coil, rest, timeout."""
         sim = member.scene.simulation
         active = member.active
         coil = member.coils.start + active
-        if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
+        stalled = self._stalled(member, frame, self.stepper.chunk * self.solver.dt_s,
+                                snap.advance[member.coils.start:member.coils.stop])
+        if stalled is not None:
+            member.coil_status[active] = JAMMED
+            self._finish(member, JAMMED, stalled, started, snap)
+            return
+        if active >= 0 and frame.push_force_mean_uN > sim.jam_force_uN:
             member.coil_status[active] = JAMMED
             deployed = float(np.clip(snap.advance[coil], 0.0, member.coil_lengths_mm[active]))
             member.jam_reasons.append(
-                f"coil {active} ({member.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
-                f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
+                f"coil {active} ({member.scene.coils[active].name}) jammed: mean push force "
+                f"{frame.push_force_mean_uN:.4g} µN"
+                f" over a frame > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
                 f"{member.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
             self._retract(member, active)
             self._activate(member, active + 1)
@@ -422,31 +275,49 @@ class Ensemble:
             on_frame(member, frame, self.stepper.state)
 
     def run(self, on_frame: Callable[[Member, Frame, State], None] | None = None) -> list[RunResult]:
+        """Deploy every member; Ctrl-C (SIGINT, in the main thread) ends the run after
+        the current frame, each unfinished member with status ``interrupted``."""
+        with _stop_on_interrupt() as interrupted:
+            return self._run(on_frame, interrupted)
+
+    def _interrupt(self, members: list[Member], started: float) -> None:
+        snap = take_snapshot(self.solver, self.stepper.state, self.control.running)
+        for member in members:
+            deployed = float(np.clip(snap.advance[member.coils.start:member.coils.stop], 0.0,
+                                     member.coil_lengths_mm).sum())
+            self._finish(member, INTERRUPTED, f"interrupted (Ctrl-C) at t = {snap.time_s:.4f} s with {deployed:.2f} "
+                         f"of {member.coil_lengths_mm.sum():.2f} mm deployed; results are those of that moment",
+                         started, snap)
+
+    def _run(self, on_frame, interrupted: list[bool]) -> list[RunResult]:
         started = time.perf_counter()
         single = len(self.members) == 1
         for member in self.members:
             self._activate(member, 0)
         state = self.stepper.state
         energies, _ = self.solver.world_health(state)
-        snap = self._snapshot(state)
+        snap = take_snapshot(self.solver, state, self.control.running)
         for member in self.members:
-            self._record(member, self._measure(member, snap, energies, (0.0, 0.0)), on_frame)
+            self._record(member, measure_frame(self.model, self.solver, member, snap, energies, (0.0, 0.0, 0.0)), on_frame)
             if state.time_s >= member.max_time_s:
                 self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
                              started, snap)
         rerun: list[Member] = []
         snapshot = new_state_like(self.model)
         while any(m.result is None and m not in rerun for m in self.members):
+            if interrupted[0]:
+                self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
+                break
             snapshot.copy_from(self.stepper.state)
             self.stepper.run_chunk()
             state = self.stepper.state
-            push_mean, push_max = self.solver.take_push_force(self.stepper.chunk)
+            push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
-            snap = self._snapshot(state)
+            snap = take_snapshot(self.solver, state, self.control.running)
             budgets = np.zeros(self.model.world_count)
             for m in running:
                 budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
-                                                      push_mean[m.world])
+                                                      push.mean_uN[m.world])
             energies, problems = self.solver.world_health(state, budgets)
             unstable = [m for m in running if problems[m.world] is not None]
             if unstable and single:
@@ -455,7 +326,8 @@ class Ensemble:
                     member.pusher_work_nJ, member.last_advance_mm = self._work_before
                     self._halve_step(snapshot, problems[member.world])
                     continue
-                self._finish(member, FAILED, problems[member.world], started, snap)
+                # the last healthy state (the frame's start): no non-finite geometry in the results
+                self._finish(member, FAILED, problems[member.world], started, take_snapshot(self.solver, snapshot, self.control.running))
                 break
             for member in unstable:  # run alone afterwards, where its step can be halved
                 self.control.stop(member.world)
@@ -464,11 +336,14 @@ class Ensemble:
             for member in running:
                 if member in unstable:
                     continue
-                frame = self._measure(member, snap, energies, (push_mean[member.world], push_max[member.world]))
+                frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
+        if interrupted[0] and rerun:
+            self._interrupt(rerun, started)  # (restored to their last healthy frame)
+            rerun = []
         for member in rerun:
             alone = Ensemble([member.scene], self.device, [member.anatomy])
             alone.members[0].index = member.index
@@ -476,85 +351,26 @@ class Ensemble:
             member.frames, member.result = alone.members[0].frames, result
         return [m.result for m in self.members]
 
-    def _result(self, member: Member, status: str, reason: str, wall_time_s: float, snap: Snapshot) -> RunResult:
-        """The member's RunResult from its frames and the frame's snapshot."""
-        m, sl = self.model, member.nodes
-        frames = member.frames
-        last = frames[-1]
-        sac_volume = member.anatomy.sac_volume_mm3
-        advance = snap.advance[member.coils.start:member.coils.stop]
-        deployed_each = np.clip(advance, 0.0, member.coil_lengths_mm)
-        coil_specs = [m.coils[c] for c in member.coils]
-        volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in coil_specs]) * deployed_each
-        coil_volume = float(volumes.sum())
-        density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
-        x = snap.x[sl]
-        free = snap.free[sl] == 1
-        outside = np.zeros(len(x), bool)
-        if member.anatomy.sac is not None:
-            outside[free] = ~member.in_sac(x[free])
-        elif m.world_walls[member.world] is not None:
-            outside[free] = snap.wall_distance[sl][free] < 0.0
-        local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
-        coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
-                      length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
-                      loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(member.coil_lengths_mm[k]),
-                      deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
-                      cumulative_packing_density=density(volumes[: k + 1].sum()))
-                 for k, c in enumerate(coil_specs)]
-        finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
-        return RunResult(
-            status=status, reason=reason, steps=member.steps, dt_s=self.solver.dt_s,
-            step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
-            simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
-            deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
-            packing_density=coil_volume / sac_volume if sac_volume else None,
-            length_outside_sac_mm=last.length_outside_sac_mm,
-            min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
-            min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
-            max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-            max_push_force_uN=max(f.push_force_uN for f in frames),
-            stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
-            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
-            regions=self._regions(member, x, free), step_reductions=list(self.step_reductions), frames=frames,
-            positions_mm=[x[s] for s in local],
-            packing_density_in_sac=(sum(math.pi * (c["wire_diameter_mm"] / 2.0) ** 2 * max(
-                c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
-                if sac_volume else None),
-            device=self._device(member))
+@contextmanager
+def _stop_on_interrupt() -> Iterator[list[bool]]:
+    """While a run steps, the first Ctrl-C (SIGINT) only sets the yielded flag,
+    which the run checks between frames; a second one interrupts at once.
+    Outside the main thread (where no handler can be set) nothing changes."""
+    flag = [False]
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
 
-    def _device(self, member: Member) -> dict | None:
-        stent = member.scene.stent
-        if stent is not None:
-            starts, ends, _ = member.anatomy.stent
-            return dict(kind="stent", nominal_diameter_mm=stent.diameter_mm, cell_size_mm=stent.cell_size_mm,
-                        strut_diameter_mm=stent.strut_diameter_mm,
-                        axis_mm=[list(map(float, p)) for p in stent.axis_mm], struts=int(len(starts)),
-                        strut_length_mm=float(np.linalg.norm(ends - starts, axis=1).sum()),
-                        state_over_time="fixed (deployed before the first coil, left in place)")
-        if member.balloon is None:
-            return None
-        stations, radii = member.anatomy.balloon
-        return dict(kind="balloon", nominal_diameter_mm=member.balloon.diameter_mm,
-                    axis_mm=[list(map(float, p)) for p in member.balloon.axis_mm],
-                    inflated_radius_min_mm=float(radii.min()), inflated_radius_max_mm=float(radii.max()),
-                    deflation_started_s=member.deflate_from_s, deflation_time_s=member.balloon.deflation_time_s,
-                    inflation_over_time=[[f.time_s, f.balloon_inflation] for f in member.frames])
+    def handler(_signum, _frame):
+        if flag[0]:
+            raise KeyboardInterrupt
+        flag[0] = True
 
-    def _regions(self, member: Member, x: np.ndarray, free: np.ndarray) -> dict | None:
-        """Regional densities of the final coils (only where a neck defines the sac)."""
-        if member.anatomy.sac is None:
-            return None
-        from .sac import regional_density
-
-        m, r, sl = self.model, member.scene.regions, member.nodes
-        coils = [(x[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start],
-                  free[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start], m.coils[c].d)
-                 for c in member.coils]
-        kept = [(pts[f], d) for pts, f, d in coils if f.sum() >= 2]
-        density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
-                                   r.neck_band_mm, r.boundary_mm)
-        return {k: float(v) for k, v in asdict(density).items()}
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def world_bounds(model: Model) -> list:

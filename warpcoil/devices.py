@@ -133,3 +133,23 @@ def stent_struts(spec, wall, source: str = "scene") -> tuple[np.ndarray, np.ndar
                 starts.append(node(i, j))
                 ends.append(node(other % around, j + 1))
     return np.asarray(starts), np.asarray(ends)
+
+
+def device_report(scene, anatomy, frames: list, deflate_from_s: float | None) -> dict | None:
+    """result.json's ``device``: kind, geometry and state over time (None without one)."""
+    if scene.stent is not None:
+        starts, ends, _ = anatomy.stent
+        stent = scene.stent
+        return dict(kind="stent", nominal_diameter_mm=stent.diameter_mm, cell_size_mm=stent.cell_size_mm,
+                    strut_diameter_mm=stent.strut_diameter_mm, axis_mm=[list(map(float, p)) for p in stent.axis_mm],
+                    struts=int(len(starts)), strut_length_mm=float(np.linalg.norm(ends - starts, axis=1).sum()),
+                    state_over_time="fixed: in place before the first coil and left there")
+    if scene.balloon is None:
+        return None
+    _, radii = anatomy.balloon
+    balloon = scene.balloon
+    return dict(kind="balloon", nominal_diameter_mm=balloon.diameter_mm,
+                axis_mm=[list(map(float, p)) for p in balloon.axis_mm],
+                inflated_radius_min_mm=float(radii.min()), inflated_radius_max_mm=float(radii.max()),
+                deflation_started_s=deflate_from_s, deflation_time_s=balloon.deflation_time_s,
+                inflation_over_time=[[f.time_s, f.balloon_inflation] for f in frames])
