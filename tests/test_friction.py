@@ -19,6 +19,12 @@ def test_incline_sticks_below_the_friction_angle_creeping_below_v_reg(ratio):
     assert top_speed == pytest.approx(ratio * v_reg, rel=1e-2)  # creep v_reg F_t/(μN) < v_reg
 
 
+def test_stick_converges_to_rest_as_the_regularisation_velocity_shrinks():
+    """Creep = v_reg F_t/(μN): first order in v_reg, so exact stick in the limit."""
+    creep = [vf.incline_motion(0.3, 0.9, steps=4000, v_reg_mm_s=v)[2] for v in (0.01, 0.001)]
+    assert creep == pytest.approx([0.009, 0.0009], rel=1e-2)
+
+
 def test_incline_slides_above_with_the_coulomb_acceleration():
     acceleration, reference, _ = vf.incline_motion(0.3, 1.5, steps=6000)
     assert acceleration == pytest.approx(reference, rel=1e-2)

@@ -63,7 +63,7 @@ def _straight(nodes: int, d: float, axis=(1.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)
 
 # --- inclined plane ---------------------------------------------------------------
 def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: int = 20_000,
-                   nodes: int = 11) -> tuple[float, float, float]:
+                   nodes: int = 11, v_reg_mm_s: float = ContactSettings.friction_speed_mm_s) -> tuple[float, float, float]:
     """A straight coil piece on the floor under a body acceleration g tilted by θ
     (tan θ = tan_ratio · μ), starting at rest at its contact equilibrium. Returns
     (fitted acceleration over the second half, mm/s²; analytic g (sin θ − μ cos θ)
@@ -72,7 +72,8 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
     d = REFERENCE_D_MM
     rest = _straight(nodes, d)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0),
-                           contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu), wall=_floor())
+                           contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu, friction_speed_mm_s=v_reg_mm_s),
+                           wall=_floor())
     builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
     builder.body_acceleration(g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
     model = builder.finalize()
