@@ -339,23 +339,55 @@ def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
 
 
 def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force(tmp_path):
-    """A 35 mm loop for the 3.5 mm sac: warned before the run; with the optional force
-    criterion it ends as stalled once the push force has resisted for the window."""
+    """A 35 mm loop for the 3.5 mm sac: warned before the run; it ends as jammed
+    ("stalled") once the frame-mean push force has stayed above stall_force_ratio (30)
+    × the coil's self-deployment force (its elastic energy per mm straightened in the
+    catheter, about 9 µN for so flat a loop) for the whole stall window (0.1 s)."""
+    path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
+                              "length_mm = 4.0": "length_mm = 20.0"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
+    assert code == 3, err
+    assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
+    result = json.loads((tmp_path / "big" / "result.json").read_text())
+    self_force = result["stored_energy_nJ"] / result["coil_length_mm"]  # nJ/mm = µN
+    stall_force = 30.0 * self_force
+    assert result["status"] == "jammed" and "stall_force_ratio = 30 ×" in result["reason"], result["reason"]
+    assert f"self-deployment force {self_force:.4g} µN = {stall_force:.4g} µN" in result["reason"]
+    assert out.startswith("jammed: stalled") and "stall_force_ratio" in out
+    rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
+    frame_s = float(rows[-1]["time_s"]) - float(rows[-2]["time_s"])
+    count = math.ceil(0.1 / frame_s - 1e-9)  # frames that span the window
+    mean = [float(r["push_force_mean_uN"]) for r in rows]
+    assert min(mean[-count:]) > stall_force and mean[-count - 1] <= stall_force  # every frame of the window, no more
+    assert result["deployed_length_mm"] < 19.0
+
+
+def test_an_absolute_stall_force_replaces_the_ratio(tmp_path):
+    """stall_force_uN (µN), when set, is the stall force instead of the ratio."""
     path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
                               "length_mm = 4.0": "length_mm = 20.0",
                               "frame_interval_s = 0.005": "frame_interval_s = 0.005\nstall_force_uN = 500.0\n"
                               "stall_window_s = 0.05"})
     code, _, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
     assert code == 3, err
-    assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
     result = json.loads((tmp_path / "big" / "result.json").read_text())
     assert result["status"] == "jammed" and "stall_force_uN = 500 µN" in result["reason"], result["reason"]
     rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
-    frame_s = float(rows[-1]["time_s"]) - float(rows[-2]["time_s"])
-    count = math.ceil(0.05 / frame_s - 1e-9)  # frames that span the window
+    count = math.ceil(0.05 / (float(rows[-1]["time_s"]) - float(rows[-2]["time_s"])) - 1e-9)  # frames in the window
     mean = [float(r["push_force_mean_uN"]) for r in rows]
-    assert min(mean[-count:]) > 500.0 and mean[-count - 1] <= 500.0  # every frame of the window above, no more
-    assert result["deployed_length_mm"] < 19.0
+    assert min(mean[-count:]) > 500.0 and mean[-count - 1] <= 500.0
+
+
+def test_a_coil_that_fits_completes_well_below_the_stall_force(tmp_path):
+    """15 mm of the 2.5 mm helix (4.5 % packing) fills the sphere without a stall: it
+    completes, its largest frame-mean push force far below 30 × its self-deployment force."""
+    path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 15.0"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "fits", "-q")
+    assert code == 0, err
+    result = json.loads((tmp_path / "fits" / "result.json").read_text())
+    assert result["status"] == "completed" and out.startswith("completed")
+    self_force = result["stored_energy_nJ"] / result["coil_length_mm"]
+    assert result["push_force_mean_max_uN"] < 0.3 * 30.0 * self_force  # margin ≥ 3×
 
 
 def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):

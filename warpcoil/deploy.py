@@ -23,8 +23,9 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
+from .implicit import implicit_step_s, make_solver
 from .settings import Scene
-from .solver import Control, Solver, Stepper
+from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
@@ -79,7 +80,10 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
-        self.stall_force_uN = sim.stall_force_uN  # None: no force criterion
+        # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
+        self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
+        self.stall_force_uN = (sim.stall_force_uN if sim.stall_force_uN is not None
+                               else sim.stall_force_ratio * self.self_deployment_force_uN)
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -125,8 +129,10 @@ class Ensemble:
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
-                                f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
-        self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt)
+                                f"steps per frame, integrator) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+        self.integrator = steps[0][3]
+        self.solver = make_solver(self.model, self.integrator, steps[0][0], dt_safety=sims[0].dt_safety,
+                                  allow_unstable_dt=sims[0].allow_unstable_dt)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -169,7 +175,8 @@ class Ensemble:
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
         self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
-        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True)
+        solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
+                             dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -200,8 +207,9 @@ class Ensemble:
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
         """Why the member's deployment has stalled (None while it has not): the coil in
         the sac fills more than stall_packing of it (coils cannot pack that densely, so
-        more coil can only pass through coil), or (when the scene sets stall_force_uN)
-        the frame-mean push force has stayed above it for the stall window.
+        more coil can only pass through coil), or the frame-mean push force has stayed
+        above the stall force (stall_force_ratio × the self-deployment force, or
+        stall_force_uN) in every frame of the stall window.
         ``advance``: the member's coils' pusher advance (mm)."""
         sim, k = member.scene.simulation, member.active
         if k < 0:
@@ -219,14 +227,17 @@ class Ensemble:
         if sac and packing > sim.stall_packing:
             return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
                     f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
-        if member.stall_force_uN is None or frame.push_force_mean_uN <= member.stall_force_uN:
+        if frame.push_force_mean_uN <= member.stall_force_uN:
             member.resisted_since_s = None
             return None
         if member.resisted_since_s is None:
             member.resisted_since_s = frame.time_s - frame_s
         if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
             return None
-        return (f"stalled: {where}: the mean push force stayed above stall_force_uN = {member.stall_force_uN:g} µN "
+        limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
+                 f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
+                 f"{member.self_deployment_force_uN:.4g} µN = {member.stall_force_uN:.4g} µN")
+        return (f"stalled: {where}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")
 
@@ -381,18 +392,26 @@ def world_bounds(model: Model) -> list:
     return [stable_step_bound(model, contact_k, model.world_nodes(w)) for w in range(model.world_count)]
 
 
-def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None) -> list[tuple[float, float, int]]:
-    """Per world: (dt_s, contact linear onset, steps per frame) as a single run of
-    its scene would take them."""
+def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None
+                ) -> list[tuple[float, float, int, str]]:
+    """Per world: (dt_s, contact linear onset, steps per frame, integrator) as a
+    single run of its scene would take them (the onset is the explicit step's
+    for either integrator: both integrate the same law)."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
     steps = []
     for w, scene in enumerate(scenes):
         sim = scene.simulation
-        dt = sim.dt_s if sim.dt_s is not None else sim.dt_safety * bounds[w].dt_s
-        steps.append((dt, contact_linear_onset(model, dt, model.world_nodes(w)),
-                      max(2, 2 * round(sim.frame_interval_s / dt / 2))))
+        explicit_dt = sim.dt_safety * bounds[w].dt_s
+        if sim.integrator == "implicit":
+            dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
+            onset_dt = explicit_dt
+        else:
+            dt = sim.dt_s if sim.dt_s is not None else explicit_dt
+            onset_dt = dt
+        steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
+                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator))
     return steps
 
 

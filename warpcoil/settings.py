@@ -134,12 +134,17 @@ class SimulationSettings:
     * push_speed_mm_s: pusher speed (clinically a few mm/s; faster is fine while
       kinetic/elastic energy stays small, which the run reports).
     * damping_uN_per_mm, damping_speed_mm_s: the nonlinear damping of MODEL.md,
-      force per node ``c (1 - exp(-|v|/k)) v/|v|`` with ``c = damping_uN_per_mm · l0``
-      and ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
+      force per node ``c (1 - exp(-|v|/k)) v/|v|`` with ``c = damping_uN_per_mm`` × the
+      node's share of the coil (l0; l0/2 at an end, like its mass) and
+      ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
-    * dt_s: step; None → dt_safety (default 0.9) × the stable bound. A dt above
-      the bound is refused unless allow_unstable_dt.
+    * integrator: "symplectic" (the reference: semi-implicit Euler under the
+      explicit stability bound) or "implicit" (linearly implicit Euler,
+      warpcoil/implicit.py: no stability bound, step set by accuracy).
+    * dt_s: step; None → dt_safety (default 0.9) × the stable bound (symplectic), or
+      the implicit default (the pusher advances 0.2 c0 per step, at most 0.5 ms).
+      A symplectic dt above the bound is refused unless allow_unstable_dt.
     * mass_scale: node masses, twist inertia and damping × this factor (default 1,
       true inertia): a named quasi-static speed-up (the damped, first-order motion
       c·v ≈ F is kept; only inertia grows, and the stable step grows by √scale),
@@ -149,10 +154,14 @@ class SimulationSettings:
     * stall_packing: a deployment whose coil inside the sac fills more than this
       fraction of it has stalled (no coil packing comes close: clinical 20–35 %;
       more coil could only pass through coil): the run ends there as "jammed".
-    * stall_force_uN, stall_window_s: optional (None: off): so has one whose
-      frame-mean push force stays above stall_force_uN in every frame for
-      stall_window_s (an operator's "stop when it keeps resisting"). No default
-      is safe: patient framing coils legitimately hold several mN for 0.7 s.
+    * stall_force_ratio, stall_window_s: so has one whose frame-mean push force
+      stays above stall_force_ratio × the coils' self-deployment force in every
+      frame for stall_window_s. The self-deployment force (µN = nJ/mm) is the
+      elastic energy per mm the coils hold straightened in the catheter: the
+      force with which a coil draws itself out into free space. Measured: a
+      completed patient case peaks at 5×, a loop 10× the sac holds 165×.
+    * stall_force_uN: optional (None: off): an absolute push force (µN) used
+      instead of stall_force_ratio × the self-deployment force.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
       is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
       i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
@@ -163,13 +172,15 @@ class SimulationSettings:
     push_speed_mm_s: float = 50.0
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
+    integrator: str = "symplectic"
     dt_s: float | None = None
     dt_safety: float = DEFAULT_DT_SAFETY
     allow_unstable_dt: bool = False
     mass_scale: float = DEFAULT_MASS_SCALE
     jam_force_uN: float = 1.0e5
+    stall_force_ratio: float = 30.0
     stall_force_uN: float | None = None
-    stall_window_s: float = 0.3
+    stall_window_s: float = 0.1
     stall_packing: float = 0.5
     rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None

@@ -1,0 +1,215 @@
+"""The linearly implicit Euler step: its system matrix, its banded solve, its
+stability beyond the explicit bound, and the deployment machinery around it
+(push, step halving, ensembles, the scene key)."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import warpcoil as wc
+from warpcoil import validation
+from warpcoil.coil import CoilSpec
+from warpcoil.deploy import Deployment, Ensemble
+from warpcoil.implicit import ImplicitSolver, make_solver
+from warpcoil.model import ModelBuilder
+from warpcoil.scene import SceneError, load_scene
+from warpcoil.settings import CatheterSpec, SimulationSettings
+from warpcoil.solver import Control, Solver, Stepper
+from warpcoil.state import packed_state, state_from_positions, new_state_like
+
+from test_ensemble import assert_same_run, scene as ensemble_scene
+
+
+def straight_rod(segments=12, stretch=1.01, damping=0.0):
+    spec = CoilSpec(length_mm=segments * 0.3, segment_length_mm=0.3)
+    rest = np.zeros((segments + 1, 3))
+    rest[:, 0] = np.arange(segments + 1) * spec.l0
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=damping))
+    builder.add_coil(spec, rest)
+    return builder.finalize(), rest * stretch
+
+
+def blocks_dense(solver: ImplicitSolver, n: int) -> np.ndarray:
+    """The assembled banded M + dt² H (without coil–coil contact) as a dense (3n, 3n) matrix."""
+    diag, up1, up2 = solver._diag_exact.numpy(), solver._upper1.numpy(), solver._upper2.numpy()
+    a = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        a[3 * i:3 * i + 3, 3 * i:3 * i + 3] = diag[i]
+        for off, up in ((1, up1), (2, up2)):
+            if i + off < n:
+                a[3 * i:3 * i + 3, 3 * (i + off):3 * (i + off) + 3] = up[i]
+                a[3 * (i + off):3 * (i + off) + 3, 3 * i:3 * i + 3] = up[i].T
+    return a
+
+
+def test_matrix_is_the_elastic_hessian_of_a_straight_stretched_rod():
+    """On a straight rod under tension (rest straight) the Gauss–Newton bending
+    Hessian and the stretching Hessian are exact: (A − M)/dt² equals the
+    central-difference Jacobian of −F."""
+    model, x0 = straight_rod()
+    n = model.node_count
+    dt = 1.0e-3
+    solver = ImplicitSolver(model, dt_s=dt, coil_contact=False)
+    state = state_from_positions(model, x0)
+    out = new_state_like(model)
+    solver.step(state, out, Control.create(model))
+    mass = 1.0 / model.inv_mass.numpy()
+    hessian = (blocks_dense(solver, n) - np.kron(np.diag(mass), np.eye(3))) / dt**2
+    eps = 1e-6
+    fd = np.zeros((3 * n, 3 * n))
+    for k in range(3 * n):
+        forces = []
+        for sign in (1.0, -1.0):
+            x = x0.copy()
+            x[k // 3, k % 3] += sign * eps
+            s = state_from_positions(model, x)
+            solver.compute_forces(s)
+            forces.append(solver.force.numpy().ravel().copy())  # a CPU array's numpy() is a view
+        fd[:, k] = -(forces[0] - forces[1]) / (2 * eps)
+    assert np.abs(hessian - fd).max() <= 1e-5 * np.abs(fd).max()
+
+
+def test_banded_solve_satisfies_the_system_with_held_nodes():
+    """Pushed half out of a catheter: the free nodes' new velocities solve
+    (M + dt² H) v' = M v + dt F with the held nodes' velocities (the pusher's)
+    moved to the right side (undamped, so v' is the solve's own output), once
+    the conjugate gradients have converged."""
+    spec = CoilSpec(shape="helix", length_mm=6.0, loop_diameter_mm=2.0, pitch_mm=0.5)
+    builder = ModelBuilder(catheter=CatheterSpec(), settings=SimulationSettings(damping_uN_per_mm=0.0))
+    builder.add_coil(spec)
+    model = builder.finalize()
+    control = Control.create(model, active_coil=0, push_speed_mm_s=50.0)
+    solver = ImplicitSolver(model, dt_s=2.0e-4, coil_contact=False, cg_iterations=40)
+    stepper = Stepper(solver, packed_state(model), control, chunk=20)
+    stepper.run_steps(300)  # 3 mm out
+    state_in = stepper.state
+    out = new_state_like(model)
+    solver.step(state_in, out, control)
+    free = out.free.numpy() == 1
+    assert 5 < free.sum() < model.node_count - 5
+    n = model.node_count
+    a = blocks_dense(solver, n)
+    v_new = out.v.numpy().ravel()
+    rows = np.repeat(free, 3)
+    residual = a[rows] @ v_new - solver._rhs.numpy().ravel()[rows]
+    assert np.abs(residual).max() <= 1e-9 * np.abs(solver._rhs.numpy().ravel()[rows]).max()
+    held = ~free
+    assert np.allclose(out.v.numpy()[held][:, 2], 50.0)  # the pusher's speed along the catheter
+
+
+def test_stable_far_beyond_the_explicit_bound():
+    """Undamped bent rod at 50 × the explicit bound: no blow-up, energy never
+    grows (the step only dissipates), and it relaxes towards straight."""
+    model, _ = straight_rod(segments=20, stretch=1.0)
+    s = np.arange(model.node_count) * 0.3
+    radius = 3.0
+    arc = np.stack([radius * np.sin(s / radius), radius * (1.0 - np.cos(s / radius)), 0 * s], axis=1)
+    bound = Solver(model, coil_contact=False).bound.dt_s
+    solver = ImplicitSolver(model, dt_s=50.0 * bound, coil_contact=False)
+    stepper = Stepper(solver, state_from_positions(model, arc), Control.create(model), chunk=10)
+    energies = [sum(solver.energies(stepper.state).values())]
+    for _ in range(30):
+        stepper.run_steps(10)
+        energies.append(sum(solver.energies(stepper.state).values()))
+    assert all(np.isfinite(energies))
+    assert all(b <= a + 1e-9 * energies[0] for a, b in zip(energies, energies[1:]))  # up to round-off at rest
+    assert energies[-1] < 1e-3 * energies[0]
+
+
+def test_converges_to_the_reference_at_first_order():
+    rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025))
+    failed = [r for r in rows if not r.passed]
+    assert not failed, validation.format_table(failed)
+    errors = [r.result for r in rows[:-2]]
+    assert errors[0] > errors[1] > errors[2]
+
+
+def implicit_scene(**kwargs):
+    s = ensemble_scene(**kwargs)
+    return replace(s, simulation=replace(s.simulation, integrator="implicit"))
+
+
+def test_implicit_deployment_completes_with_far_fewer_steps():
+    explicit = Deployment(ensemble_scene()).run()
+    implicit = Deployment(implicit_scene()).run()
+    assert implicit.status == explicit.status == "completed"
+    assert implicit.steps * 5 < explicit.steps
+    assert implicit.deployed_length_mm == pytest.approx(explicit.deployed_length_mm)
+    assert implicit.min_wall_gap_mm > -0.5 * wc.CoilSpec().d  # no node through the wall
+    assert implicit.push_force_peak_uN > 0.0
+
+
+def test_ensemble_members_equal_their_single_implicit_runs():
+    scenes = [implicit_scene(angle_deg=0.0), implicit_scene(angle_deg=20.0, sac_diameter_mm=4.0)]
+    results = Ensemble(scenes).run()
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s).run(), member)
+
+
+def test_step_halving_keeps_the_implicit_integrator():
+    deployment = Deployment(implicit_scene())
+    dt = deployment.solver.dt_s
+    snapshot = new_state_like(deployment.model)
+    snapshot.copy_from(deployment.stepper.state)
+    deployment._halve_step(snapshot, "test at t = 0")
+    assert isinstance(deployment.solver, ImplicitSolver)
+    assert deployment.solver.dt_s == pytest.approx(0.5 * dt)
+
+
+def test_make_solver_refuses_an_unknown_integrator():
+    model, _ = straight_rod()
+    with pytest.raises(ValueError, match="integrator"):
+        make_solver(model, "rk4", None)
+
+
+def test_scene_key_integrator(tmp_path: Path):
+    base = '[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3.0\nlength_mm = 10.0\n[simulation]\n'
+    good = tmp_path / "good.toml"
+    good.write_text(base + 'integrator = "implicit"\n')
+    assert load_scene(good).simulation.integrator == "implicit"
+    bad = tmp_path / "bad.toml"
+    bad.write_text(base + 'integrator = "rk4"\n')
+    with pytest.raises(SceneError) as caught:
+        load_scene(bad)
+    assert "simulation.integrator" in str(caught.value) and "bad.toml" in str(caught.value)
+
+
+def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
+    """Two free rods pressed across each other: after enough iterations the
+    velocities solve (M + dt² (H + K_c)) v' = M v + dt F with K_c the pairs'
+    exact k wᵀw ⊗ n nᵀ (off the band: it couples the two coils), which is
+    symmetric (each pair recorded from both sides)."""
+    spec = CoilSpec(length_mm=3.0, segment_length_mm=0.3)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0))
+    s = np.arange(11) * 0.3 - 1.5
+    first = np.stack([s, 0 * s, 0 * s], axis=1)
+    second = np.stack([0 * s + 0.05, s + 0.02, 0 * s + spec.d - 0.01], axis=1)  # 0.01 mm overlap
+    for rod in (first, second):
+        builder.add_coil(spec, rod)
+    model = builder.finalize()
+    x0 = np.concatenate([first, second])
+    dt = 2.0e-4
+    solver = ImplicitSolver(model, dt_s=dt, cg_iterations=60)
+    state, out = state_from_positions(model, x0), new_state_like(model)
+    solver.allocate_neighbour_grid(state)
+    solver.step(state, out, Control.create(model))
+    n = model.node_count
+    a = blocks_dense(solver, n)
+    counts = solver._pair_count.numpy()
+    assert counts.sum() >= 2 and (counts >= 0).all()
+    pb, pst, pk, pn = (getattr(solver, f"_pair_{k}").numpy() for k in ("b", "st", "k", "n"))
+    for e in range(n):
+        for k in range(counts[e]):
+            b, (s_, t_) = pb[e, k], pst[e, k]
+            w = {e: 1 - s_, e + 1: s_}
+            other = {b: -(1 - t_), b + 1: -t_}
+            nn = np.outer(pn[e, k], pn[e, k])
+            for i, wi in w.items():
+                for j, wj in {**w, **other}.items() if not set(w) & set(other) else []:
+                    a[3 * i:3 * i + 3, 3 * j:3 * j + 3] += dt**2 * pk[e, k] * wi * wj * nn
+    assert np.allclose(a, a.T, rtol=0, atol=1e-12 * np.abs(a).max())
+    residual = a @ out.v.numpy().ravel() - solver._rhs.numpy().ravel()
+    assert np.abs(residual).max() <= 1e-8 * np.abs(solver._rhs.numpy()).max()
+    assert np.abs(a - np.diag(np.diag(a)))[:33, 33:].max() > 0.0  # the coils are coupled

@@ -1,0 +1,28 @@
+"""The stall force's scale: the self-deployment force F0 of a coil (its elastic energy
+per mm straightened in the catheter, nJ/mm = µN) is EI κ²/2 + GJ τ²/2 of its helix
+pre-shape, κ = R/(R² + c²), τ = c/(R² + c²), c = pitch/2π (MODEL.md bending energy)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from warpcoil.coil import CoilSpec
+from warpcoil.deploy import Ensemble
+from warpcoil.settings import CatheterSpec, Scene, SimulationSettings, WallSpec
+
+
+@pytest.mark.parametrize("loop_diameter_mm, pitch_mm", [(2.5, 0.6), (4.0, 0.9), (35.0, 0.6)])
+def test_self_deployment_force_is_the_straightened_helix_energy_per_length(loop_diameter_mm, pitch_mm):
+    coil = CoilSpec(name="h", shape="helix", wire_diameter_mm=0.2921, loop_diameter_mm=loop_diameter_mm,
+                    pitch_mm=pitch_mm, length_mm=20.0)
+    scene = Scene(coils=(coil,), catheter=CatheterSpec(tip_mm=(0.0, 0.0, -1.45), direction=(0.0, 0.0, 1.0)),
+                  wall=WallSpec(sphere_diameter_mm=3.5), simulation=SimulationSettings(push_speed_mm_s=100.0))
+    ensemble = Ensemble([scene])
+    member, model = ensemble.members[0], ensemble.model.coils[0]
+    radius, rise = loop_diameter_mm / 2.0, pitch_mm / (2.0 * math.pi)
+    curvature, torsion = radius / (radius**2 + rise**2), rise / (radius**2 + rise**2)
+    expected = model.EI * curvature**2 / 2.0 + model.GJ * torsion**2 / 2.0
+    assert member.self_deployment_force_uN == pytest.approx(expected, rel=0.03)  # ends and discretisation
+    assert member.stall_force_uN == pytest.approx(30.0 * member.self_deployment_force_uN)

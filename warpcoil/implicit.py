@@ -1,0 +1,166 @@
+"""Linearly implicit Euler step (Baraff & Witkin 1998) beside the reference
+symplectic Euler: the step is set by accuracy, not by the stiffest spring.
+
+Forces, contact search, catheter kinematics and push accounting are the
+reference's; only the update differs (kernels/implicit.py): per world,
+(M + dt² H) v* = M v + dt F is solved by a few preconditioned conjugate-gradient
+iterations (H: stretching, Gauss–Newton bending, contact along its normals,
+coil–coil pairs exactly; preconditioner: each coil's banded block factorisation),
+then the reference's exact implicit damping is applied to v*; each coil's edge
+spins solve their tridiagonal system. Twist is the fastest mode (inertia
+m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of ~100 µs the implicit
+spin update is overdamped, i.e. it relaxes the twist to its equilibrium each
+step (quasi-static twist), which is what its negligible inertia means physically.
+
+The contact law keeps the reference's linear onset (computed for the explicit
+step), so both integrators integrate the same forces.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .kernels import implicit as kernels
+from .kernels import integrate
+from .model import Model
+from .settings import DEFAULT_DT_SAFETY
+from .solver import Control, Solver, contact_linear_onset
+from .state import State
+
+INTEGRATORS = ("symplectic", "implicit")
+# default implicit step: the pusher advances this fraction of the contact onset c0 per step
+# (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
+IMPLICIT_ADVANCE_PER_C0 = 0.2
+IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+# coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
+# is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
+IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
+CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
+PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
+
+
+def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
+    """Default implicit step (s): the pusher moves IMPLICIT_ADVANCE_PER_C0 · c0 per
+    step, at most IMPLICIT_DT_MAX_S."""
+    return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
+
+
+class ImplicitSolver(Solver):
+    """A :class:`Solver` whose step is linearly implicit Euler (module docstring).
+
+    ``dt_s`` has no stability limit; the contact law's linear onset is the one the
+    reference takes at ``dt_safety`` × its explicit bound."""
+
+    integrator = "implicit"
+    kernel_modules = Solver.kernel_modules + (kernels,)
+
+    def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
+                 cg_iterations: int = CG_ITERATIONS, **kwargs):
+        kwargs.pop("allow_unstable_dt", None)
+        kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
+        super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
+        self.contact_u_linear = contact_linear_onset(model, self.dt_s)  # the reference's law
+        self.dt_s = float(dt_s)
+        n, dev = model.node_count, model.device
+        mats = lambda: wp.zeros(n, dtype=wp.mat33d, device=dev)  # noqa: E731
+        vecs = lambda: wp.zeros(n, dtype=wp.vec3d, device=dev)  # noqa: E731
+        if cg_iterations < 1:
+            raise ValueError(f"cg_iterations must be ≥ 1, got {cg_iterations}")
+        self.cg_iterations = int(cg_iterations)
+        self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
+        self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
+        self._stiff_start, self._stiff_end = mats(), mats()
+        self._rhs, self._y, self._v, self._r, self._z, self._p, self._q = (vecs() for _ in range(7))
+        self._rz = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
+        self._pair_count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self._pair_b = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.int32, device=dev)
+        self._pair_st = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec2d, device=dev)
+        self._pair_k = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.float64, device=dev)
+        self._pair_n = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec3d, device=dev)
+        self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
+                                                                                         device=dev)
+        self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
+        self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
+
+    def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
+        """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        dt = self.dt_s if dt is None else dt
+        c = m.contact
+        self.compute_forces(state_in, control.running)
+        # catheter kinematics, releases and pusher advance as the reference has them
+        wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
+            state_in.x, state_in.v, state_in.free, state_in.advance, m.fixed, m.coil_of, m.world_of, m.coil_world,
+            m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
+            control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
+            state_out.advance])
+        if self.coil_contact:
+            wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
+                state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
+                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                self._pair_st, self._pair_k, self._pair_n])
+        wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
+            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
+            m.inv_mass, m.k_stretch,
+            m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
+            int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
+            self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
+        self._solve_velocities(state_in, state_out, control, dt)
+        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
+            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, m.damping_c,
+            m.damping_k, dt, state_out.x, state_out.v])
+        if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
+            self._apply_friction(state_in, state_out, control.running, dt)
+        coils = m.coil_count
+        wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
+            self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,
+            m.clamp_tangent, state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
+            state_in.x, state_out.x, state_in.m1, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
+        wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
+            self.push_share, m.world_node_range, self.push_accumulator])
+        state_out.time_s = state_in.time_s + dt
+
+    def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
+        """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
+        gradients per world, started at the old velocities, preconditioned by each
+        coil's banded factorisation (``cg_iterations`` iterations)."""
+        m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
+        free, running = state_out.free, control.running
+        coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
+        wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
+            self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
+        wp.launch(kernels.start_velocity, n, device=dev, inputs=[
+            state_in.v, state_out.v, free, m.fixed, m.world_of, running, self._v])
+        product_args = [free, m.fixed, m.has_next, m.world_of, running, self._diag_exact, self._upper1,
+                        self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                        self._pair_st, self._pair_k, self._pair_n, dt]
+        precondition_args = coil_args + [self._inv_d, self._lower1, self._lower2, self._r, self._y, self._z]
+        wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + product_args + [self._r])
+        wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
+        wp.launch(kernels.pcg_begin, m.world_count, device=dev, inputs=[
+            m.world_node_range, running, self._r, self._z, self._p, self._rz])
+        for k in range(self.cg_iterations):
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._p, self._rhs, 0] + product_args
+                      + [self._q])
+            wp.launch(kernels.pcg_advance, m.world_count, device=dev, inputs=[
+                m.world_node_range, running, self._p, self._q, self._rz, self._v, self._r])
+            if k + 1 < self.cg_iterations:
+                wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
+                wp.launch(kernels.pcg_direction, m.world_count, device=dev, inputs=[
+                    m.world_node_range, running, self._r, self._z, self._rz, self._p])
+
+    def unstable_reason(self, problem: str, time_s: float) -> str:
+        return (f"{problem} at t = {time_s:.6f} s (implicit step dt = {self.dt_s:.3e} s): reduce simulation.dt_s, "
+                f"or soften the contact (contact.P0_uN, larger contact.c0_mm)")
+
+
+def make_solver(model: Model, integrator: str, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY,
+                allow_unstable_dt: bool = False, **kwargs) -> Solver:
+    """The solver of ``integrator`` ("symplectic": the reference, "implicit")."""
+    if integrator == "implicit":
+        return ImplicitSolver(model, dt_s=dt_s, dt_safety=dt_safety, **kwargs)
+    if integrator != "symplectic":
+        raise ValueError(f"unknown integrator {integrator!r}; use one of {INTEGRATORS}")
+    return Solver(model, dt_s=dt_s, dt_safety=dt_safety, allow_unstable_dt=allow_unstable_dt, **kwargs)

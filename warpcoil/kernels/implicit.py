@@ -1,0 +1,854 @@
+"""Linearly implicit Euler (Baraff & Witkin 1998): the system, its per-coil
+banded preconditioner and the conjugate-gradient pieces.
+
+One step, per free node (velocity form, M lumped masses, H ≈ ∂²W/∂x²)::
+
+    (M + dt² H) v* = M v + dt F(x)          (v* of nodes in the catheter: the pusher's)
+    v' = v* damped exactly as the reference step does (damped_speed)
+    x' = x + dt v'
+
+and per spinning edge (twist inertia J, twist damping b)::
+
+    (J + dt b + dt² H_θ) ω' = J ω + dt T
+
+H is positive semi-definite:
+
+* stretching: the exact edge Hessian k_s [(1 − l̄/l)₊ (I − t tᵀ) + t tᵀ]
+  (its negative part for a compressed edge dropped);
+* bending: Gauss–Newton, k_b Jᵀ J with κ ≈ t₁ − t₀ (exact for small bends of
+  a straight rod: the squared second difference);
+* contact, the law's stiffness k(h) along the normal n: a wall contact adds
+  k n nᵀ to its node; a coil–coil contact (gap gradient w over the two edges'
+  four nodes) adds k w wᵀ ⊗ n nᵀ, applied matrix-free from the recorded pairs
+  (``system_product``); fold contacts a Gershgorin diagonal 2 k n nᵀ;
+* twist: k_t on the twist difference of neighbouring edges, plus the bending
+  energy's dependence on the frame angle (Gauss–Newton ½ k_b |K̄|²), a
+  tridiagonal system per coil (Thomas algorithm).
+
+Everything but the coil–coil term is banded along each coil (3×3 blocks,
+bandwidth 2). The preconditioner is that band with the coil–coil term replaced
+by its Gershgorin diagonal 2 k |w_a| n nᵀ per node (Σ|w| = 2: it dominates the
+pair's true matrix), factorised by block LDLᵀ, one thread per coil. No sums
+across threads in an order that depends on anything but the world's own nodes,
+so an ensemble member equals its single run.
+
+For a mode of stiffness k whose matrix entry is a ≥ k/2 the step is stable
+at any dt (the amplification matrix has determinant m/(m + dt² a) < 1 and
+trace ≥ −1 − det).
+"""
+
+import warp as wp
+
+from .contact import (
+    NO_LIST,
+    bonded,
+    contact_stiffness,
+    edge_in_contact_pass,
+    edge_is_obstacle,
+    from_fixed,
+    segment_closest_params,
+    to_fixed,
+    vec3l,
+)
+from .elastic import bonded_span
+from .integrate import catheter_point, coil_advance, damped_speed, pushed
+from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
+
+
+OVERFLOW = wp.constant(-1)  # an edge with more touching pairs than its record holds
+
+
+@wp.func
+def sym_outer(n: wp.vec3d, k: wp.float64) -> wp.mat33d:
+    return k * wp.outer(n, n)
+
+
+@wp.func
+def edge_stretch_hessian(x: wp.array(dtype=wp.vec3d), k_stretch: wp.array(dtype=wp.float64),
+                         rest_length: wp.array(dtype=wp.float64), e: int) -> wp.mat33d:
+    """∂²W_s/∂x_{e+1}² of edge e (µN/mm), its compressive (negative) part dropped."""
+    d = x[e + 1] - x[e]
+    length = wp.length(d)
+    t = d / length
+    tt = wp.outer(t, t)
+    lateral = wp.max(F64_1 - rest_length[e] / length, F64_0)
+    eye = wp.identity(n=3, dtype=wp.float64)
+    return k_stretch[e] * (lateral * (eye - tt) + tt)
+
+
+@wp.func
+def edge_jacobian(x: wp.array(dtype=wp.vec3d), e: int) -> wp.mat33d:
+    """∂t_e/∂x_{e+1} = (I − t tᵀ)/|e| (1/mm)."""
+    d = x[e + 1] - x[e]
+    length = wp.length(d)
+    t = d / length
+    return (wp.identity(n=3, dtype=wp.float64) - wp.outer(t, t)) / length
+
+
+@wp.func
+def edge_jacobian_or_zero(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32), e: int) -> wp.mat33d:
+    if e < 0 or e >= has_next.shape[0]:
+        return wp.mat33d()
+    if has_next[e] == 0:
+        return wp.mat33d()
+    return edge_jacobian(x, e)
+
+
+@wp.func
+def bends(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d), j: int) -> bool:
+    """Vertex j bends: an interior node, or a coil's first node clamped with its
+    tangent (its previous edge virtual and fixed, so its G is zero)."""
+    if j < 0 or j + 1 >= has_next.shape[0]:
+        return False
+    return vertex_valid(has_next, j) or clamp_vertex(clamp_tangent, j)
+
+
+@wp.func
+def vertex_bends(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d),
+                 k_bend: wp.array(dtype=wp.float64), j: int) -> wp.float64:
+    """k_b of vertex j, 0 where j is not a vertex."""
+    if not bends(has_next, clamp_tangent, j):
+        return F64_0
+    return k_bend[j]
+
+
+@wp.func
+def fold_stiffness(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
+                   node_radius: wp.array(dtype=wp.float64), i: int, span: int, p0: wp.float64, c0: wp.float64,
+                   u_linear: wp.float64) -> wp.mat33d:
+    """Diagonal (Gershgorin, 2 k n nᵀ) stiffness of node i's fold contacts (elastic.fold_force)."""
+    h = wp.mat33d()
+    for side in range(2):
+        j = i + 2 * span
+        first = i
+        if side == 1:
+            j = i - 2 * span
+            first = j
+        if bonded_span(has_next, first, 2 * span):
+            delta = x[i] - x[j]
+            dist = wp.length(delta)
+            if dist > wp.float64(1.0e-12):
+                k = contact_stiffness(dist - node_radius[i] - node_radius[j], p0, c0, u_linear)
+                h = h + sym_outer(delta / dist, wp.float64(2.0) * k)
+    return h
+
+
+@wp.func
+def to_fixed_sym(m: wp.mat33d):
+    """A symmetric 3×3 block as two fixed-point vectors (diagonal, then xy xz yz)."""
+    return to_fixed(wp.vec3d(m[0, 0], m[1, 1], m[2, 2])), to_fixed(wp.vec3d(m[0, 1], m[0, 2], m[1, 2]))
+
+
+@wp.func
+def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
+    d = from_fixed(diag)
+    o = from_fixed(off)
+    return wp.mat33d(d[0], o[0], o[1], o[0], d[1], o[2], o[1], o[2], d[2])
+
+
+@wp.func
+def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                   fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                   mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
+                   c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+    """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
+    evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
+    pair itself (1 if touching, closest-point parameters (s, t), the law's
+    stiffness k, the unit normal n from b to a)."""
+    start = wp.mat33d()
+    end = wp.mat33d()
+    hit = int(0)
+    st = wp.vec2d(F64_0, F64_0)
+    k = F64_0
+    normal = wp.vec3d(F64_0, F64_0, F64_0)
+    if edge_is_obstacle(free, has_next, fixed, b):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        pb0 = x[b]
+        pb1 = x[b + 1]
+        apart = wp.length(mid[a] - mid[b])
+        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+            st = segment_closest_params(pa0, pa1, pb0, pb1)
+            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+            dist = wp.length(delta)
+            gap = dist - node_radius[a] - node_radius[b]
+            if gap < c0 and dist > wp.float64(1.0e-12):
+                hit = 1
+                k = contact_stiffness(gap, p0, c0, u_linear)
+                normal = delta / dist
+                nn = sym_outer(normal, wp.float64(2.0) * k)
+                start = (F64_1 - st[0]) * nn
+                end = st[0] * nn
+    return start, end, hit, st, k, normal
+
+
+@wp.func
+def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: wp.vec3d,
+                pair_count: wp.array(dtype=wp.int32), pair_b: wp.array2d(dtype=wp.int32),
+                pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
+                pair_n: wp.array2d(dtype=wp.vec3d)):
+    """Keep edge a's touching pairs sorted by partner b (so sums over them run in
+    an order that does not depend on how the partners were found); more than
+    the record holds: count OVERFLOW (the pairs then enter only through the
+    Gershgorin diagonal)."""
+    count = pair_count[a]
+    if hit == 0 or count == OVERFLOW:
+        return
+    if count >= pair_b.shape[1]:
+        pair_count[a] = OVERFLOW
+        return
+    slot = count
+    while slot > 0 and pair_b[a, slot - 1] > b:
+        pair_b[a, slot] = pair_b[a, slot - 1]
+        pair_st[a, slot] = pair_st[a, slot - 1]
+        pair_k[a, slot] = pair_k[a, slot - 1]
+        pair_n[a, slot] = pair_n[a, slot - 1]
+        slot = slot - 1
+    pair_b[a, slot] = b
+    pair_st[a, slot] = st
+    pair_k[a, slot] = k
+    pair_n[a, slot] = normal
+    pair_count[a] = count + 1
+
+
+@wp.kernel
+def edge_contact_stiffness(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.array(dtype=wp.float64),
+    grid_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    touching: wp.array(dtype=wp.int32),
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+    pair_count: wp.array(dtype=wp.int32),
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_k: wp.array2d(dtype=wp.float64),
+    pair_n: wp.array2d(dtype=wp.vec3d),
+):
+    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
+    as contact.edge_contact finds its partners, for the edges it found touching
+    (``touching``: its per-edge count of touching pairs at the same state);
+    fixed-point sums, so the result does not depend on the order the partners
+    are found in. Each touching pair is also recorded (``record_pair``) for the
+    exact product with the contact stiffness."""
+    a = wp.tid()
+    pair_count[a] = 0
+    s_diag = vec3l()
+    s_off = vec3l()
+    e_diag = vec3l()
+    e_off = vec3l()
+    w = world_of[a]
+    radius = query_radius[w]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and touching[a] > 0:
+        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        listed = neighbour_count[a]
+        if listed != NO_LIST:
+            for k in range(listed):
+                b = neighbours[a, k]
+                start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, b,
+                                                                 reach_a, p0, c0, u_linear, radius)
+                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
+                d, o = to_fixed_sym(start)
+                s_diag = s_diag + d
+                s_off = s_off + o
+                d, o = to_fixed_sym(end)
+                e_diag = e_diag + d
+                e_off = e_off + o
+        else:
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+            b = int(0)
+            while wp.hash_grid_query_next(query, b):
+                if not bonded(coil_of, exclusion, a, b):
+                    start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a,
+                                                                     b, reach_a, p0, c0, u_linear, radius)
+                    record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
+                    d, o = to_fixed_sym(start)
+                    s_diag = s_diag + d
+                    s_off = s_off + o
+                    d, o = to_fixed_sym(end)
+                    e_diag = e_diag + d
+                    e_off = e_off + o
+    stiff_start[a] = from_fixed_sym(s_diag, s_off)
+    stiff_end[a] = from_fixed_sym(e_diag, e_off)
+
+
+@wp.kernel
+def assemble_blocks(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    force: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    free_next: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    inv_mass: wp.array(dtype=wp.float64),
+    k_stretch: wp.array(dtype=wp.float64),
+    rest_length: wp.array(dtype=wp.float64),
+    k_bend: wp.array(dtype=wp.float64),
+    wall_force: wp.array(dtype=wp.vec3d),
+    wall_distance: wp.array(dtype=wp.float64),
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+    coil_contact: int,
+    node_radius: wp.array(dtype=wp.float64),
+    fold_span: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    dt: wp.float64,
+    diag: wp.array(dtype=wp.mat33d),
+    diag_exact: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    rhs: wp.array(dtype=wp.vec3d),
+):
+    """Row i of M + dt² H: its diagonal block (``diag_exact``; ``diag`` with the
+    Gershgorin coil–coil contact added, for the preconditioner) and its blocks
+    (i, i+1), (i, i+2) (g, µN·s²/mm), and M v + dt F (g·mm/s). Rows with no node within two that is
+    free before or after the step (deep in the catheter: no coupling to an
+    unknown) are M alone."""
+    i = wp.tid()
+    n = x.shape[0]
+    h = wp.mat33d()
+    u1 = wp.mat33d()
+    u2 = wp.mat33d()
+    mass = F64_1 / inv_mass[i]
+    near_free = bool(False)
+    for j in range(wp.max(i - 2, 0), wp.min(i + 3, n)):
+        if free[j] != 0 or free_next[j] != 0:
+            near_free = True
+    if not near_free:
+        diag[i] = mass * wp.identity(n=3, dtype=wp.float64)
+        diag_exact[i] = diag[i]
+        upper1[i] = h
+        upper2[i] = h
+        rhs[i] = mass * v[i] + dt * force[i]
+        return
+    if has_next[i] != 0:
+        ks = edge_stretch_hessian(x, k_stretch, rest_length, i)
+        h = h + ks
+        u1 = u1 - ks
+    if i >= 1:
+        if has_next[i - 1] != 0:
+            h = h + edge_stretch_hessian(x, k_stretch, rest_length, i - 1)
+    # bending (Gauss–Newton): vertex j has J = (G_{j-1}, −G_{j-1} − G_j, G_j), G_e = ∂t_e/∂x_{e+1}
+    g_1 = edge_jacobian_or_zero(x, has_next, i - 1)
+    g0 = edge_jacobian_or_zero(x, has_next, i)
+    g1 = edge_jacobian_or_zero(x, has_next, i + 1)
+    kb_prev = vertex_bends(has_next, clamp_tangent, k_bend, i - 1)  # vertex i−1: node i is its next node
+    kb_mid = vertex_bends(has_next, clamp_tangent, k_bend, i)  # vertex i: node i is its middle node
+    kb_next = vertex_bends(has_next, clamp_tangent, k_bend, i + 1)  # vertex i+1: node i is its previous node
+    mid_i = -(g_1 + g0)
+    h = h + kb_prev * (g_1 * g_1) + kb_mid * (mid_i * mid_i) + kb_next * (g0 * g0)
+    u1 = u1 + kb_mid * (mid_i * g0) - kb_next * (g0 * (g0 + g1))
+    u2 = u2 + kb_next * (g0 * g1)
+    if free[i] != 0:
+        fw = wall_force[i]
+        magnitude = wp.length(fw)
+        if magnitude > F64_0:
+            k = contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear)
+            h = h + sym_outer(fw / magnitude, k)
+        h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
+    dt2 = dt * dt
+    diag_exact[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
+    if free[i] != 0 and coil_contact != 0:  # the preconditioner's Gershgorin coil–coil contact
+        if has_next[i] != 0:
+            h = h + stiff_start[i]
+        if i >= 1:
+            if has_next[i - 1] != 0:
+                h = h + stiff_end[i - 1]
+    diag[i] = mass * wp.identity(n=3, dtype=wp.float64) + dt2 * h
+    upper1[i] = dt2 * u1
+    upper2[i] = dt2 * u2
+    rhs[i] = mass * v[i] + dt * force[i]
+
+
+@wp.kernel
+def hold_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
+    free_in: wp.array(dtype=wp.int32),
+    advance_in: wp.array(dtype=wp.float64),
+    fixed: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    arc_s: wp.array(dtype=wp.float64),
+    catheter_path: wp.array(dtype=wp.vec3d),
+    catheter_first: wp.array(dtype=wp.int32),
+    catheter_count: wp.array(dtype=wp.int32),
+    active_coil: wp.array(dtype=wp.int32),
+    push_speed: wp.array(dtype=wp.float64),
+    running: wp.array(dtype=wp.int32),
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    advance_out: wp.array(dtype=wp.float64),
+):
+    """integrate.integrate_nodes without the free nodes' update: the pusher advance,
+    the nodes behind the tip on the catheter centerline at the pusher's speed,
+    clamped nodes at rest, a stopped world unchanged; free nodes are only
+    flagged (free_out = 1), the coil solve moves them."""
+    i = wp.tid()
+    if i < advance_in.shape[0]:
+        cw = coil_world[i]
+        if running[cw] != 0:
+            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
+        else:
+            advance_out[i] = advance_in[i]
+    w = world_of[i]
+    if running[w] == 0:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+        free_out[i] = free_in[i]
+        return
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    if fixed[i] != 0:
+        x_out[i] = x_in[i]
+        v_out[i] = zero
+        free_out[i] = 0
+        return
+    c = coil_of[i]
+    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_speed[w] * dt) - arc_s[i]
+    if sigma < F64_0:
+        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
+        x_out[i] = p
+        if pushed(active_coil, coil_world, c):
+            v_out[i] = push_speed[w] * direction
+        else:
+            v_out[i] = zero
+        free_out[i] = 0
+        return
+    free_out[i] = 1
+
+
+@wp.func
+def unknown(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), i: int) -> bool:
+    return free[i] != 0 and fixed[i] == 0
+
+
+@wp.func
+def solving(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
+            running: wp.array(dtype=wp.int32), i: int) -> bool:
+    """Node i is an unknown of this step's system: free, not clamped, its world running."""
+    return unknown(free, fixed, i) and running[world_of[i]] != 0
+
+
+@wp.kernel
+def factor_coils(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    diag: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    inv_d: wp.array(dtype=wp.mat33d),
+    lower1: wp.array(dtype=wp.mat33d),
+    lower2: wp.array(dtype=wp.mat33d),
+):
+    """One coil's banded preconditioner P (the blocks with the Gershgorin contact
+    diagonal), restricted to its unknowns, as block LDLᵀ: L₁ = block (i, i−1)
+    of L, L₂ = (i, i−2), D⁻¹ per node; a held node's row is the identity."""
+    c = wp.tid()
+    if running[coil_world[c]] == 0:
+        return
+    first = coil_first[c]
+    last = coil_last[c]
+    eye = wp.identity(n=3, dtype=wp.float64)
+    zero = wp.mat33d()
+    for i in range(first, last + 1):
+        if not unknown(free, fixed, i):
+            inv_d[i] = eye
+            lower1[i] = zero
+            lower2[i] = zero
+            continue
+        a1 = zero  # block (i, i−1) among the unknowns
+        a2 = zero  # block (i, i−2)
+        if i - 1 >= first:
+            if unknown(free, fixed, i - 1):
+                a1 = wp.transpose(upper1[i - 1])
+        if i - 2 >= first:
+            if unknown(free, fixed, i - 2):
+                a2 = wp.transpose(upper2[i - 2])
+        l2 = zero
+        l1 = zero
+        d = diag[i]
+        if i - 2 >= first:
+            l2 = a2 * inv_d[i - 2]
+            d = d - a2 * wp.transpose(l2)
+        if i - 1 >= first:
+            c1 = a1
+            if i - 2 >= first:
+                c1 = a1 - a2 * wp.transpose(lower1[i - 1])
+            l1 = c1 * inv_d[i - 1]
+            d = d - c1 * wp.transpose(l1)
+        inv_d[i] = wp.inverse(d)
+        lower1[i] = l1
+        lower2[i] = l2
+
+
+@wp.kernel
+def precondition(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    inv_d: wp.array(dtype=wp.mat33d),
+    lower1: wp.array(dtype=wp.mat33d),
+    lower2: wp.array(dtype=wp.mat33d),
+    r: wp.array(dtype=wp.vec3d),
+    y: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+):
+    """z = P⁻¹ r on one coil (forward and back substitution through its LDLᵀ);
+    zero on held nodes."""
+    c = wp.tid()
+    if running[coil_world[c]] == 0:
+        return
+    first = coil_first[c]
+    last = coil_last[c]
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    for i in range(first, last + 1):
+        yi = zv
+        if unknown(free, fixed, i):
+            yi = r[i]
+            if i - 1 >= first:
+                yi = yi - lower1[i] * y[i - 1]
+            if i - 2 >= first:
+                yi = yi - lower2[i] * y[i - 2]
+        y[i] = yi
+    next1 = zv
+    next2 = zv
+    for k in range(last - first + 1):
+        i = last - k
+        zi = zv
+        if unknown(free, fixed, i):
+            zi = inv_d[i] * y[i]
+            if i + 1 <= last:
+                zi = zi - wp.transpose(lower1[i + 1]) * next1
+            if i + 2 <= last:
+                zi = zi - wp.transpose(lower2[i + 2]) * next2
+        z[i] = zi
+        next2 = next1
+        next1 = zi
+
+
+@wp.func
+def pair_product(x: wp.array(dtype=wp.vec3d), a: int, k: int, pair_b: wp.array2d(dtype=wp.int32),
+                 pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
+                 pair_n: wp.array2d(dtype=wp.vec3d)) -> wp.vec3d:
+    """k n (n · ∂g/∂x x) of edge a's k-th recorded pair (the gap's rate along its normal, times k)."""
+    b = pair_b[a, k]
+    st = pair_st[a, k]
+    n = pair_n[a, k]
+    rate = (F64_1 - st[0]) * x[a] + st[0] * x[a + 1] - (F64_1 - st[1]) * x[b] - st[1] * x[b + 1]
+    return (pair_k[a, k] * wp.dot(n, rate)) * n
+
+
+@wp.kernel
+def system_product(
+    x: wp.array(dtype=wp.vec3d),
+    b: wp.array(dtype=wp.vec3d),
+    residual: int,
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    diag_exact: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+    upper2: wp.array(dtype=wp.mat33d),
+    stiff_start: wp.array(dtype=wp.mat33d),
+    stiff_end: wp.array(dtype=wp.mat33d),
+    pair_count: wp.array(dtype=wp.int32),
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_k: wp.array2d(dtype=wp.float64),
+    pair_n: wp.array2d(dtype=wp.vec3d),
+    dt: wp.float64,
+    out: wp.array(dtype=wp.vec3d),
+):
+    """Row i of A x, A = M + dt² (H + K_c) with the coil–coil contact stiffness
+    K_c exact (each recorded pair's k wᵀw ⊗ n nᵀ, summed in partner order;
+    an overflowed edge's pairs through the Gershgorin diagonal); with
+    ``residual``, b − A x instead. Zero on rows that are not unknowns."""
+    i = wp.tid()
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    if not solving(free, fixed, world_of, running, i):
+        out[i] = zv
+        return
+    n = x.shape[0]
+    y = diag_exact[i] * x[i]
+    if i + 1 < n:
+        y = y + upper1[i] * x[i + 1]
+    if i + 2 < n:
+        y = y + upper2[i] * x[i + 2]
+    if i >= 1:
+        y = y + wp.transpose(upper1[i - 1]) * x[i - 1]
+    if i >= 2:
+        y = y + wp.transpose(upper2[i - 2]) * x[i - 2]
+    contact = zv
+    if has_next[i] != 0:  # edge i: node i is its start
+        count = pair_count[i]
+        if count == OVERFLOW:
+            contact = contact + stiff_start[i] * x[i]
+        for k in range(wp.max(count, 0)):
+            contact = contact + (F64_1 - pair_st[i, k][0]) * pair_product(x, i, k, pair_b, pair_st, pair_k,
+                                                                          pair_n)
+    if i >= 1:
+        if has_next[i - 1] != 0:  # edge i−1: node i is its end
+            count = pair_count[i - 1]
+            if count == OVERFLOW:
+                contact = contact + stiff_end[i - 1] * x[i]
+            for k in range(wp.max(count, 0)):
+                contact = contact + pair_st[i - 1, k][0] * pair_product(x, i - 1, k, pair_b, pair_st, pair_k,
+                                                                        pair_n)
+    y = y + dt * dt * contact
+    if residual != 0:
+        y = b[i] - y
+    out[i] = y
+
+
+@wp.kernel
+def pcg_begin(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    r: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+    p: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+):
+    """One world: p = z, rz = r·z (a fixed-order sum over its nodes)."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    total = F64_0
+    for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
+        total = total + wp.dot(r[i], z[i])
+        p[i] = z[i]
+    rz[w] = total
+
+
+@wp.kernel
+def pcg_advance(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    p: wp.array(dtype=wp.vec3d),
+    q: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+    x: wp.array(dtype=wp.vec3d),
+    r: wp.array(dtype=wp.vec3d),
+):
+    """One world: α = r·z / p·q (q = A p), x += α p, r −= α q."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    first = world_node_range[w, 0]
+    last = world_node_range[w, 1]
+    pq = F64_0
+    for i in range(first, last + 1):
+        pq = pq + wp.dot(p[i], q[i])
+    alpha = F64_0
+    if pq > F64_0:
+        alpha = rz[w] / pq
+    for i in range(first, last + 1):
+        x[i] = x[i] + alpha * p[i]
+        r[i] = r[i] - alpha * q[i]
+
+
+@wp.kernel
+def pcg_direction(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    r: wp.array(dtype=wp.vec3d),
+    z: wp.array(dtype=wp.vec3d),
+    rz: wp.array(dtype=wp.float64),
+    p: wp.array(dtype=wp.vec3d),
+):
+    """One world: β = r·z (new) / r·z (old), p = z + β p."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    first = world_node_range[w, 0]
+    last = world_node_range[w, 1]
+    total = F64_0
+    for i in range(first, last + 1):
+        total = total + wp.dot(r[i], z[i])
+    beta = F64_0
+    if rz[w] > F64_0:
+        beta = total / rz[w]
+    for i in range(first, last + 1):
+        p[i] = z[i] + beta * p[i]
+    rz[w] = total
+
+
+@wp.kernel
+def start_velocity(
+    v_in: wp.array(dtype=wp.vec3d),
+    v_held: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    v: wp.array(dtype=wp.vec3d),
+):
+    """The solve's start: unknowns at their old velocity, held nodes at theirs."""
+    i = wp.tid()
+    if solving(free, fixed, world_of, running, i):
+        v[i] = v_in[i]
+    else:
+        v[i] = v_held[i]
+
+
+@wp.kernel
+def finish_nodes(
+    x_in: wp.array(dtype=wp.vec3d),
+    v_solved: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    """Unknown node i: the solved velocity, damped exactly as the reference step
+    damps (implicit, along the velocity), then x' = x + dt v'. Held nodes keep
+    what hold_nodes gave them."""
+    i = wp.tid()
+    if not solving(free, fixed, world_of, running, i):
+        return
+    v = v_solved[i]
+    speed = wp.length(v)
+    if speed > F64_0:
+        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+    v_out[i] = v
+    x_out[i] = x_in[i] + dt * v
+
+
+@wp.func
+def spin_free(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+              e: int) -> bool:
+    """Edge e spins (as integrate.update_frames has it): it exists, each node is
+    free or clamped, and not both are clamped."""
+    if e < 0 or not edge_valid(has_next, e):
+        return False
+    held0 = fixed[e] != 0
+    held1 = fixed[e + 1] != 0
+    return (free[e] != 0 or held0) and (free[e + 1] != 0 or held1) and not (held0 and held1)
+
+
+@wp.kernel
+def solve_spin(
+    coil_first: wp.array(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    omega: wp.array(dtype=wp.float64),
+    torque: wp.array(dtype=wp.float64),
+    inv_inertia: wp.array(dtype=wp.float64),
+    twist_damping: wp.array(dtype=wp.float64),
+    k_twist: wp.array(dtype=wp.float64),
+    k_bend: wp.array(dtype=wp.float64),
+    rest_K0: wp.array(dtype=wp.vec2d),
+    rest_K1: wp.array(dtype=wp.vec2d),
+    x_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    m1_in: wp.array(dtype=wp.vec3d),
+    dt: wp.float64,
+    scratch_c: wp.array(dtype=wp.float64),
+    scratch_d: wp.array(dtype=wp.float64),
+    m1_out: wp.array(dtype=wp.vec3d),
+    omega_out: wp.array(dtype=wp.float64),
+):
+    """One coil's edge spins (rad/s): (J + dt b + dt² H_θ) ω' = J ω + dt T, H_θ
+    tridiagonal (twist k_t between neighbouring edges; bending ½ k_b |K̄|² on
+    each edge of a vertex), by the Thomas algorithm; edges that do not spin
+    keep ω' = 0. Then, as integrate.update_frames: each edge's director is
+    carried to its new tangent by parallel transport and turned by ω' dt.
+    A stopped world keeps its directors and spins."""
+    c = wp.tid()
+    first = coil_first[c]
+    last = coil_last[c]
+    if running[coil_world[c]] == 0:
+        for e in range(first, last + 1):
+            m1_out[e] = m1_in[e]
+            omega_out[e] = omega[e]
+        return
+    dt2 = dt * dt
+    half = wp.float64(0.5)
+    prev_c = F64_0
+    prev_d = F64_0
+    for e in range(first, last):
+        if not spin_free(free, fixed, has_next, e):
+            scratch_c[e] = F64_0
+            scratch_d[e] = F64_0
+            prev_c = F64_0
+            prev_d = F64_0
+            continue
+        inertia = F64_1 / inv_inertia[e]
+        h = F64_0
+        lower = F64_0
+        upper = F64_0
+        if bends(has_next, clamp_tangent, e):  # vertex e: edges e−1 (or a clamp's virtual one), e
+            h = h + half * k_bend[e] * wp.length_sq(rest_K1[e]) + k_twist[e]
+            if spin_free(free, fixed, has_next, e - 1):
+                lower = -dt2 * k_twist[e]
+        if e + 1 < has_next.shape[0]:
+            if vertex_valid(has_next, e + 1):  # vertex e+1: edges e, e+1
+                h = h + half * k_bend[e + 1] * wp.length_sq(rest_K0[e + 1]) + k_twist[e + 1]
+                if spin_free(free, fixed, has_next, e + 1):
+                    upper = -dt2 * k_twist[e + 1]
+        a = inertia + dt * twist_damping[e] + dt2 * h
+        r = inertia * omega[e] + dt * torque[e]
+        denom = a - lower * prev_c
+        prev_c = upper / denom
+        prev_d = (r - lower * prev_d) / denom
+        scratch_c[e] = prev_c
+        scratch_d[e] = prev_d
+    following = F64_0
+    for k in range(last - first + 1):
+        e = last - k
+        if not edge_valid(has_next, e):
+            m1_out[e] = m1_in[e]
+            omega_out[e] = F64_0
+            following = F64_0
+            continue
+        t_old = wp.normalize(x_in[e + 1] - x_in[e])
+        t_new = wp.normalize(x_out[e + 1] - x_out[e])
+        m = transport(m1_in[e], t_old, t_new)
+        w = F64_0
+        if spin_free(free, fixed, has_next, e):
+            w = scratch_d[e] - scratch_c[e] * following
+            m = rotate_about(m, t_new, w * dt)
+        m1_out[e] = director_normal(m, t_new)
+        omega_out[e] = w
+        following = w
