@@ -23,6 +23,8 @@ class Anatomy:
     wall: WallMesh | None
     sac: Sac | None
     catheter: CatheterSpec
+    balloon: tuple | None = None  # (stations mm, capped radii mm), warpcoil.devices.balloon_geometry
+    stent: tuple | None = None  # (strut starts, ends mm, strut radius mm), warpcoil.devices.stent_struts
 
     @property
     def sac_volume_mm3(self) -> float | None:
@@ -47,16 +49,29 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
     if catheter.placement == "neck":
         tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
         catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    return Anatomy(wall=wall, sac=sac, catheter=catheter)
+    balloon, stent = _devices(scene, wall)
+    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon, stent=stent)
+
+
+def _devices(scene: Scene, wall: WallMesh | None) -> tuple[tuple | None, tuple | None]:
+    """The scene's balloon (stations, capped radii) and stent (strut starts, ends, radius), fitted to the wall."""
+    from .devices import balloon_geometry, stent_struts
+
+    balloon = balloon_geometry(scene.balloon, wall, str(scene.source)) if scene.balloon is not None else None
+    stent = None
+    if scene.stent is not None:
+        stent = (*stent_struts(scene.stent, wall, str(scene.source)), 0.5 * scene.stent.strut_diameter_mm)
+    return balloon, stent
 
 
 def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
-    """:func:`resolve_anatomy` for each scene; scenes with the same wall and neck
-    share one wall mesh and sac (read and cut once, one BVH on the device)."""
+    """:func:`resolve_anatomy` for each scene; scenes with the same wall, neck and
+    device share one wall mesh, sac and device (read, cut and fitted once, one BVH
+    on the device)."""
     shared: dict[tuple, Anatomy] = {}
     anatomies = []
     for scene in scenes:
-        key = (repr(scene.wall), repr(scene.neck))
+        key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon), repr(scene.stent))
         if key not in shared:
             shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
         base = shared[key]
@@ -64,6 +79,7 @@ def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
         if catheter.placement == "neck":
             tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
             catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter))
+        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter, balloon=base.balloon,
+                                 stent=base.stent))
     return anatomies
 

@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
+from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import implicit_step_s, make_solver
@@ -37,6 +38,8 @@ def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
     """The builder of a scene's world: coils (pre-shapes), catheter, contact and wall."""
     builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
                            wall=anatomy.wall)
+    builder.balloon = anatomy.balloon
+    builder.stent = anatomy.stent
     for coil in scene.coils:
         builder.add_coil(coil)
     return builder
@@ -84,6 +87,9 @@ class Member:
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
+        self.balloon = scene.balloon
+        self.deflate_from_s = None if self.balloon is None else self.balloon.deflate_at_s
+        self.inflation = None if self.balloon is None else 1.0  # 1 inflated .. 0 deflated
         self.steps = 0
         self.result: RunResult | None = None
 
@@ -259,7 +265,13 @@ class Ensemble:
         elif active >= 0 and snap.advance[coil] >= member.coil_lengths_mm[active]:
             member.coil_status[active] = "detached"
             self._activate(member, active + 1)
-        if member.active < 0 and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
+        if member.balloon is not None:
+            if member.active < 0 and member.deflate_from_s is None:
+                member.deflate_from_s = snap.time_s  # the last coil detached: deflate now
+            member.inflation = deflation(member.balloon, snap.time_s, member.deflate_from_s)
+            self.model.set_inflation(member.world, member.inflation)
+        deflated = member.inflation is None or member.inflation == 0.0
+        if member.active < 0 and deflated and frame.kinetic_nJ < member.rest_kinetic_energy_nJ:
             if member.jam_reasons:
                 self._finish(member, JAMMED, "; ".join(member.jam_reasons) + "; then at rest", started, snap)
             else:

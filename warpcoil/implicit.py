@@ -111,6 +111,8 @@ class ImplicitSolver(Solver):
         wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
             state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, m.damping_c,
             m.damping_k, dt, state_out.x, state_out.v])
+        if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
+            self._apply_friction(state_in, state_out, control.running, dt)
         coils = m.coil_count
         wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,

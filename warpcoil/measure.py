@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from .anatomy import Anatomy
+from .devices import device_report
 from .kernels.contact import FAR_MM
 from .model import Model
 from .sac import inside_sac, regional_density
@@ -40,6 +41,8 @@ class Measured(Protocol):
     step_bound_s: float
     stored_energy_nJ: float
     frames: list
+    inflation: float | None  # the balloon's, None without one
+    deflate_from_s: float | None  # when the balloon started to deflate
 
 
 @dataclass
@@ -61,6 +64,7 @@ class Frame:
     min_wall_gap_mm: float
     min_coil_gap_mm: float
     length_outside_sac_mm: float
+    balloon_inflation: float | None = None  # 1 inflated, 0 deflated; None without a balloon
 
 
 @dataclass
@@ -99,6 +103,8 @@ class RunResult:
     catheter_direction: tuple | None = None
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
+    packing_density_in_sac: float | None = None  # π(d/2)² (deployed − herniated length) / sac volume
+    device: dict | None = None  # assist device: kind, geometry, state over time (warpcoil.devices.device_report)
 
     def summary(self) -> dict:
         """The JSON-ready scalars (no frames or positions)."""
@@ -159,7 +165,7 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
         stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
         coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if solver.coil_contact else 0,
         max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
-        length_outside_sac_mm=outside)
+        length_outside_sac_mm=outside, balloon_inflation=member.inflation)
 
 def run_result(model: Model, solver: Solver, member: Measured, status: str, reason: str, wall_time_s: float,
                snap: Snapshot, step_reductions: list[str]) -> RunResult:
@@ -208,7 +214,11 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
         catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
         frames=frames,
-        positions_mm=[x[s] for s in local])
+        positions_mm=[x[s] for s in local],
+        packing_density_in_sac=(sum(math.pi * (c["wire_diameter_mm"] / 2.0) ** 2 * max(
+            c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
+            if sac_volume else None),
+        device=device_report(member.scene, member.anatomy, frames, member.deflate_from_s))
 
 def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.ndarray) -> dict | None:
     """Regional densities of the final coils (only where a neck defines the sac)."""

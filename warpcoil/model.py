@@ -91,6 +91,14 @@ class ContactModel:
     exclusion_edges: int  # same-coil edges this close along the coil never touch (bonded neighbours)
     fold_span: int  # nodes i and i ± 2·fold_span repel when a coil folds sharply (about 2d apart at rest)
     query_radius_mm: float  # edge-midpoint search radius that finds every pair within c0 (largest of the worlds')
+    friction_wall: float = 0.0  # Coulomb coefficients per pair type (kernels/friction.py)
+    friction_coil: float = 0.0
+    friction_catheter: float = 0.0
+    friction_speed_mm_s: float = 0.01  # regularisation velocity: the fastest a stuck contact creeps
+
+    @property
+    def frictional(self) -> bool:
+        return max(self.friction_wall, self.friction_coil, self.friction_catheter) > 0.0
 
     def stiffness_uN_mm(self, u: float = CONTACT_DESIGN_OVERLAP_U) -> float:
         """−d|F|/dh of the contact law at u (µN/mm)."""
@@ -169,6 +177,32 @@ class Model:
     wall_vertices: wp.array  # every distinct wall's vertices (float64, relative to its origin), back to back
     wall_faces: wp.array  # ... and faces (indices into wall_vertices), flat
     wall_owners: wp.array  # ... and per face the edges and vertices it counts (contact.wall_feature_sum)
+
+
+    # balloon (kernels/devices.py): per world its axis stations, back to back, and their capped radii (mm)
+    balloon_stations: wp.array | None = None
+    balloon_cap_radius: wp.array | None = None
+    balloon_first: wp.array | None = None
+    balloon_count: wp.array | None = None
+    balloon_inflation: wp.array | None = None  # per world, 0..1, set by the host between frames
+
+    # stent struts (fixed rods), every world's back to back
+    strut_start: wp.array | None = None
+    strut_end: wp.array | None = None
+    strut_world: wp.array | None = None
+    strut_radius_mm: float = 0.0
+    strut_host: tuple | None = None  # (starts, ends, world) numpy, for output
+
+    @property
+    def has_stent(self) -> bool:
+        return self.strut_host is not None and len(self.strut_host[0]) > 0
+
+    @property
+    def has_balloon(self) -> bool:
+        return self.balloon_count is not None and int(self.balloon_count.numpy().max()) >= 2
+
+    def set_inflation(self, world: int, fraction: float) -> None:
+        self.balloon_inflation[world:world + 1].fill_(float(fraction))
 
     @property
     def node_count(self) -> int:
@@ -253,6 +287,9 @@ class ModelBuilder:
         self._fixed: list[int] = []
         self._clamps: dict[int, np.ndarray | None] = {}  # coil → clamp direction at its node 0 (None: rest)
         self._forces: list[tuple[int, np.ndarray]] = []
+        self._body_acceleration = np.zeros(3)
+        self.balloon: tuple[np.ndarray, np.ndarray] | None = None  # (stations mm, capped radii mm)
+        self.stent: tuple[np.ndarray, np.ndarray, float] | None = None  # (strut starts, ends mm, strut radius mm)
 
     def add_coil(self, spec: CoilSpec, rest_centerline: np.ndarray | None = None) -> int:
         """Add a coil (rest centerline from its pre-shape unless given, mm); returns its index."""
@@ -299,6 +336,11 @@ class ModelBuilder:
     def apply_force(self, coil: int, node: int, force_uN) -> None:
         """A constant force (µN) on one node; node −1 is the coil's last node."""
         self._forces.append((self._node(coil, node), np.asarray(force_uN, np.float64)))
+
+    def body_acceleration(self, acceleration_mm_s2) -> None:
+        """A uniform body force m·g (µN) on every node, g in mm/s² (m the scaled node mass,
+        so the acceleration it causes does not depend on mass_scale)."""
+        self._body_acceleration = np.asarray(acceleration_mm_s2, np.float64)
 
     def finalize(self, device: str | wp.context.Device | None = None) -> Model:
         """The device-ready Model of this builder's one world."""
@@ -355,20 +397,25 @@ class ModelBuilder:
         external = np.zeros((n, 3))
         for node, f in self._forces:
             external[node] += f
+        external += mass[:, None] * self._body_acceleration
         d = per_coil(lambda c: c.d)
         c0 = self.contact.c0_mm if self.contact.c0_mm is not None else 0.1 * float(d.min())
         contact_model = ContactModel(
             p0_uN=float(self.contact.P0_uN), c0_mm=float(c0),
             exclusion_edges=int(math.ceil((float(d.max()) + c0) / float(edge_len[has_next == 1].min()))),
             fold_span=max(1, int(math.ceil(float(d.max()) / float(edge_len[has_next == 1].mean()) - 1e-6))),
-            query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0)
+            query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0,
+            friction_wall=float(self.contact.friction_wall), friction_coil=float(self.contact.friction_coil),
+            friction_catheter=float(self.contact.friction_catheter),
+            friction_speed_mm_s=float(self.contact.friction_speed_mm_s))
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
             coil_of=coil_of, arc_s=arc_s, fixed=fixed, clamp_tangent=clamp_tangent, mass=mass, damping_c=damping_c, external=external,
             edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
             twist_damping=twist_damping, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
-            mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall)
+            mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall,
+            balloon=self.balloon, stent=self.stent)
 
 
 class EnsembleError(ValueError):
@@ -395,7 +442,10 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
     contacts = [w["contact"] for w in worlds]
     for key, what in (("p0_uN", "contact P0_uN"), ("c0_mm", "contact c0_mm"),
                       ("exclusion_edges", "bonded-neighbour span (wire diameter / segment length)"),
-                      ("fold_span", "fold span (wire diameter / segment length)")):
+                      ("fold_span", "fold span (wire diameter / segment length)"),
+                      ("friction_wall", "contact friction_wall"), ("friction_coil", "contact friction_coil"),
+                      ("friction_catheter", "contact friction_catheter"),
+                      ("friction_speed_mm_s", "contact friction_speed_mm_s")):
         _shared([{key: getattr(c, key)} for c in contacts], key, what)
     damping_k = _shared(worlds, "damping_k", "simulation.damping_speed_mm_s")
     mass_scale = _shared(worlds, "mass_scale", "simulation.mass_scale")
@@ -440,6 +490,22 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         world_node_range=arr(np.stack([node_base, node_base + node_counts - 1], 1).astype(np.int32), wp.int32),
         query_radius_of=arr(query_radius, wp.float64),
         world_walls=wall_models, **walls)
+    balloons = [w["balloon"] or (np.zeros((0, 3)), np.zeros(0)) for w in worlds]
+    counts = np.array([len(b[1]) for b in balloons], np.int32)
+    model.balloon_stations = arr(np.concatenate([b[0] for b in balloons] + [np.zeros((1, 3))]), wp.vec3d)
+    model.balloon_cap_radius = arr(np.concatenate([b[1] for b in balloons] + [np.zeros(1)]), wp.float64)
+    model.balloon_first = arr(np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32), wp.int32)
+    model.balloon_count = arr(counts, wp.int32)
+    model.balloon_inflation = arr(np.ones(len(worlds)), wp.float64)
+    stents = [(w["stent"], k) for k, w in enumerate(worlds) if w["stent"] is not None]
+    if stents:
+        starts = np.concatenate([s[0] for s, _ in stents])
+        ends = np.concatenate([s[1] for s, _ in stents])
+        world = np.concatenate([np.full(len(s[0]), k, np.int32) for s, k in stents])
+        model.strut_start, model.strut_end = arr(starts, wp.vec3d), arr(ends, wp.vec3d)
+        model.strut_world = arr(world, wp.int32)
+        model.strut_radius_mm = max(float(s[2]) for s, _ in stents)
+        model.strut_host = (starts, ends, world)
     rest_m1 = model.directors_along(model.rest_positions)
     clamp_t = cat("clamp_tangent")
     clamped = np.flatnonzero(np.linalg.norm(clamp_t, axis=1) > 0.0)

@@ -18,6 +18,8 @@ from .catalog import CatalogueError, find_line
 from .coil import SHAPES, CoilSpec
 from .settings import (
     CatheterSpec,
+    BalloonSpec,
+    StentSpec,
     ContactSettings,
     NeckSpec,
     OutputSettings,
@@ -62,6 +64,13 @@ def _finite(value: object, base: Path) -> float:
     if not (_is_number(value) and math.isfinite(value)):
         raise _Invalid(f"must be a finite number, got {value!r}", "write a number without quotes, e.g. 0.0")
     return float(value)
+
+
+def _nonnegative(value: object, base: Path) -> float:
+    number = _finite(value, base)
+    if number < 0.0:
+        raise _Invalid(f"must be ≥ 0, got {value!r}", "give 0 (none) or a positive value")
+    return number
 
 
 def _fraction(value: object, base: Path) -> float:
@@ -174,7 +183,9 @@ _COIL = {
 }
 _PRODUCT = {"product": _Key(_text), "size": _Key(_text)}  # a catalogue coil: warpcoil/catalog.py
 _PRODUCT_COIL = {**{key: spec._replace(required=False) for key, spec in _COIL.items()}, **_PRODUCT}
-_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive)}
+_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "friction_wall": _Key(_nonnegative),
+            "friction_coil": _Key(_nonnegative), "friction_catheter": _Key(_nonnegative),
+            "friction_speed_mm_s": _Key(_positive)}
 _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),
@@ -195,7 +206,11 @@ _SIMULATION = {
 }
 _OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool),
            "porous": _Key(_bool), "porous_voxel_mm": _Key(_positive)}
-_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
+_BALLOON = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
+            "deflate_at_s": _Key(_positive), "deflation_time_s": _Key(_positive)}
+_STENT = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
+          "cell_size_mm": _Key(_positive), "strut_diameter_mm": _Key(_positive)}
+_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon", "stent")
 
 
 def _unknown(key: str, known: Sequence[str]) -> str:
@@ -343,6 +358,8 @@ class _Reader:
         for key in document:
             if key not in _TABLES:
                 raise self.error(key, "unknown top-level table or key", _unknown(key, _TABLES))
+        if "balloon" in document and "stent" in document:
+            raise self.error("balloon / stent", "both devices are given", "keep one of [balloon] and [stent]")
         coils = document.get("coil")
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
@@ -355,6 +372,8 @@ class _Reader:
             output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
+            balloon=self.section(document, "balloon", _BALLOON, BalloonSpec) if "balloon" in document else None,
+            stent=self.section(document, "stent", _STENT, StentSpec) if "stent" in document else None,
             source=self.source,
         )
 

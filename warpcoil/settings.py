@@ -66,6 +66,36 @@ class NeckSpec:
 
 
 @dataclass(frozen=True)
+class BalloonSpec:
+    """A compliant balloon across the neck (balloon-assisted coiling): a tube about
+    ``axis_mm`` (a polyline in the parent vessel, mm) whose radius at each station
+    grows to ``diameter_mm``/2 but is capped by the station's distance to the wall.
+    Inflated before the first coil; it deflates over ``deflation_time_s`` starting
+    at ``deflate_at_s`` (None: when the last coil detaches); then the run goes on to rest."""
+
+    axis_mm: tuple[tuple[float, float, float], ...]
+    diameter_mm: float = 4.0
+    deflate_at_s: float | None = None
+    deflation_time_s: float = 0.1
+
+
+@dataclass(frozen=True)
+class StentSpec:
+    """A stent left across the neck (stent-assisted coiling): fixed struts of
+    ``strut_diameter_mm`` forming closed diamond cells of ``cell_size_mm`` (both
+    diagonals) on a tube about ``axis_mm`` (the parent vessel's centreline, mm),
+    apposed to the wall: radius per station = its wall distance − the strut radius
+    (a self-expanding stent of nominal ``diameter_mm`` must be at least the vessel's
+    diameter everywhere). Defaults: a 4.5 mm closed-cell intracranial stent with
+    70 µm struts and 1.5 mm cells (the scale of Enterprise-type stents)."""
+
+    axis_mm: tuple[tuple[float, float, float], ...]
+    diameter_mm: float = 4.5
+    cell_size_mm: float = 1.5
+    strut_diameter_mm: float = 0.07
+
+
+@dataclass(frozen=True)
 class RegionSettings:
     """Regional packing densities on a voxel grid of the sac (docs/REGIONS.md);
     None → defaults derived from the coils."""
@@ -88,6 +118,18 @@ class ContactSettings:
 
     P0_uN: float = 1.0e3
     c0_mm: float | None = None
+    # regularised Coulomb friction (kernels/friction.py), per pair type; 0 = frictionless
+    # (the default: no measured coefficient for Pt–W coils against endothelium or each
+    # other in blood; docs/SCENES.md). friction_speed_mm_s: the regularisation velocity,
+    # the fastest a stuck contact may creep.
+    friction_wall: float = 0.0
+    friction_coil: float = 0.0
+    friction_catheter: float = 0.0
+    friction_speed_mm_s: float = 0.01
+
+    @property
+    def frictional(self) -> bool:
+        return max(self.friction_wall, self.friction_coil, self.friction_catheter) > 0.0
 
 
 @dataclass(frozen=True)
@@ -178,4 +220,6 @@ class Scene:
     output: OutputSettings = field(default_factory=OutputSettings)
     neck: NeckSpec | None = None
     regions: RegionSettings = field(default_factory=RegionSettings)
+    balloon: BalloonSpec | None = None
+    stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from .kernels import contact, elastic, integrate
+from .kernels import contact, devices, elastic, friction, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
@@ -202,7 +202,7 @@ class Solver:
     """
 
     integrator = "symplectic"
-    kernel_modules = (contact, elastic, integrate)  # loaded before a graph capture
+    kernel_modules = (contact, devices, elastic, friction, integrate)  # loaded before a graph capture
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
@@ -234,6 +234,20 @@ class Solver:
         self._kinetic, self._unhealthy = zeros(wp.float64), zeros(wp.int32)
         self._stretch_e, self._bend_e, self._twist_e = zeros(wp.float64), zeros(wp.float64), zeros(wp.float64)
         self.wall_force, self.wall_distance = zeros(wp.vec3d), zeros(wp.float64)
+        self.has_balloon = model.has_balloon
+        self.device_force = zeros(wp.vec3d)  # balloon or stent contact (µN)
+        self.has_stent = model.has_stent and coil_contact
+        if self.has_stent:  # a static grid of strut midpoints, grouped by world
+            starts, ends, _ = model.strut_host
+            mids = model.array(0.5 * (starts + ends), wp.vec3d)
+            half_strut = 0.5 * float(np.linalg.norm(ends - starts, axis=1).max())
+            # every strut whose closest point can be within c0 of an edge stretched up to 10 %
+            self._strut_query_mm = (0.55 * float(model.rest_length.numpy().max()) + float(
+                model.node_radius.numpy().max()) + model.contact.c0_mm + half_strut + model.strut_radius_mm)
+            strut_cells = int(min(64, max(4, 2 * round(len(starts) ** (1.0 / 3.0)))))
+            self._strut_grid = wp.HashGrid(strut_cells, strut_cells, strut_cells, device=dev, dtype=wp.float64)
+            self._strut_grid.build(mids, self._strut_query_mm, groups=model.strut_world)
+            self._strut_force_start, self._strut_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         self.wall_distance.fill_(float(contact.FAR_MM))
         self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
         self._wall_slack = zeros(wp.float64)
@@ -246,6 +260,11 @@ class Solver:
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
+        c = model.contact
+        self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
+        self.friction = self.coil_friction or (
+            (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
+        self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
         # per world: Σ, max, Σ² of the step push force, and the steps counted
         self.push_accumulator = wp.zeros((model.world_count, 4), dtype=wp.float64, device=dev)
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
@@ -309,6 +328,23 @@ class Solver:
                 self.contact_force])
         elif self.has_wall:
             wp.copy(self.contact_force, self.wall_force)
+        if self.has_stent:
+            wp.launch(devices.strut_contact, n, device=dev, inputs=[
+                state.x, state.free, m.has_next, m.world_of, running, m.node_radius, self._strut_grid.id,
+                m.strut_start, m.strut_end, m.strut_radius_mm, self._strut_query_mm, c.p0_uN, c.c0_mm,
+                self.contact_u_linear, self._strut_force_start, self._strut_force_end])
+            wp.launch(devices.gather_edge_forces, n, device=dev, inputs=[
+                state.free, m.has_next, self._strut_force_start, self._strut_force_end, self.device_force])
+            wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
+        if self.has_balloon:
+            wp.launch(devices.balloon_contact, n, device=dev, inputs=[
+                state.x, state.free, m.world_of, running, m.node_radius, m.balloon_stations, m.balloon_cap_radius,
+                m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self.device_force])
+            if self.coil_contact or self.has_wall:
+                wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
+            else:
+                wp.copy(self.contact_force, self.device_force)
 
     def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
@@ -333,12 +369,31 @@ class Solver:
             m.coil_world, m.arc_s, m.inv_mass, m.damping_c, m.damping_k, m.catheter_path, m.catheter_first,
             m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
             state_out.x, state_out.v, state_out.free, state_out.advance])
+        if self.friction:
+            self._apply_friction(state_in, state_out, control.running, dt)
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.fixed, m.has_next,
             m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
+
+    def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
+        """Implicit Coulomb friction on the velocities the integrator predicted
+        (kernels/friction.py), with the contacts found at ``state_in``."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
+        if self.coil_friction:
+            wp.launch(friction.edge_friction, n, device=dev, inputs=[
+                state_in.x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
+                m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
+                self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
+                c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
+                c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])
+        wp.launch(friction.apply_friction, n, device=dev, inputs=[
+            state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts,
+            self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start,
+            self._friction_end, int(self.coil_friction), dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""

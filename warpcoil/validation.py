@@ -480,6 +480,12 @@ def energy_conservation(steps: int = 100_000) -> list[CaseResult]:
     return [CaseResult(f"energy: undamped, {steps} steps, max |ΔE|/E", 0.0, drift, drift, 1e-2)]
 
 
+def friction() -> list[CaseResult]:
+    """Regularised Coulomb friction: incline, capstan, energy (validation_friction.py)."""
+    from .validation_friction import friction_cases
+    return friction_cases()
+
+
 # --- porous field ------------------------------------------------------------------
 def porous_cases(d_mm: float = 0.3) -> list[CaseResult]:
     """Sampled coil volume of one oblique capsule against π r² L + 4/3 π r³ as the voxel shrinks
@@ -714,6 +720,7 @@ CASES = {
     "tight-pitch": tight_pitch,
     "dense-pack": dense_packs,
     "energy": energy_conservation,
+    "friction": friction,
     "porous": porous_cases,
     "energy3d": energy_3d_cases,
     "timestep": timestep_convergence,

@@ -3,7 +3,8 @@
 ``warpcoil bench stress [--quick]`` varies one parameter at a time from a base case
 (a spherical coil, d = 0.2921 mm, into a 3.5 mm spherical sac at 100 mm/s): the
 step size around the stable bound, the contact law, push speed, damping, packing
-density, sharp and narrow-necked wall meshes, and a seeded random fuzz of scenes.
+density, friction (0–0.5), a balloon deflating under the packed coil, sharp and
+narrow-necked wall meshes, and a seeded random fuzz of scenes.
 
 Every recorded frame is checked (see :class:`FrameChecks`) for non-finite
 positions, tunnelling (a free node centre outside the wall), crossed coils
@@ -35,7 +36,7 @@ from ..deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, Deployment, Frame, buil
 from ..model import Model
 from ..preshape import PreshapeError
 from ..recorder.atomic import write_text_atomic
-from ..settings import CatheterSpec, ContactSettings, Scene, SimulationSettings, WallSpec
+from ..settings import BalloonSpec, CatheterSpec, ContactSettings, Scene, SimulationSettings, WallSpec
 from ..solver import Solver, UnstableStepError
 from ..state import State
 from ..wall import WallError
@@ -276,6 +277,34 @@ def packing_cases(length_mm: float) -> list[Case]:
     return cases
 
 
+FRICTIONS = (0.1, 0.3, 0.5)  # the base case is frictionless
+
+
+def friction_cases(length_mm: float) -> list[Case]:
+    """The base case and the 40 % packing case with wall, coil and catheter friction μ."""
+    diameter = (6.0 * (D_MM / 2.0) ** 2 * length_mm / 0.4) ** (1.0 / 3.0)
+    cases = []
+    for mu in FRICTIONS:
+        contact = ContactSettings(friction_wall=mu, friction_coil=mu, friction_catheter=mu)
+        cases.append(Case("friction", f"μ = {mu:g}", scene(length_mm, contact=contact), {"friction": mu}))
+        cases.append(Case("friction", f"μ = {mu:g}, 40 % packing ({diameter:.2f} mm sac)", scene(
+            length_mm, shape="helix", loop_mm=0.85 * diameter, wall=WallSpec(sphere_diameter_mm=diameter),
+            tip_mm=(0.0, 0.0, 0.3 - diameter / 2.0), contact=contact), {"friction": mu, "target_density": 0.4}))
+    return cases
+
+
+def balloon_cases(length_mm: float) -> list[Case]:
+    """A balloon across the lower sac (beside the catheter) holding the packed coil,
+    deflated in 20 ms when the coil detaches, frictionless and with μ = 0.3."""
+    balloon = BalloonSpec(axis_mm=((-1.2, 0.7, -0.9), (1.2, 0.7, -0.9)), diameter_mm=0.8, deflation_time_s=0.02)
+    cases = []
+    for mu in (0.0, 0.3):
+        contact = ContactSettings(friction_wall=mu, friction_coil=mu, friction_catheter=mu)
+        sc = replace(scene(length_mm, contact=contact), balloon=balloon)
+        cases.append(Case("balloon", f"deflating under the coil, μ = {mu:g}", sc, {"friction": mu}))
+    return cases
+
+
 def _necked_sphere(radius_mm: float, neck_radius_mm: float, neck_bottom_mm: float) -> trimesh.Trimesh:
     """A spherical sac on a thin cylindrical neck below it (surface of revolution about z)."""
     join = -math.sqrt(radius_mm**2 - neck_radius_mm**2)
@@ -340,7 +369,8 @@ def cases(quick: bool, mesh_dir: Path) -> list[Case]:
     """The sweep: an 8 mm base coil and 5 fuzz scenes when quick, else 20 mm and 20."""
     length = 8.0 if quick else 20.0
     return [*dt_cases(length), *contact_cases(length), *speed_cases(length), *damping_cases(length),
-            *packing_cases(length), *mesh_cases(length, mesh_dir), *fuzz_cases(5 if quick else 20)]
+            *packing_cases(length), *friction_cases(length), *balloon_cases(length), *mesh_cases(length, mesh_dir),
+            *fuzz_cases(5 if quick else 20)]
 
 
 # --- report ---------------------------------------------------------------------------

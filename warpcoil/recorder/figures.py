@@ -166,11 +166,13 @@ def write_summary_png(
     coil_boundaries_mm: list[float] | None = None,
     title: str = "",
     catheter: tuple | None = None,
+    devices: list | None = None,
 ) -> None:
     """Two 3D views of the final coils (at their wire thickness) in the wall with the
     catheter, push force and packing density against time, as one PNG of FIGSIZE_IN
     at DPI, written atomically. ``catheter``: (tip_mm, direction, centerline_mm or
-    None), or None. Non-finite values are left out of every panel."""
+    None), or None. Non-finite values are left out of every panel. ``devices``: an
+    assist device as (points mm, width mm, colour, label) polylines."""
     if len(coils_mm) != len(wire_diameters_mm):
         raise ValueError(f"{len(coils_mm)} coils but {len(wire_diameters_mm)} wire diameters")
     coils_mm = [np.reshape(c, (-1, 3))[np.isfinite(np.reshape(c, (-1, 3))).all(axis=1)] for c in coils_mm]
@@ -190,8 +192,11 @@ def write_summary_png(
     diameters = np.asarray(wire_diameters_mm, dtype=float)
     linewidths_pt = [line_width_pt(d, high - low, 0.45 * FIGSIZE_IN[0]) for d in diameters]
     for column, view in enumerate(VIEWS_DEG):
-        lines = _draw_3d(fig.add_subplot(grid[0, column], projection="3d"), triangles, coils_mm,
-                         linewidths_pt, low, high, view, catheter_mm)
+        ax = fig.add_subplot(grid[0, column], projection="3d")
+        lines = _draw_3d(ax, triangles, coils_mm, linewidths_pt, low, high, view, catheter_mm)
+        for points, width_mm, color, label in devices or []:
+            ax.plot(*np.asarray(points).T, color=color, zorder=1.5, label=label,
+                    linewidth=line_width_pt(width_mm, high - low, 0.45 * FIGSIZE_IN[0]))
     if lines:
         fig.axes[0].legend(lines, [f"coil {k}, {d:g} mm wire (drawn to scale)" for k, d in enumerate(diameters)],
                            loc="upper left", fontsize=8)

@@ -81,6 +81,7 @@ class UsdFrames:
     def __init__(self, path: Path, coil_nodes: list[slice], widths_mm: list[float],
                  wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float):
         self.coil_nodes = coil_nodes
+        self.balloon = False  # the model has a balloon (its inflation is recorded per frame)
         self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
                                     wall_faces, time_codes_per_second=1.0 / frame_interval_s,
                                     frames_per_second=1.0 / frame_interval_s)  # one code per frame: real time
@@ -89,13 +90,24 @@ class UsdFrames:
     def for_model(path: Path, model: Model, frame_interval_s: float) -> "UsdFrames":
         """Every coil of a one-world model, with its wall."""
         wall = model.wall
-        return UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
-                         wall.vertices_mm if wall is not None else None, wall.faces_np if wall is not None else None,
-                         frame_interval_s)
+        frames = UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
+                           wall.vertices_mm if wall is not None else None,
+                           wall.faces_np if wall is not None else None, frame_interval_s)
+        if model.has_stent:
+            starts, ends, _ = model.strut_host
+            frames.recorder.add_stent(starts, ends, 2.0 * model.strut_radius_mm)
+        if model.has_balloon:
+            count = int(model.balloon_count.numpy()[0])
+            frames.recorder.add_balloon(model.balloon_stations.numpy()[:count],
+                                        model.balloon_cap_radius.numpy()[:count])
+            frames.balloon = True
+        return frames
 
     def __call__(self, frame: Frame, state: State) -> None:
         x = state.x.numpy()
         self.recorder.add_frame(frame.time_s, [x[s] for s in self.coil_nodes])
+        if self.balloon and frame.balloon_inflation is not None:
+            self.recorder.set_balloon(frame.time_s, frame.balloon_inflation)
 
     def close(self) -> None:
         self.recorder.close()
@@ -117,6 +129,20 @@ def write_porous(path: Path, scene: Scene, wall, sac, positions_mm: list[np.ndar
         raise ValueError(f"{scene.source}: output.porous needs a [wall]; fix: add a [wall] or set porous = false")
     field = porous_field(vertices, faces, positions_mm, [c.d for c in scene.coils], scene.output.porous_voxel_mm)
     write_porous_vti(path, field)
+
+
+def _device_lines(scene: Scene, wall) -> list:
+    """The scene's assist device as (points (K, 3) mm, line width in mm, colour, label) polylines
+    for the summary picture: each stent strut, or the balloon's axis at its inflated diameter."""
+    from ..devices import balloon_geometry, stent_struts
+
+    if scene.stent is not None:
+        starts, ends = stent_struts(scene.stent, wall)
+        return [(np.stack([a, b]), scene.stent.strut_diameter_mm, "0.45", None) for a, b in zip(starts, ends)]
+    if scene.balloon is not None:
+        stations, radii = balloon_geometry(scene.balloon, wall)
+        return [(stations, 2.0 * float(np.median(radii)), (0.3, 0.6, 0.9, 0.25), "balloon (inflated)")]
+    return []
 
 
 def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None, sac=None) -> None:
@@ -153,5 +179,6 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
             wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
             result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
             f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %",
-            catheter=(result.catheter_tip_mm, result.catheter_direction, scene.catheter.centerline_mm))
+            catheter=(result.catheter_tip_mm, result.catheter_direction, scene.catheter.centerline_mm),
+            devices=_device_lines(scene, wall))
     write_result_json(out / RESULT_JSON, result, extra)

@@ -6,6 +6,9 @@ Stage layout (all lengths in mm, ``metersPerUnit = 0.001``)::
     /World/Wall               Mesh, static triangulated aneurysm/vessel wall
     /World/Coils              Xform
     /World/Coils/Coil_<k>     BasisCurves (linear), time-sampled points/extent
+    /World/Stent              BasisCurves (linear), static struts (stent-assisted runs)
+    /World/Balloon            BasisCurves (linear) along the balloon axis, per-vertex widths =
+                              the balloon's diameter, time-sampled with its inflation
 
 The stage is built in memory and exported in one go on :meth:`UsdRecorder.close`
 through :func:`~warpcoil.recorder.atomic.atomic_path`, so an aborted run leaves
@@ -136,6 +139,39 @@ class UsdRecorder:
         curve.CreatePointsAttr()
         curve.CreateExtentAttr()
         return curve
+
+    def add_stent(self, starts_mm: np.ndarray, ends_mm: np.ndarray, strut_diameter_mm: float) -> None:
+        """Static struts at /World/Stent, one two-point curve each."""
+        curve = UsdGeom.BasisCurves.Define(self._stage, "/World/Stent")
+        curve.CreateTypeAttr(UsdGeom.Tokens.linear)
+        points = np.ascontiguousarray(np.stack([starts_mm, ends_mm], 1).reshape(-1, 3), dtype=np.float32)
+        curve.CreateCurveVertexCountsAttr([2] * len(starts_mm))
+        curve.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+        curve.CreateWidthsAttr([float(strut_diameter_mm)])
+        curve.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+        curve.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([points.min(0), points.max(0)])))
+        curve.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([Gf.Vec3f(0.55, 0.57, 0.6)])
+
+    def add_balloon(self, axis_mm: np.ndarray, radii_mm: np.ndarray) -> None:
+        """The balloon at /World/Balloon: its axis with the inflated diameter as widths."""
+        curve = UsdGeom.BasisCurves.Define(self._stage, "/World/Balloon")
+        curve.CreateTypeAttr(UsdGeom.Tokens.linear)
+        points = np.ascontiguousarray(axis_mm, dtype=np.float32)
+        curve.CreateCurveVertexCountsAttr([len(points)])
+        curve.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+        curve.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+        curve.CreateWidthsAttr()
+        reach = float(np.max(radii_mm))
+        curve.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([points.min(0) - reach, points.max(0) + reach])))
+        curve.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([Gf.Vec3f(0.3, 0.6, 0.9)])
+        curve.CreateDisplayOpacityPrimvar(UsdGeom.Tokens.constant).Set([0.4])
+        self._balloon = (curve, 2.0 * np.asarray(radii_mm, dtype=np.float64))
+
+    def set_balloon(self, time_s: float, inflation: float) -> None:
+        """Time sample of the balloon's widths: diameter × inflation (0–1)."""
+        curve, diameters = self._balloon
+        widths = np.maximum(diameters * float(inflation), 1e-3).astype(np.float32)
+        curve.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(widths), round(time_s * self.time_codes_per_second))
 
     def add_frame(self, time_s: float, positions_mm: list[np.ndarray]) -> None:
         """Write one time sample of every coil's (n_nodes_k, 3) node positions in mm."""

@@ -1,0 +1,162 @@
+"""Balloon and stent: geometry fitted to the vessel, contact through the wall /
+coil–coil law, fit errors naming the key, and the balloon's deflation."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+
+from warpcoil.devices import DeviceError, balloon_geometry, deflation, stent_struts
+from warpcoil.kernels import devices as kernels
+from warpcoil.settings import BalloonSpec, StentSpec
+from warpcoil.wall import WallMesh
+
+VESSEL_R_MM = 1.5
+OFF = (0.013, 0.007)  # off the exact axis, where every side face is equally close (the BVH sign is ambiguous)
+AXIS = ((*OFF, -6.0), (*OFF, 6.0))
+
+
+@pytest.fixture(scope="module")
+def vessel():
+    """A straight vessel of radius 1.5 mm along z, 20 mm long (closed ends)."""
+    tube = trimesh.creation.cylinder(radius=VESSEL_R_MM, height=20.0, sections=256)
+    return WallMesh(np.asarray(tube.vertices, float), np.asarray(tube.faces, np.int32), float(tube.volume), (), None)
+
+
+def test_balloon_grows_to_its_diameter_but_is_capped_by_the_wall(vessel):
+    stations, radius = balloon_geometry(BalloonSpec(axis_mm=AXIS, diameter_mm=4.0), vessel)
+    assert np.all(np.linalg.norm(np.diff(stations, axis=0), axis=1) <= 0.25 + 1e-12)
+    # the inscribed radius of a 256-gon is R cos(π/256), less the axis offset
+    assert radius == pytest.approx(np.full(len(radius), VESSEL_R_MM * math.cos(math.pi / 256) - math.hypot(*OFF)),
+                                   abs=2e-3)
+    _, small = balloon_geometry(BalloonSpec(axis_mm=AXIS, diameter_mm=2.0), vessel)
+    assert np.all(small == 1.0)
+
+
+def test_a_balloon_axis_outside_the_vessel_names_the_key(vessel):
+    with pytest.raises(DeviceError, match=r"balloon\.axis.*outside the lumen.*fix"):
+        balloon_geometry(BalloonSpec(axis_mm=((0.0, 2.0, 0.0), (0.0, 2.0, 5.0))), vessel)
+
+
+def test_balloon_contact_is_the_law_along_the_radius_and_vanishes_deflated():
+    p0, c0, r_node = 1.0e3, 0.03, 0.15
+    stations = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, 2.0]])
+    gaps = np.array([0.0, -0.01, 0.02, 0.05])
+    x = np.stack([1.0 + r_node + gaps, np.zeros(4), np.linspace(-1, 1, 4)], 1)
+
+    def forces(inflation):
+        out = wp.zeros(4, dtype=wp.vec3d)
+        wp.launch(kernels.balloon_contact, 4, inputs=[
+            wp.array(x, dtype=wp.vec3d), wp.ones(4, dtype=wp.int32), wp.zeros(4, dtype=wp.int32),
+            wp.ones(1, dtype=wp.int32), wp.full(4, r_node, dtype=wp.float64), wp.array(stations, dtype=wp.vec3d),
+            wp.full(2, 1.0, dtype=wp.float64), wp.zeros(1, dtype=wp.int32), wp.full(1, 2, dtype=wp.int32),
+            wp.full(1, inflation, dtype=wp.float64), p0, c0, 7.0, out])
+        return out.numpy()
+
+    f = forces(1.0)
+    u = 1.0 - gaps / c0
+    law = np.where(gaps < c0, p0 / (math.e - 1.0) * u * (np.exp(u) - 1.0), 0.0)
+    assert f[:, 0] == pytest.approx(law, rel=1e-12, abs=1e-12)
+    assert np.abs(f[:, 1:]).max() < 1e-9 * law.max()
+    assert np.all(forces(0.0) == 0.0)
+
+
+def test_deflation_starts_when_told_and_takes_its_time():
+    spec = BalloonSpec(axis_mm=AXIS, deflation_time_s=0.1)
+    assert deflation(spec, 5.0, None) == 1.0
+    assert deflation(spec, 1.05, 1.0) == pytest.approx(0.5)
+    assert deflation(spec, 1.2, 1.0) == 0.0
+
+
+def test_stent_cells_are_closed_diamonds_apposed_to_the_wall(vessel):
+    spec = StentSpec(axis_mm=AXIS, diameter_mm=3.5, cell_size_mm=1.5, strut_diameter_mm=0.07)
+    starts, ends = stent_struts(spec, vessel)
+    r_expected = VESSEL_R_MM * math.cos(math.pi / 256) - 0.035
+    r_lattice = r_expected - math.hypot(*OFF)  # radius = the station's wall distance − strut radius
+    for p in (starts, ends):
+        assert np.linalg.norm(p[:, :2] - OFF, axis=1) == pytest.approx(r_lattice, abs=2e-3)
+    r_expected = r_lattice
+    around = round(2 * math.pi * r_expected / 1.5)
+    half_cell = 2 * r_expected * math.sin(math.pi / (2 * around))  # chord to the next ring's node
+    assert np.linalg.norm(ends - starts, axis=1) == pytest.approx(math.hypot(0.75, half_cell), rel=1e-3)
+    # interior lattice nodes join four struts: every cell is closed
+    nodes, degree = np.unique(np.round(np.concatenate([starts, ends]), 9), axis=0, return_counts=True)
+    interior = (nodes[:, 2] > nodes[:, 2].min() + 1e-6) & (nodes[:, 2] < nodes[:, 2].max() - 1e-6)
+    assert np.all(degree[interior] == 4)
+
+
+def test_a_stent_smaller_than_the_vessel_names_the_key_and_the_fix(vessel):
+    with pytest.raises(DeviceError, match=r"stent\.diameter_mm = 2.*smaller than the vessel.*fix: diameter_mm ≥ 2\.9"):
+        stent_struts(StentSpec(axis_mm=AXIS, diameter_mm=2.0), vessel)
+
+
+def test_strut_contact_is_the_coil_coil_law_and_a_small_loop_passes_a_cell():
+    """A coil edge across one strut feels the segment law; an edge in the middle of a
+    cell (farther than c0 from every strut) feels nothing: it can prolapse."""
+    p0, c0, r_coil, r_strut = 1.0e3, 0.03, 0.15, 0.035
+    strut_a = np.array([[-1.0, 0.0, 0.0]])
+    strut_b = np.array([[1.0, 0.0, 0.0]])
+    gap = 0.01
+    z = r_coil + r_strut + gap
+    x = np.array([[0.0, -0.5, z], [0.0, 0.5, z], [0.0, 0.6, 0.5], [0.0, 1.0, 0.5]])  # edges 0 (across) and 2 (away)
+    has_next = np.array([1, 0, 1, 0], np.int32)
+    grid = wp.HashGrid(4, 4, 4, dtype=wp.float64)
+    grid.build(wp.array(0.5 * (strut_a + strut_b), dtype=wp.vec3d), 2.0, groups=wp.zeros(1, dtype=wp.int32))
+    start, end = wp.zeros(4, dtype=wp.vec3d), wp.zeros(4, dtype=wp.vec3d)
+    wp.launch(kernels.strut_contact, 4, inputs=[
+        wp.array(x, dtype=wp.vec3d), wp.ones(4, dtype=wp.int32), wp.array(has_next, dtype=wp.int32),
+        wp.zeros(4, dtype=wp.int32), wp.ones(1, dtype=wp.int32), wp.full(4, r_coil, dtype=wp.float64), grid.id,
+        wp.array(strut_a, dtype=wp.vec3d), wp.array(strut_b, dtype=wp.vec3d), r_strut, 2.0, p0, c0, 7.0, start, end])
+    u = 1.0 - gap / c0
+    law = p0 / (math.e - 1.0) * u * (math.exp(u) - 1.0)
+    total = start.numpy()[0] + end.numpy()[0]
+    assert total == pytest.approx([0.0, 0.0, law], rel=1e-7, abs=1e-6)  # fixed-point resolution 1.5e-8 µN
+    assert np.all(start.numpy()[2] == 0.0) and np.all(end.numpy()[2] == 0.0)
+
+
+def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 6.0\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
+                     'length_mm = 5\n[balloon]\naxis = [[0.0, 0.0, 4.0], [0.0, 0.0, 5.0]]\n')
+    log = tmp_path / "log.txt"
+    with log.open("w") as out:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(tmp_path / "o"),
+                              "--quiet", "--no-usd"], stdout=out, stderr=subprocess.STDOUT)
+    assert rc == 2
+    assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
+
+
+@pytest.mark.parametrize("device", ["balloon", "stent"])
+def test_cli_runs_an_assisted_scene_and_reports_the_device(tmp_path, device):
+    """A 5 mm coil into a 4 mm sphere with the device through it, clear of the catheter path."""
+    from pxr import Usd
+    import json
+
+    table = ('[balloon]\naxis = [[-1.2, 0.8, -0.3], [1.2, 0.8, -0.3]]\ndiameter_mm = 0.8\ndeflation_time_s = 0.02\n'
+             if device == "balloon" else
+             '[stent]\naxis = [[-0.02, 0.013, -1.5], [0.02, 0.013, 1.5]]\ndiameter_mm = 4.5\ncell_size_mm = 1.5\n')
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n'
+                     '[[coil]]\nshape = "helix"\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\n'
+                     'length_mm = 5\n[simulation]\npush_speed_mm_s = 100.0\nframe_interval_s = 0.005\n'
+                     '[output]\npng = true\n' + table)
+    out, log = tmp_path / "out", tmp_path / "log.txt"
+    with log.open("w") as stream:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(out), "--quiet"],
+                             stdout=stream, stderr=subprocess.STDOUT)
+    assert rc == 0, log.read_text()
+    result = json.loads((out / "result.json").read_text())
+    assert result["device"]["kind"] == device
+    assert 0.0 <= result["packing_density_in_sac"] <= result["packing_density"] + 1e-12
+    stage = Usd.Stage.Open(str(out / "deployment.usdc"))
+    prim = stage.GetPrimAtPath("/World/Balloon" if device == "balloon" else "/World/Stent")
+    assert prim.IsValid()
+    assert (out / "summary.png").stat().st_size > 0
+    if device == "balloon":
+        inflation = [f for _, f in result["device"]["inflation_over_time"]]
+        assert inflation[0] == 1.0 and inflation[-1] == 0.0  # deflated before the run ended
+        assert result["device"]["deflation_started_s"] is not None

@@ -1,0 +1,245 @@
+"""Regularised Coulomb friction, applied implicitly at the velocity level.
+
+After the conservative forces and the damping have predicted the velocities v*,
+every contact p (a node on the wall or on a device; two coil edges; a coil edge on
+an edge still in the catheter, which stands in for the catheter) gets a friction
+impulse along its tangential relative velocity w* at the contact points. With W
+the contact's inverse effective mass (Σ of the squared barycentric weights over
+the node masses; 0 for the wall, a device and the catheter) and N its normal
+load (the contact law's force), the regularised implicit law of one contact is
+
+    w' = w* / (1 + dt c W),   c = μ N / max(|w*| − dt μ N W, v_reg)
+
+exactly Coulomb's law for that contact: sliding (|w*| > a + v_reg, a = dt μ N W)
+loses exactly a per step (|F_t| = μN), and below that the contact is a linear
+damper μN/v_reg, so a tangential load F_t < μN creeps at v_reg F_t/(μN) < v_reg
+(``v_reg`` = ``friction_speed_mm_s``). In velocities this is v' = (I − φ P_p) v*,
+φ = dt c W/(1 + dt c W) ∈ [0, 1), P_p the orthogonal projection (in the mass
+metric) onto the contact's tangential relative motion: it never reverses a slip
+and conserves the pair's momentum.
+
+All contacts act at once (gather form) as v' = (I − Σ_p α_p φ_p P_p) v* with
+α_p = min(1, 2 / K), K the most contacts any node of p has. Since P_p only
+touches p's nodes, Σ_p α_p φ_p P_p ≤ max_node Σ_{p∋node} α_p · I ≤ 2 I, so the
+kinetic energy never rises — whatever the contact network — and, being implicit,
+friction sets no step limit. A node with at most two contacts (every validation
+case) gets each contact's exact law.
+
+Sums over partners are fixed-point (int64), as for the contact forces, so the
+result does not depend on the order partners are found (CPU = CUDA, an ensemble
+member = its single run).
+"""
+
+import warp as wp
+
+from .contact import (NO_LIST, bonded, contact_force_magnitude, edge_in_contact_pass, edge_is_obstacle, from_fixed,
+                      segment_closest_params, to_fixed, vec3l)
+from .rod import F64_0, F64_1
+
+
+@wp.func
+def tangential(v: wp.vec3d, n: wp.vec3d) -> wp.vec3d:
+    return v - wp.dot(v, n) * n
+
+
+@wp.func
+def slip_fraction(mu: wp.float64, load: wp.float64, slip: wp.float64, inv_mass: wp.float64, v_reg: wp.float64,
+                  dt: wp.float64) -> wp.float64:
+    """φ = dt c W / (1 + dt c W) with c = μN / max(|w| − dt μ N W, v_reg): the share of
+    the slip velocity one implicit step of regularised Coulomb friction removes."""
+    a = dt * mu * load * inv_mass
+    k = a / wp.max(slip - a, v_reg)  # dt c W
+    return k / (F64_1 + k)
+
+
+@wp.func
+def node_contacts(contacts: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                  obstacle_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), i: int) -> int:
+    """Contacts of node i: coil pairs of edges i and i − 1, the wall, a device."""
+    k = int(0)
+    if has_next[i] != 0:
+        k += contacts[i]
+    if i >= 1:
+        if has_next[i - 1] != 0:
+            k += contacts[i - 1]
+    if wp.length_sq(obstacle_force[i]) > F64_0:
+        k += 1
+    if wp.length_sq(device_force[i]) > F64_0:
+        k += 1
+    return k
+
+
+@wp.func
+def share(k: int) -> wp.float64:
+    """α = min(1, 2/K)."""
+    if k <= 2:
+        return F64_1
+    return wp.float64(2.0) / wp.float64(k)
+
+
+@wp.func
+def pair_impulse(x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
+                 has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+                 node_radius: wp.array(dtype=wp.float64), inv_mass: wp.array(dtype=wp.float64),
+                 mid: wp.array(dtype=wp.vec3d), contacts: wp.array(dtype=wp.int32),
+                 wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
+                 far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64, mu_coil: wp.float64,
+                 mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
+    """Friction of edge b on edge a (the pair geometry and cutoff of contact.pair_contact):
+    the velocity changes of a's start and end node (mm/s)."""
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    dv_start = zero
+    dv_end = zero
+    if edge_is_obstacle(free, has_next, fixed, b):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        pb0 = x[b]
+        pb1 = x[b + 1]
+        reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
+        apart = wp.length(mid[a] - mid[b])
+        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+            st = segment_closest_params(pa0, pa1, pb0, pb1)
+            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+            dist = wp.length(delta)
+            gap = dist - node_radius[a] - node_radius[b]
+            if gap < c0 and dist > wp.float64(1.0e-12):
+                s = st[0]
+                t = st[1]
+                mu = mu_catheter
+                w_b = F64_0  # the catheter does not move
+                vb = zero
+                k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
+                           node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+                if free[b] != 0 or free[b + 1] != 0:
+                    mu = mu_coil
+                    vb = (F64_1 - t) * v[b] + t * v[b + 1]
+                    w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
+                    k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
+                                         node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+                if mu > F64_0:
+                    n = delta / dist
+                    w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+                    slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
+                    load = contact_force_magnitude(gap, p0, c0, u_linear)
+                    inv_m = w_a + w_b
+                    phi = share(k) * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
+                    impulse = (-phi / inv_m) * slip  # on a's contact point, g·mm/s
+                    dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
+                    dv_end = (s * inv_mass[a + 1]) * impulse
+    return dv_start, dv_end
+
+
+@wp.kernel
+def edge_friction(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    wall_force: wp.array(dtype=wp.vec3d),
+    device_force: wp.array(dtype=wp.vec3d),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.array(dtype=wp.float64),
+    grid_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    mu_coil: wp.float64,
+    mu_catheter: wp.float64,
+    v_reg: wp.float64,
+    dt: wp.float64,
+    dv_start: wp.array(dtype=wp.vec3d),
+    dv_end: wp.array(dtype=wp.vec3d),
+):
+    """Friction velocity changes of edge a's nodes from its coil contacts, found as
+    contact.edge_contact finds them (positions ``x`` at the start of the step,
+    ``contacts`` its per-edge counts, velocities ``v`` predicted); fixed-point sums."""
+    a = wp.tid()
+    sum_start = vec3l()
+    sum_end = vec3l()
+    w = world_of[a]
+    radius = query_radius[w]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
+        listed = neighbour_count[a]
+        if listed != NO_LIST:
+            for k in range(listed):
+                d0, d1 = pair_impulse(x, v, free, has_next, fixed, node_radius, inv_mass, mid, contacts, wall_force,
+                                      device_force, a, neighbours[a, k], radius, p0, c0, u_linear, mu_coil,
+                                      mu_catheter, v_reg, dt)
+                sum_start = sum_start + to_fixed(d0)
+                sum_end = sum_end + to_fixed(d1)
+        else:
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+            b = int(0)
+            while wp.hash_grid_query_next(query, b):
+                if not bonded(coil_of, exclusion, a, b):
+                    d0, d1 = pair_impulse(x, v, free, has_next, fixed, node_radius, inv_mass, mid, contacts,
+                                          wall_force, device_force, a, b, radius, p0, c0, u_linear, mu_coil,
+                                          mu_catheter, v_reg, dt)
+                    sum_start = sum_start + to_fixed(d0)
+                    sum_end = sum_end + to_fixed(d1)
+    dv_start[a] = from_fixed(sum_start)
+    dv_end[a] = from_fixed(sum_end)
+
+
+@wp.func
+def obstacle_change(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64, inv_m: wp.float64,
+                    alpha: wp.float64, dt: wp.float64) -> wp.vec3d:
+    """Velocity change from a fixed obstacle pushing with force f (its load and normal)."""
+    load = wp.length(f)
+    if load > F64_0:
+        slip = tangential(v, f / load)
+        return -(alpha * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)) * slip
+    return wp.vec3d(F64_0, F64_0, F64_0)
+
+
+@wp.kernel
+def apply_friction(
+    x_in: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    wall_force: wp.array(dtype=wp.vec3d),
+    device_force: wp.array(dtype=wp.vec3d),
+    mu_wall: wp.float64,
+    v_reg: wp.float64,
+    dv_start: wp.array(dtype=wp.vec3d),
+    dv_end: wp.array(dtype=wp.vec3d),
+    with_coil_terms: int,
+    dt: wp.float64,
+    v_out: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+):
+    """v' = v* + the friction changes of node i (wall, device: with the wall's
+    coefficient; coil pairs: its shares of edges i and i − 1), then x' = x + dt v'."""
+    i = wp.tid()
+    if running[world_of[i]] == 0 or free_out[i] == 0:
+        return
+    v = v_out[i]
+    change = wp.vec3d(F64_0, F64_0, F64_0)
+    if mu_wall > F64_0:
+        alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
+        change = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
+            obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
+    if with_coil_terms != 0:
+        if has_next[i] != 0:
+            change = change + dv_start[i]
+        if i >= 1:
+            if has_next[i - 1] != 0:
+                change = change + dv_end[i - 1]
+    v_new = v + change
+    v_out[i] = v_new
+    x_out[i] = x_in[i] + dt * v_new

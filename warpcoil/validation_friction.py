@@ -1,0 +1,252 @@
+"""Validation of regularised Coulomb friction (``warpcoil validate friction``):
+a coil piece on an inclined flat wall (stick below tan θ = μ, slide above with
+g (sin θ − μ cos θ)), the capstan law (slip at T2/T1 = e^{μφ}) and an undamped
+frictional system whose total energy never rises. Units mm, g, s, µN.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import trimesh
+
+from .coil import CoilSpec
+from .model import ModelBuilder
+from .settings import ContactSettings, SimulationSettings
+from .solver import Control, Solver, Stepper
+from .state import state_from_positions
+from .validation import REFERENCE_D_MM, CaseResult, _row
+from .wall import WallMesh
+
+P0_UN = 1.0e3
+E_MINUS_1 = math.e - 1.0
+
+
+def _law_uN(h_mm: np.ndarray, c0_mm: float) -> np.ndarray:
+    """MODEL.md's contact law below u = 7 (validation loads stay there)."""
+    u = np.maximum(1.0 - np.asarray(h_mm) / c0_mm, 0.0)
+    return P0_UN / E_MINUS_1 * u * (np.exp(u) - 1.0)
+
+
+def _law_energy_nJ(h_mm: np.ndarray, c0_mm: float) -> np.ndarray:
+    """∫_h^{c0} |F| dh' = c0 P0/(e−1) ((u−1) e^u − u²/2 + 1)."""
+    u = np.maximum(1.0 - np.asarray(h_mm) / c0_mm, 0.0)
+    return c0_mm * P0_UN / E_MINUS_1 * ((u - 1.0) * np.exp(u) - 0.5 * u * u + 1.0)
+
+
+def _overlap_for(load_uN: float, c0_mm: float) -> float:
+    """Clearance h (mm) at which the law pushes with ``load_uN`` (bisection)."""
+    low, high = -6.0 * c0_mm, c0_mm
+    for _ in range(200):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if _law_uN(mid, c0_mm) > load_uN else (low, mid)
+    return 0.5 * (low + high)
+
+
+def _wall(mesh: trimesh.Trimesh) -> WallMesh:
+    return WallMesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32), float(mesh.volume), (),
+                    None)
+
+
+def _floor() -> WallMesh:
+    """A box whose floor is the plane z = 0 (inward normal +z)."""
+    box = trimesh.creation.box(extents=(40.0, 40.0, 10.0))
+    box.apply_translation((0.0, 0.0, 5.0))
+    return _wall(box)
+
+
+def _straight(nodes: int, d: float, axis=(1.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    s = (np.arange(nodes) - 0.5 * (nodes - 1)) * d
+    return np.asarray(centre) + s[:, None] * np.asarray(axis)
+
+
+# --- inclined plane ---------------------------------------------------------------
+def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: int = 20_000,
+                   nodes: int = 11, v_reg_mm_s: float = ContactSettings.friction_speed_mm_s) -> tuple[float, float, float]:
+    """A straight coil piece on the floor under a body acceleration g tilted by θ
+    (tan θ = tan_ratio · μ), starting at rest at its contact equilibrium. Returns
+    (fitted acceleration over the second half, mm/s²; analytic g (sin θ − μ cos θ)
+    or 0 when it sticks; mean speed over the second half, mm/s; largest mean speed, mm/s)."""
+    theta = math.atan(tan_ratio * mu)
+    d = REFERENCE_D_MM
+    rest = _straight(nodes, d)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0),
+                           contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu, friction_speed_mm_s=v_reg_mm_s),
+                           wall=_floor())
+    builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
+    builder.body_acceleration(g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
+    model = builder.finalize()
+    # the stiff straight rod rests level, each node pressed with the mean weight (end nodes weigh half)
+    mean_mass = float(np.mean(1.0 / model.inv_mass.numpy()))
+    x = rest.copy()
+    x[:, 2] = 0.5 * d + _overlap_for(mean_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
+    stepper = Stepper(Solver(model, coil_contact=False), state_from_positions(model, x), Control.create(model),
+                      chunk=200)
+    times, speeds = [], []
+    for _ in range(steps // stepper.chunk):
+        state = stepper.run_chunk()
+        times.append(state.time_s)
+        speeds.append(float(state.v.numpy()[:, 0].mean()))
+    half = len(times) // 2
+    acceleration = float(np.polyfit(times[half:], speeds[half:], 1)[0])
+    reference = max(g_mm_s2 * (math.sin(theta) - mu * math.cos(theta)), 0.0)
+    return acceleration, reference, float(np.mean(speeds[half:])), float(np.max(np.abs(speeds)))
+
+
+def incline_cases(mu: float = 0.3) -> list[CaseResult]:
+    rows = []
+    v_reg = ContactSettings().friction_speed_mm_s
+    for ratio in (0.8, 0.99):  # stuck: creeps at v_reg F_t/(μN) = v_reg tanθ/μ < v_reg
+        _, _, creep, _ = incline_motion(mu, ratio)
+        rows.append(_row(f"friction incline tanθ = {ratio}μ: sticks, creep (mm/s)", ratio * v_reg, creep, 1e-2))
+    for ratio in (1.2, 2.0):
+        acceleration, reference, _, _ = incline_motion(mu, ratio)
+        rows.append(_row(f"friction incline tanθ = {ratio}μ: slide accel. (mm/s²)", reference, acceleration, 1e-2))
+    return rows
+
+
+# --- capstan ----------------------------------------------------------------------
+def capstan_slip_ratio(mu: float, wrap_rad: float, radius_mm: float = 5.0, t1_uN: float = 500.0,
+                       ramp_s: float = 0.2, tail_mm: float = 3.0) -> tuple[float, float]:
+    """A soft coil (EI = 1 µN·mm²: bending adds ~EI/(R² T) ≈ 1e-4 to the ratio)
+    wrapped by ``wrap_rad`` over a cylinder of ``radius_mm`` (the inner wall of an
+    annular lumen), straight tails leaving it tangentially; tension T1 at one end,
+    T2 at the other ramped from T1 up to 1.5 e^{μφ} T1 over ``ramp_s``. Returns
+    (T2/T1 when the held (T1) end of the wrap first slides faster than 5 v_reg,
+    e^{μφ})."""
+    d = REFERENCE_D_MM
+    annulus = trimesh.creation.annulus(r_min=radius_mm, r_max=radius_mm + 15.0, height=6.0, sections=720)
+    contact = ContactSettings(P0_uN=P0_UN, friction_wall=mu)
+    c0 = 0.1 * d
+    rho = radius_mm + 0.5 * d + _overlap_for(t1_uN * d / (radius_mm + 0.5 * d), c0)
+    segments = int(round(wrap_rad * rho / d))
+    angles = -0.5 * wrap_rad + wrap_rad / segments * np.arange(segments + 1)
+    arc = np.stack([rho * np.cos(angles), rho * np.sin(angles), np.zeros_like(angles)], 1)
+    chord = 2.0 * rho * math.sin(0.5 * wrap_rad / segments)
+    tangent = lambda a: np.array([-math.sin(a), math.cos(a), 0.0])  # noqa: E731  direction of increasing angle
+    tail = int(round(tail_mm / chord))
+    head = arc[0] - tangent(angles[0]) * chord * np.arange(tail, 0, -1)[:, None]
+    end = arc[-1] + tangent(angles[-1]) * chord * np.arange(1, tail + 1)[:, None]
+    x = np.concatenate([head, arc, end])
+    spec = CoilSpec(wire_diameter_mm=d, length_mm=(len(x) - 1) * chord, bending_stiffness_uN_mm2=1.0,
+                    twist_stiffness_uN_mm2=1.0)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=10.0), contact=contact,
+                           wall=_wall(annulus))
+    builder.add_coil(spec, x)
+    model = builder.finalize()
+    external = np.zeros((model.node_count, 3))
+
+    def pull(t2_uN: float) -> None:
+        external[0] = -t1_uN * tangent(angles[0])
+        external[-1] = t2_uN * tangent(angles[-1])
+        model.external.assign(external)
+
+    pull(t1_uN)
+    solver = Solver(model, coil_contact=False)
+    stepper = Stepper(solver, state_from_positions(model, x), Control.create(model), chunk=100)
+    stepper.run_steps(int(0.02 / solver.dt_s))  # settle under T1 at both ends
+    reference = math.exp(mu * wrap_rad)
+    start = stepper.state.time_s
+    while stepper.state.time_s - start < ramp_s:
+        ratio = 1.0 + (1.5 * reference - 1.0) * (stepper.state.time_s - start) / ramp_s
+        pull(ratio * t1_uN)
+        state = stepper.run_chunk()
+        if float(np.dot(state.v.numpy()[tail], tangent(angles[0]))) > 5.0 * contact.friction_speed_mm_s:
+            return ratio, reference
+    return math.inf, reference
+
+
+def capstan_cases() -> list[CaseResult]:
+    rows = []
+    for mu, wrap in ((0.2, math.pi), (0.3, 0.5 * math.pi)):
+        ratio, reference = capstan_slip_ratio(mu, wrap)
+        rows.append(_row(f"friction capstan μ={mu}, φ={wrap:.3f}: slip T2/T1", reference, ratio, 2e-2))
+    return rows
+
+
+# --- energy -----------------------------------------------------------------------
+def frictional_energy(mu: float = 0.3, steps: int = 5000, g_mm_s2: float = 2.0e4, speed_mm_s: float = 30.0) -> tuple[float, float, float]:
+    """Undamped: a straight coil on the floor, sliding at 30 mm/s, and a second one
+    across it and above the floor, sliding the other way, both pressed down by a
+    body acceleration and started at their contact equilibrium (wall, coil–coil friction). Total energy = kinetic + elastic
+    + contact (∫ of the law over each wall gap and coil pair gap) + body-force
+    potential. Returns (largest rise of the total energy between any two frames,
+    the same system's energy range without friction (the integrator's own
+    fluctuation), energy dissipated), nJ."""
+    d = REFERENCE_D_MM
+    nodes = 15
+    c0 = 0.1 * d
+    mass = CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d).rho * d  # per interior node
+    node_mass = np.full(nodes, mass)
+    node_mass[[0, -1]] *= 0.5  # end nodes carry half a segment
+    lower_z = 0.5 * d + _overlap_for(node_mass.mean() * g_mm_s2, c0)  # each coil starts level, near equilibrium
+    lower = _straight(nodes, d, centre=(0.0, 0.0, lower_z))
+    upper = _straight(nodes, d, axis=(0.0, 1.0, 0.0),
+                      centre=(0.0, 0.0, lower_z + d + _overlap_for(node_mass.sum() * g_mm_s2, c0)))
+    totals = []
+    for friction in (0.0, mu):
+        contact = ContactSettings(P0_uN=P0_UN, friction_wall=friction, friction_coil=friction)
+        builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0), contact=contact, wall=_floor())
+        for rest in (lower, upper):
+            builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
+        g = np.array([0.0, 0.0, -g_mm_s2])
+        builder.body_acceleration(g)
+        model = builder.finalize()
+        solver = Solver(model)
+        state = state_from_positions(model, np.concatenate([lower, upper]))
+        v = np.zeros((model.node_count, 3))
+        v[:nodes, 0], v[nodes:, 0] = speed_mm_s, -speed_mm_s
+        state.v.assign(v)
+        stepper = Stepper(solver, state, Control.create(model), chunk=100)
+        masses = 1.0 / model.inv_mass.numpy()
+        energy = []
+        for _ in range(steps // stepper.chunk):
+            state = stepper.run_chunk()
+            x = state.x.numpy()
+            contact_nJ = _law_energy_nJ(x[:, 2] - 0.5 * d, c0).sum() + _pair_energy_nJ(x, nodes, d, c0)
+            energy.append(sum(solver.energies(state).values()) + contact_nJ - float(np.sum(masses * (x @ g))))
+        energy = np.array(energy)
+        totals.append(energy)
+    rise = [float(np.max(e - np.minimum.accumulate(e))) for e in totals]  # largest rise after any frame
+    frictionless, frictional = totals
+    return rise[1], max(rise[0], float(np.ptp(frictionless))), float(frictional[0] - frictional[-1])
+
+
+def _pair_energy_nJ(x: np.ndarray, nodes: int, d: float, c0: float) -> float:
+    """Contact energy of every segment pair of the two coils (a straight coil never touches itself)."""
+    a0, a1 = x[:nodes - 1], x[1:nodes]
+    b0, b1 = x[nodes:-1], x[nodes + 1:]
+    total = 0.0
+    for i in range(nodes - 1):
+        for j in range(nodes - 1):
+            total += float(_law_energy_nJ(_segment_distance(a0[i], a1[i], b0[j], b1[j]) - d, c0))
+    return total
+
+
+def _segment_distance(p1, q1, p2, q2) -> float:
+    """Distance between segments p1q1 and p2q2 (Ericson §5.1.9)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f, c, b = d1 @ d1, d2 @ d2, d2 @ r, d1 @ r, d1 @ d2
+    denom = a * e - b * b
+    s = np.clip((b * f - c * e) / denom, 0.0, 1.0) if denom > 1e-14 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t, s = 0.0, np.clip(-c / a, 0.0, 1.0)
+    elif t > 1.0:
+        t, s = 1.0, np.clip((b - c) / a, 0.0, 1.0)
+    return float(np.linalg.norm(p1 + s * d1 - p2 - t * d2))
+
+
+def energy_cases() -> list[CaseResult]:
+    rise, fluctuation, dissipated = frictional_energy()
+    return [
+        CaseResult("friction energy: largest rise (nJ) ≤ frictionless fluctuation", 0.0, rise, rise,
+                   fluctuation),
+        CaseResult("friction energy: frictionless fluctuation / dissipated", 0.0, fluctuation / dissipated,
+                   fluctuation / dissipated, 0.2),
+    ]
+
+
+def friction_cases() -> list[CaseResult]:
+    return incline_cases() + capstan_cases() + energy_cases()
