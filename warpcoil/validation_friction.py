@@ -214,28 +214,25 @@ def frictional_energy(mu: float = 0.3, steps: int = 5000, g_mm_s2: float = 2.0e4
 
 
 def _pair_energy_nJ(x: np.ndarray, nodes: int, d: float, c0: float) -> float:
-    """Contact energy of every segment pair of the two coils (a straight coil never touches itself)."""
-    a0, a1 = x[:nodes - 1], x[1:nodes]
-    b0, b1 = x[nodes:-1], x[nodes + 1:]
-    total = 0.0
-    for i in range(nodes - 1):
-        for j in range(nodes - 1):
-            total += float(_law_energy_nJ(_segment_distance(a0[i], a1[i], b0[j], b1[j]) - d, c0))
-    return total
+    """Coil–coil contact energy of the two straight coils, the potential of
+    contact.py's coil–coil force (docs/FORMULATION.md): ½ the law between every node
+    and every capsule of the other coil, both ways, minus the joint corrections
+    w_jk = ½ (j interior + k interior) of the law between node spheres j and k
+    (a straight coil never touches itself)."""
+    a, b = x[:nodes], x[nodes:]
 
+    def node_capsule(points: np.ndarray, chain: np.ndarray) -> np.ndarray:
+        p0, e = chain[:-1][None], (chain[1:] - chain[:-1])[None]
+        t = np.clip(np.sum((points[:, None] - p0) * e, axis=2) / np.sum(e * e, axis=2), 0.0, 1.0)
+        return np.linalg.norm(points[:, None] - p0 - t[..., None] * e, axis=2)
 
-def _segment_distance(p1, q1, p2, q2) -> float:
-    """Distance between segments p1q1 and p2q2 (Ericson §5.1.9)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f, c, b = d1 @ d1, d2 @ d2, d2 @ r, d1 @ r, d1 @ d2
-    denom = a * e - b * b
-    s = np.clip((b * f - c * e) / denom, 0.0, 1.0) if denom > 1e-14 * a * e else 0.0
-    t = (b * s + f) / e
-    if t < 0.0:
-        t, s = 0.0, np.clip(-c / a, 0.0, 1.0)
-    elif t > 1.0:
-        t, s = 1.0, np.clip((b - c) / a, 0.0, 1.0)
-    return float(np.linalg.norm(p1 + s * d1 - p2 - t * d2))
+    interior = np.ones(nodes)
+    interior[[0, -1]] = 0.0
+    weight = 0.5 * (interior[:, None] + interior[None, :])
+    node_node = np.linalg.norm(a[:, None] - b[None], axis=2)
+    return float(0.5 * _law_energy_nJ(node_capsule(a, b) - d, c0).sum()
+                 + 0.5 * _law_energy_nJ(node_capsule(b, a) - d, c0).sum()
+                 - (weight * _law_energy_nJ(node_node - d, c0)).sum())
 
 
 def energy_cases() -> list[CaseResult]:
