@@ -249,7 +249,10 @@ class Ensemble:
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
-        self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt)
+        contact = self.scenes[0].contact
+        self._wall_options = dict(wall_query=contact.wall_query, wall_voxel_mm=contact.wall_voxel_mm)
+        self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt,
+                             **self._wall_options)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -328,7 +331,7 @@ class Ensemble:
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
         self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
-        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True)
+        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True, **self._wall_options)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -526,7 +529,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
 def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
                     ) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
-    step, contact onset, frame length, contact law, damping speed and mass scale).
+    step, contact onset, frame length, contact law and wall query, damping speed and mass scale).
     ``anatomies``: the scenes' resolved anatomies, if the caller has them."""
     anatomies = anatomies if anatomies is not None else resolve_anatomies(scenes)
     groups: dict[tuple, list[int]] = {}
@@ -534,7 +537,8 @@ def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[An
         model = finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
         c = model.contact
         key = (world_steps(model, [scene])[0], scene.simulation.allow_unstable_dt, c.p0_uN, c.c0_mm,
-               c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale)
+               c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale, scene.contact.wall_query,
+               scene.contact.wall_voxel_mm)
         groups.setdefault(key, []).append(k)
     return list(groups.values())
 

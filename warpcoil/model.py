@@ -19,7 +19,7 @@ Twist inertia per edge: ``m r²`` with r the winding radius (d − d_w)/2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import warp as wp
@@ -45,6 +45,7 @@ class WallModel:
     volume_mm3: float
     vertices_mm: np.ndarray  # absolute, for output
     faces_np: np.ndarray
+    fields: dict = field(default_factory=dict, repr=False, compare=False)  # narrow-band SDFs built (wall_field.py)
 
     @staticmethod
     def create(vertices_mm: np.ndarray, faces: np.ndarray, volume_mm3: float, device) -> "WallModel":

@@ -171,7 +171,8 @@ _COIL = {
     "axial_stiffness_uN": _Key(_positive),
     "stretch_resistant": _Key(_bool),
 }
-_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive)}
+_CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "wall_query": _Key(_choice("sdf", "bvh")),
+            "wall_voxel_mm": _Key(_positive)}
 _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),
