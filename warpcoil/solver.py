@@ -26,6 +26,7 @@ WALL_SEARCH_MM = 0.1  # wall search beyond the contact range; a step moves a nod
 CONTACTS_PER_NODE = 4  # contacts a node may press on at once, for the contact term of the step bound
 CONTACTS_AT_ONSET = 8  # ... and in a dense pack, for where the contact law turns linear
 WALL_QUERIES = ("sdf", "bvh")  # wall distance from the narrow-band field (BVH where untrusted), or the BVH only
+FIELD_REGION_MM = 1.0  # the wall field covers the loop diameter + this around the catheter tip (BVH beyond)
 NEIGHBOUR_SKIN_MM = 0.2  # coil–coil neighbour grid rebuilt when a midpoint moved half this (seed case: 0.2 beats 0.05 by ~8 %, bit-identical)
 NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches the grid instead
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
@@ -163,7 +164,8 @@ class Solver:
     searched again at least this often (0: every step).
     ``wall_query``: "sdf" samples wall distance and normal from a narrow-band
     field of voxel ``wall_voxel_mm`` (wall_field.py) over the contact range +
-    ``wall_search_mm``, falling back to the BVH where the field is untrusted;
+    ``wall_search_mm``, within the largest loop diameter + FIELD_REGION_MM of the
+    catheter tip, falling back to the BVH where the field is untrusted or absent;
     "bvh" queries the BVH only (exact: the validation mode).
     """
 
@@ -196,8 +198,12 @@ class Solver:
         radius = model.node_radius.numpy()
         band_mm = [float(radius[model.world_nodes(w)].max()) + model.contact.c0_mm + wall_search_mm
                    for w in range(model.world_count)]  # per world, as its single run has it
-        self.wall_fields = [None if wall is None or wall_query == "bvh" else wall_field_for(wall, band, wall_voxel_mm)
-                            for wall, band in zip(model.world_walls, band_mm)]
+        path, last = model.catheter_path.numpy(), model.catheter_first.numpy() + model.catheter_count.numpy() - 1
+        regions = [(path[last[w]], max(model.coils[c].loop_diameter_mm for c in model.world_coils(w)) + FIELD_REGION_MM)
+                   for w in range(model.world_count)]  # where the coil can reach: its loops around the tip
+        self.wall_fields = [None if wall is None or wall_query == "bvh" else
+                            wall_field_for(wall, band, wall_voxel_mm, region)
+                            for wall, band, region in zip(model.world_walls, band_mm, regions)]
         self._field_ids = wp.array([0 if f is None else f.id for f in self.wall_fields], dtype=wp.uint64, device=dev)
         self._no_fields = wp.zeros(model.world_count, dtype=wp.uint64, device=dev)
         # an anchored node must be beyond contact for the field too: its error is ≤ h √3/2 (1-Lipschitz, trilinear)

@@ -30,6 +30,7 @@ from .kernels import wall_field as kernels
 
 DEFAULT_VOXEL_MM = 0.04  # distance error ≤ 1.2 µm (0.04 c0) on the seed sphere, measured by field_error (tests)
 GRAD_TOLERANCE = 0.05  # |∇d| outside 1 ± this: a crease (dihedral ≳ 36°) in the stencil, use the BVH
+DEFAULT_CREASE_MM = 0.006  # second difference of d flagging a crease: trusted samples off by ≲ a quarter of it
 INNER_MM_VOXELS = 2.0  # the band reaches this many voxels beyond the wall (nodes pressed into it)
 
 
@@ -50,8 +51,12 @@ class WallField:
         return int(self.volume.id)
 
 
-def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM) -> WallField:
-    """The field of ``wall`` (a model.WallModel) over ``−2 voxels ≤ d ≤ band_mm``."""
+def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM,
+                     crease_mm: float = DEFAULT_CREASE_MM, region: tuple | None = None) -> WallField:
+    """The field of ``wall`` (a model.WallModel) over ``−2 voxels ≤ d ≤ band_mm``;
+    voxels at a crease (second difference of d above ``crease_mm``) left out.
+    ``region``: (centre in mm, radius in mm): only the wall within this ball
+    (where the coil can reach); None: the whole wall."""
     if not (voxel_mm > 0.0 and band_mm > 0.0):
         raise ValueError(f"wall field needs voxel_mm > 0 and band_mm > 0, got {voxel_mm!r}, {band_mm!r}")
     start = time.perf_counter()
@@ -60,15 +65,20 @@ def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM) -
     tile_mm = 8.0 * h
     reach = max(band_mm, inner) + math.sqrt(3.0) * tile_mm + h
     faces = len(wall.faces_np)
+    centre, radius = (np.zeros(3), 1.0e9) if region is None else (np.asarray(region[0]) - wall.origin, region[1])
+    centre = wp.vec3d(*centre)
     counts = wp.zeros(faces, dtype=wp.int32, device=dev)
-    wp.launch(kernels.count_face_tiles, faces, device=dev, inputs=[wall.vertices, wall.faces, tile_mm, reach, counts])
+    wp.launch(kernels.count_face_tiles, faces, device=dev, inputs=[wall.vertices, wall.faces, tile_mm, reach, centre, radius,
+                                                                 counts])
     offsets = wp.zeros(faces, dtype=wp.int32, device=dev)
     wp.utils.array_scan(counts, offsets, inclusive=False)
     total = int(offsets.numpy()[-1] + counts.numpy()[-1])
+    if total == 0:
+        raise ValueError(f"no wall within {radius} mm of {region[0]}: nothing to build a wall field on")
     proposed = wp.zeros(total, dtype=wp.vec3i, device=dev)
     near = wp.zeros(total, dtype=wp.int32, device=dev)
     wp.launch(kernels.propose_face_tiles, faces, device=dev, inputs=[
-        wall.vertices, wall.faces, tile_mm, reach, offsets, proposed, near])
+        wall.vertices, wall.faces, tile_mm, reach, centre, radius, offsets, proposed, near])
     nan = float("nan")
     candidates = wp.Volume.allocate_by_tiles(proposed, voxel_size=h, bg_value=nan, device=dev, point_mask=near)
     tiles = candidates.get_tiles()
@@ -81,6 +91,9 @@ def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM) -
     voxels = wp.array(voxels.numpy().reshape(-1, 3), dtype=wp.vec3i, device=dev) if voxels.dtype != wp.vec3i else voxels
     wp.launch(kernels.fill_distances, voxels.shape[0], device=dev, inputs=[
         volume.id, wall.mesh.id, wall.vertices, wall.faces, voxels, h, reach + tile_mm])
+    crease = wp.zeros(voxels.shape[0], dtype=wp.int32, device=dev)
+    wp.launch(kernels.find_creases, voxels.shape[0], device=dev, inputs=[volume.id, voxels, crease_mm, crease])
+    wp.launch(kernels.clear_creases, voxels.shape[0], device=dev, inputs=[volume.id, voxels, crease])
     wp.synchronize_device(dev)
     return WallField(volume=volume, voxel_mm=h, band_mm=float(band_mm), inner_mm=inner,
                      voxels=int(voxels.shape[0]), build_s=time.perf_counter() - start)
@@ -94,12 +107,12 @@ def field_error_bound_mm(voxel_mm: float) -> float:
     return 0.5 * math.sqrt(3.0) * voxel_mm + 1.0e-6
 
 
-def wall_field_for(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM) -> WallField:
-    """The field of ``wall`` with this band and voxel, built once per wall (solvers,
-    step halvings and ensemble members that share a wall share it)."""
-    key = (round(float(band_mm), 9), round(float(voxel_mm), 9))
+def wall_field_for(wall, band_mm: float, voxel_mm: float, region: tuple) -> WallField:
+    """The field of ``wall`` with this band, voxel and region, built once (solvers,
+    step halvings and ensemble members that share them share it)."""
+    key = (round(float(band_mm), 9), round(float(voxel_mm), 9), tuple(np.round(region[0], 9)), round(region[1], 9))
     if key not in wall.fields:
-        wall.fields[key] = build_wall_field(wall, band_mm, voxel_mm)
+        wall.fields[key] = build_wall_field(wall, band_mm, voxel_mm, region=region)
     return wall.fields[key]
 
 

@@ -38,23 +38,42 @@ def face_tile_range(vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp
     return first, count
 
 
+@wp.func
+def near_region(vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32), f: int,
+                centre: wp.vec3d, radius: wp.float64) -> bool:
+    """Face f's box comes within ``radius`` of ``centre``."""
+    v0 = vertices[faces[3 * f]]
+    v1 = vertices[faces[3 * f + 1]]
+    v2 = vertices[faces[3 * f + 2]]
+    lo = wp.min(wp.min(v0, v1), v2)
+    hi = wp.max(wp.max(v0, v1), v2)
+    return wp.length(wp.max(wp.min(centre, hi), lo) - centre) <= radius
+
+
 @wp.kernel
 def count_face_tiles(vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32), tile_mm: wp.float64,
-                     reach_mm: wp.float64, counts: wp.array(dtype=wp.int32)):
-    """Tiles in each face's box grown by ``reach_mm`` (the candidates it proposes)."""
+                     reach_mm: wp.float64, region_centre: wp.vec3d, region_mm: wp.float64,
+                     counts: wp.array(dtype=wp.int32)):
+    """Tiles in each face's box grown by ``reach_mm`` (the candidates it proposes);
+    none for a face farther than the region's radius + reach from its centre."""
     f = wp.tid()
     first, count = face_tile_range(vertices, faces, f, tile_mm, reach_mm)
-    counts[f] = count[0] * count[1] * count[2]
+    counts[f] = 0
+    if near_region(vertices, faces, f, region_centre, region_mm + reach_mm):
+        counts[f] = count[0] * count[1] * count[2]
 
 
 @wp.kernel
 def propose_face_tiles(vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32), tile_mm: wp.float64,
-                       reach_mm: wp.float64, offsets: wp.array(dtype=wp.int32), tiles: wp.array(dtype=wp.vec3i),
+                       reach_mm: wp.float64, region_centre: wp.vec3d, region_mm: wp.float64,
+                       offsets: wp.array(dtype=wp.int32), tiles: wp.array(dtype=wp.vec3i),
                        keep: wp.array(dtype=wp.int32)):
     """Each face proposes the tiles of its grown box (as the index of their first
     voxel) and keeps those whose centre lies within ``reach_mm`` of the face's
-    plane (a superset of the tiles within reach of the face)."""
+    plane (a superset of the tiles within reach of the face) and of the region."""
     f = wp.tid()
+    if not near_region(vertices, faces, f, region_centre, region_mm + reach_mm):
+        return
     first, count = face_tile_range(vertices, faces, f, tile_mm, reach_mm)
     v0 = vertices[faces[3 * f]]
     normal = wp.cross(vertices[faces[3 * f + 1]] - v0, vertices[faces[3 * f + 2]] - v0)
@@ -68,6 +87,7 @@ def propose_face_tiles(vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype
                 centre = wp.vec3d(wp.float64(t[0]) * tile_mm + half, wp.float64(t[1]) * tile_mm + half,
                                   wp.float64(t[2]) * tile_mm + half)
                 near = area2 == wp.float64(0.0) or wp.abs(wp.dot(centre - v0, normal)) <= reach_mm * area2
+                near = near and wp.length(centre - region_centre) <= region_mm + reach_mm
                 tiles[k] = t * TILE_VOXELS
                 keep[k] = wp.where(near, 1, 0)
                 k += 1
@@ -106,6 +126,37 @@ def fill_distances(volume: wp.uint64, mesh: wp.uint64, vertices: wp.array(dtype=
     if face >= 0:
         value = wp.float32(d)
     wp.volume_store(volume, c[0], c[1], c[2], value)
+
+
+@wp.kernel
+def find_creases(volume: wp.uint64, voxels: wp.array(dtype=wp.vec3i), crease_mm: wp.float64,
+                 crease: wp.array(dtype=wp.int32)):
+    """Flag a voxel whose distance has a second difference above ``crease_mm``
+    along an axis: the wall's normal turns within a voxel of it (a crease,
+    where a trilinear sample would be off by up to a quarter of that). A smooth
+    wall of curvature κ gives h²κ, far below."""
+    i = wp.tid()
+    c = voxels[i]
+    d = wp.volume_lookup_f(volume, c[0], c[1], c[2])
+    flagged = int(0)
+    for axis in range(3):
+        e = wp.vec3i(0, 0, 0)
+        e[axis] = 1
+        up = wp.volume_lookup_f(volume, c[0] + e[0], c[1] + e[1], c[2] + e[2])
+        down = wp.volume_lookup_f(volume, c[0] - e[0], c[1] - e[1], c[2] - e[2])
+        second = wp.float64(up) + wp.float64(down) - wp.float64(2.0) * wp.float64(d)
+        if wp.abs(second) > crease_mm:  # false where a neighbour is outside the band (NaN)
+            flagged = 1
+    crease[i] = flagged
+
+
+@wp.kernel
+def clear_creases(volume: wp.uint64, voxels: wp.array(dtype=wp.vec3i), crease: wp.array(dtype=wp.int32)):
+    """Flagged voxels become NaN: a sample whose stencil touches one goes to the BVH."""
+    i = wp.tid()
+    if crease[i] != 0:
+        c = voxels[i]
+        wp.volume_store(volume, c[0], c[1], c[2], FIELD_NAN)
 
 
 @wp.kernel
