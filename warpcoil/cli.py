@@ -133,6 +133,8 @@ def _bench(args: argparse.Namespace) -> int:
         from .bench.accuracy import main as bench_main
     elif args.kind == "peers":
         from .bench.peers import main as bench_main
+    elif args.kind == "steps":
+        from .bench.steps import main as bench_main
     else:
         from .bench.stress import main as bench_main
     repeats = args.repeats if args.repeats is not None else 3
@@ -150,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(func=_validate)
 
     bench = sub.add_parser("bench", help="benchmarks: run time against error, stress sweep")
-    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble"])
+    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble", "steps"])
     bench.add_argument("--device", help="Warp device for `ensemble` (cpu, cuda:0; default Warp's)")
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")

@@ -236,7 +236,8 @@ class Ensemble:
     (where its step can be halved, as a single run's would be); ``on_frame``
     then sees that member's frames again from its start."""
 
-    def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None):
+    def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
+                 solver_options: dict | None = None):
         self.scenes = list(scenes)
         if not self.scenes:
             raise ValueError("an ensemble needs at least one scene")
@@ -250,9 +251,10 @@ class Ensemble:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         contact = self.scenes[0].contact
-        self._wall_options = dict(wall_query=contact.wall_query, wall_voxel_mm=contact.wall_voxel_mm)
+        self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
+                                **(solver_options or {})}  # benchmarks: other skins, ...
         self.solver = Solver(self.model, dt_s=steps[0][0], allow_unstable_dt=sims[0].allow_unstable_dt,
-                             **self._wall_options)
+                             **self._solver_options)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -331,7 +333,7 @@ class Ensemble:
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
         self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
-        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True, **self._wall_options)
+        solver = Solver(self.model, dt_s=0.5 * self.solver.dt_s, allow_unstable_dt=True, **self._solver_options)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -547,8 +549,8 @@ class Deployment(Ensemble):
     """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
     (if given) is called after every recorded frame with (frame, state)."""
 
-    def __init__(self, scene: Scene, device=None):
-        super().__init__([scene], device)
+    def __init__(self, scene: Scene, device=None, solver_options: dict | None = None):
+        super().__init__([scene], device, solver_options=solver_options)
         self.scene = scene
 
     @property
