@@ -164,7 +164,7 @@ class Solver:
     searched again at least this often (0: every step).
     ``wall_query``: "sdf" samples wall distance and normal from a narrow-band
     field of voxel ``wall_voxel_mm`` (wall_field.py) over the contact range +
-    ``wall_search_mm``, within the largest loop diameter + FIELD_REGION_MM of the
+    ``wall_search_mm`` (at most WALL_SEARCH_MM), within the largest loop diameter + FIELD_REGION_MM of the
     catheter tip, falling back to the BVH where the field is untrusted or absent;
     "bvh" queries the BVH only (exact: the validation mode).
     """
@@ -196,7 +196,7 @@ class Solver:
         n, dev = model.node_count, model.device
         self.wall_query = wall_query
         radius = model.node_radius.numpy()
-        band_mm = [float(radius[model.world_nodes(w)].max()) + model.contact.c0_mm + wall_search_mm
+        band_mm = [float(radius[model.world_nodes(w)].max()) + model.contact.c0_mm + min(wall_search_mm, WALL_SEARCH_MM)
                    for w in range(model.world_count)]  # per world, as its single run has it
         path, last = model.catheter_path.numpy(), model.catheter_first.numpy() + model.catheter_count.numpy() - 1
         regions = [(path[last[w]], max(model.coils[c].loop_diameter_mm for c in model.world_coils(w)) + FIELD_REGION_MM)

@@ -5,7 +5,9 @@ where the time of a step goes.
    one process, the cheap-step changes added one by one: neighbour skin
    0.05 → 0.2 mm, wall query BVH → narrow-band field. Steps, wall time and µs
    per step (the run's wall time over its steps: frames and checks included;
-   the field's build time reported apart, it is part of the run's time).
+   the field's build time reported apart, it is part of the run's time); and,
+   less noisy, the graph-replayed step cost of each setting from the same
+   three saved states (below), interleaved, the fastest of ``--repeats``.
 2. The damping solve (stopped at its fixed point) against the six-iteration
    solve: the integration kernel timed alone on the half-deployed state.
 3. A profile at three states of the run — the first 15 mm out, the last 15 mm
@@ -18,6 +20,7 @@ where the time of a step goes.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
@@ -30,7 +33,7 @@ from ..deploy import Deployment
 from ..kernels import integrate
 from ..recorder.atomic import write_text_atomic
 from ..scene import load_scene
-from ..solver import Solver, Stepper
+from ..solver import Stepper
 from ..state import new_state_like
 from .ensemble import SEED_SCENE, STATE_ARRAYS, chunk_time_s, launch_floor_us
 from .report import markdown_table, write_report
@@ -146,35 +149,46 @@ def launch_us(kind: str, target, args: tuple, kwargs: dict, device, repeats: int
     return (time.perf_counter() - start) / (4 * repeats) * 1e6
 
 
-def profile_state(moment: str, host: dict, steps: int) -> Profile:
-    """Graph-replayed step cost from one saved state, and each launch of a step
-    there (one step recorded, the grid build forced) timed alone."""
-    deployment = Deployment(seed_scene())
-    solver, device = deployment.solver, deployment.model.device
+def _start(deployment: Deployment, moment: str, host: dict):
+    """A fresh state of ``deployment`` set to a saved moment of the seed run."""
     state = new_state_like(deployment.model)
     for name in STATE_ARRAYS:
         getattr(state, name).assign(host[name])
     state.time_s = host["time_s"]
-    if moment == "after detachment":
-        deployment.control.set_active_coil(-1)
-    stepper = Stepper(solver, state, deployment.control, chunk=steps)
-    graph_us = chunk_time_s(stepper) / steps * 1e6
+    deployment.control.set_active_coil(-1 if moment == "after detachment" else 0)
+    return state
+
+
+def window_us(deployment: Deployment, moment: str, host: dict, steps: int) -> float:
+    """µs per step of ``steps`` graph-replayed steps from a saved moment (after
+    two warm-up chunks: capture, wall sides and anchors, neighbour lists)."""
+    stepper = Stepper(deployment.solver, _start(deployment, moment, host), deployment.control, chunk=steps)
+    return chunk_time_s(stepper) / steps * 1e6
+
+
+def profile_state(deployment: Deployment, moment: str, host: dict, steps: int) -> Profile:
+    """Each launch of a step at a saved moment replayed alone from a captured
+    graph; neighbour-grid builds weighted by how often a step builds there
+    (counted over ``steps`` steps run without graphs)."""
+    solver, device = deployment.solver, deployment.model.device
+    stepper = Stepper(solver, _start(deployment, moment, host), deployment.control, chunk=steps, use_graph=False)
     builds_before = solver.grid_builds
     stepper.run_chunk()
-    build_share = (solver.grid_builds - builds_before) / steps  # builds per step (outside graphs: counted)
+    build_share = (solver.grid_builds - builds_before) / steps
     solver._rebuild.fill_(1)
+    conditional, solver._conditional_rebuild = solver._conditional_rebuild, False  # record a build too
     with LaunchRecorder() as recorder:
-        solver._conditional_rebuild, conditional = False, solver._conditional_rebuild  # record the build too
         solver.step(stepper.state, stepper._b, deployment.control)
-        solver._conditional_rebuild = conditional
+    solver._conditional_rebuild = conditional
     times: dict[str, float] = defaultdict(float)
     for kind, target, args, kwargs in recorder.launches:
         name = target.key if kind == "launch" else "HashGrid.build"
         times[name] += launch_us(kind, target, args, kwargs, device)
-    for name in ("mark_built", "HashGrid.build", "build_neighbours"):  # a build happens only on some steps
+    for name in ("mark_built", "HashGrid.build", "build_neighbours"):
         if name in times:
             times[name] *= build_share
-    return Profile(moment, graph_us, dict(sorted(times.items(), key=lambda kv: -kv[1])))
+    times["(grid builds per step)"] = build_share
+    return Profile(moment, 0.0, dict(sorted(times.items(), key=lambda kv: -kv[1])))
 
 
 @wp.func
@@ -206,7 +220,7 @@ def damping_us(host: dict, repeats: int = 2000) -> dict:
     against stopped at the fixed point."""
     deployment = Deployment(seed_scene())
     m, dt = deployment.model, deployment.solver.dt_s
-    deployment.solver.compute_forces(_device_state(deployment, host))
+    deployment.solver.compute_forces(_start(deployment, "last 15 mm", host))
     v = host["v"] + dt * m.inv_mass.numpy()[:, None] * deployment.solver.force.numpy()
     a = dt * m.damping_c.numpy() * m.inv_mass.numpy()
     va, aa = wp.array(v, dtype=wp.vec3d), wp.array(a, dtype=wp.float64)
@@ -227,13 +241,6 @@ def damping_us(host: dict, repeats: int = 2000) -> dict:
     return timings
 
 
-def _device_state(deployment, host):
-    state = new_state_like(deployment.model)
-    for name in STATE_ARRAYS:
-        getattr(state, name).assign(host[name])
-    return state
-
-
 def main(out: Path, quick: bool, repeats: int) -> int:
     device = wp.get_device()
     rows, states = [], {}
@@ -244,19 +251,32 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         print(f"{name}: {row.steps} steps, {row.wall_time_s:.2f} s ({row.us_per_step:.1f} µs/step, field build "
               f"{row.field_build_s:.2f} s, {row.status})", flush=True)
     steps = 200 if quick else 1000
-    profiles = [profile_state(moment, host, steps) for moment, host in states.items()]
+    deployments = {name: Deployment(seed_scene(), solver_options=options) for name, options in SETTINGS}
+    windows = {(name, moment): math.inf for name in deployments for moment in states}
+    for _ in range(repeats):  # interleaved, fastest of the repeats (the machine is shared)
+        for (name, moment) in windows:
+            windows[name, moment] = min(windows[name, moment],
+                                        window_us(deployments[name], moment, states[moment], steps))
+    default = deployments[SETTINGS[-1][0]]
+    profiles = [profile_state(default, moment, host, steps) for moment, host in states.items()]
+    for p in profiles:
+        p.graph_us_per_step = windows[SETTINGS[-1][0], p.state]
     damping = damping_us(states["last 15 mm"])
     floor = launch_floor_us(device)
     run_table = markdown_table(["setting", "steps", "wall time (s)", "µs per step", "of which field build (s)",
                                 "status"],
                                [[r.setting, r.steps, r.wall_time_s, r.us_per_step, r.field_build_s, r.status]
                                 for r in rows])
-    kernels = sorted({k for p in profiles for k in p.kernel_us_per_step})
+    window_table = markdown_table(
+        ["setting: µs per step (graph replay, fastest of the repeats)"] + list(states),
+        [[name] + [windows[name, moment] for moment in states] for name, _ in SETTINGS])
+    kernels = list(dict.fromkeys(k for p in profiles for k in p.kernel_us_per_step))
     profile_table = markdown_table(
-        ["launch (µs per step, each replayed alone)"] + [p.state for p in profiles],
+        ["launch (default settings): µs per step, each replayed alone"] + [p.state for p in profiles],
         [[k] + [p.kernel_us_per_step.get(k, 0.0) for p in profiles] for k in kernels]
-        + [["sum"] + [sum(p.kernel_us_per_step.values()) for p in profiles],
-           ["graph replay, µs per step"] + [p.graph_us_per_step for p in profiles]])
+        + [["sum of the launches"] + [sum(v for k, v in p.kernel_us_per_step.items() if not k.startswith("("))
+                                      for p in profiles],
+           ["whole step (graph replay)"] + [p.graph_us_per_step for p in profiles]])
     notes = [
         f"Damping solve over the {len(states['last 15 mm']['v'])} nodes (last 15 mm state, one launch): "
         + ", ".join(f"{k} {v:.2f} µs" for k, v in damping.items()) + ".",
@@ -264,9 +284,9 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         "Compute floor at a state: its graph-replay cost minus the launch floor.",
     ]
     write_report(out / "steps.md", "Seed-case step cost, change by change, and where a step's time goes",
-                 "warpcoil bench steps" + (" --quick" if quick else ""),
-                 [f"Device: {device.alias} ({device.name}).", run_table, profile_table] + notes)
-    write_text_atomic(out / "steps.json", json.dumps({"runs": [asdict(r) for r in rows],
-                                                      "profiles": [asdict(p) for p in profiles],
-                                                      "damping_us": damping, "launch_floor_us": floor}, indent=1))
+                 "warpcoil bench steps" + (" --quick" if quick else "") + f" --repeats {repeats}",
+                 [f"Device: {device.alias} ({device.name}).", run_table, window_table, profile_table] + notes)
+    write_text_atomic(out / "steps.json", json.dumps({
+        "runs": [asdict(r) for r in rows], "windows_us": {f"{k[0]} | {k[1]}": v for k, v in windows.items()},
+        "profiles": [asdict(p) for p in profiles], "damping_us": damping, "launch_floor_us": floor}, indent=1))
     return 0
