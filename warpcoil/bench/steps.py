@@ -35,7 +35,7 @@ from ..recorder.atomic import write_text_atomic
 from ..scene import load_scene
 from ..solver import Stepper
 from ..state import new_state_like
-from .ensemble import SEED_SCENE, STATE_ARRAYS, chunk_time_s, launch_floor_us
+from .ensemble import SEED_SCENE, STATE_ARRAYS
 from .report import markdown_table, write_report
 
 SETTINGS = (  # cumulative: each row adds one change to the one before
@@ -46,13 +46,46 @@ SETTINGS = (  # cumulative: each row adds one change to the one before
 WINDOW_MM = 15.0  # the profile's first and last stretch of the push
 
 
+def clock(device) -> float:
+    """Seconds of this process's CPU time on a CPU device (Warp runs CPU kernels in
+    the calling thread, so time the shared machine gives to others is left out);
+    wall time on a GPU."""
+    return time.process_time() if wp.get_device(device).is_cpu else time.perf_counter()
+
+
+def chunk_time_s(stepper: Stepper) -> float:
+    """Time (:func:`clock`) of one chunk after two warm-up chunks (capture, wall
+    sides and anchors, neighbour lists)."""
+    device = stepper.solver.model.device
+    stepper.run_chunk()
+    stepper.run_chunk()
+    wp.synchronize_device(device)
+    start = clock(device)
+    stepper.run_chunk()
+    wp.synchronize_device(device)
+    return clock(device) - start
+
+
+def launch_floor_us(device) -> float:
+    """µs per step of the same launches on a 3-node coil (no wall), graph replay."""
+    from .. import CoilSpec, Control, ModelBuilder, Solver, state_from_positions
+
+    builder = ModelBuilder()
+    d = 0.2921
+    builder.add_coil(CoilSpec(length_mm=2 * d, wire_diameter_mm=d), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, d],
+                                                                             [0.0, 0.0, 2 * d]]))
+    model = builder.finalize(device)
+    state = state_from_positions(model, model.rest_positions + np.array([0.0, 0.0, 1.0]))
+    return chunk_time_s(Stepper(Solver(model), state, Control.create(model), chunk=1000)) / 1000 * 1e6
+
+
 @dataclass
 class RunRow:
     setting: str
     steps: int
-    wall_time_s: float
-    us_per_step: float
-    field_build_s: float
+    run_time_s: float  # set-up + run (clock())
+    us_per_step: float  # the run alone over its steps
+    set_up_s: float  # model and solver, the wall field's build included
     status: str
 
 
@@ -70,7 +103,9 @@ def seed_scene():
 def run_setting(name: str, options: dict, keep_states: bool) -> tuple[RunRow, dict]:
     """The seed case to the end with ``options``; with ``keep_states`` also its
     states (host copies) at the profile's three moments."""
+    before = clock(None)
     deployment = Deployment(seed_scene(), solver_options=options)
+    set_up = clock(None) - before  # model, solver and (with the field) its build
     total = float(deployment.coil_lengths_mm.sum())
     states: dict = {}
 
@@ -85,11 +120,11 @@ def run_setting(name: str, options: dict, keep_states: bool) -> tuple[RunRow, di
                 states[moment] = {k: getattr(state, k).numpy().copy() for k in STATE_ARRAYS}
                 states[moment]["time_s"] = state.time_s
 
-    field_build = sum(f.build_s for f in deployment.solver.wall_fields if f is not None)
-    start = time.perf_counter()
+    device = deployment.model.device
+    start = clock(device)
     result = deployment.run(on_frame)
-    elapsed = time.perf_counter() - start
-    return RunRow(name, result.steps, elapsed + field_build, elapsed / result.steps * 1e6, field_build,
+    elapsed = clock(device) - start
+    return RunRow(name, result.steps, elapsed + set_up, elapsed / result.steps * 1e6, set_up,
                   result.status), states
 
 
@@ -132,21 +167,21 @@ def launch_us(kind: str, target, args: tuple, kwargs: dict, device, repeats: int
     if kind == "build":
         call()
         wp.synchronize_device(device)
-        start = time.perf_counter()
+        start = clock(device)
         for _ in range(repeats):
             call()
         wp.synchronize_device(device)
-        return (time.perf_counter() - start) / repeats * 1e6
+        return (clock(device) - start) / repeats * 1e6
     with wp.ScopedCapture(device=device) as capture:
         for _ in range(repeats):
             call()
     wp.capture_launch(capture.graph)
     wp.synchronize_device(device)
-    start = time.perf_counter()
+    start = clock(device)
     for _ in range(4):
         wp.capture_launch(capture.graph)
     wp.synchronize_device(device)
-    return (time.perf_counter() - start) / (4 * repeats) * 1e6
+    return (clock(device) - start) / (4 * repeats) * 1e6
 
 
 def _start(deployment: Deployment, moment: str, host: dict):
@@ -215,9 +250,9 @@ def damping_solves(v: wp.array(dtype=wp.vec3d), a: wp.array(dtype=wp.float64), k
 
 
 def damping_us(host: dict, repeats: int = 2000) -> dict:
-    """µs per launch of the damping solve over the nodes' velocities of a state
-    (with the force step added, as in the integration kernel), six iterations
-    against stopped at the fixed point."""
+    """µs per launch (graph replay) of the damping solve over the nodes'
+    velocities of a state (with the force step added, as in the integration
+    kernel), six iterations against stopped at the fixed point."""
     deployment = Deployment(seed_scene())
     m, dt = deployment.model, deployment.solver.dt_s
     deployment.solver.compute_forces(_start(deployment, "last 15 mm", host))
@@ -228,16 +263,13 @@ def damping_us(host: dict, repeats: int = 2000) -> dict:
     timings = {}
     for label, six in (("six iterations", 1), ("stopped at the fixed point", 0)):
         wp.launch(damping_solves, len(v), inputs=[va, aa, m.damping_k, six, out])
-        start = time.perf_counter()
-        for _ in range(repeats):
-            wp.launch(damping_solves, len(v), inputs=[va, aa, m.damping_k, six, out])
+        with wp.ScopedCapture() as capture:
+            for _ in range(repeats):
+                wp.launch(damping_solves, len(v), inputs=[va, aa, m.damping_k, six, out])
+        start = clock(None)
+        wp.capture_launch(capture.graph)
         wp.synchronize()
-        timings[label] = (time.perf_counter() - start) / repeats * 1e6
-    wp.launch(damping_solves, 1, inputs=[va, aa, m.damping_k, 0, out])  # (an empty launch: the overhead)
-    start = time.perf_counter()
-    for _ in range(repeats):
-        wp.launch(damping_solves, 0, inputs=[va, aa, m.damping_k, 0, out])
-    timings["launch overhead"] = (time.perf_counter() - start) / repeats * 1e6
+        timings[label] = (clock(None) - start) / repeats * 1e6
     return timings
 
 
@@ -248,8 +280,8 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         row, saved = run_setting(name, options, keep_states=not states)
         states = states or saved
         rows.append(row)
-        print(f"{name}: {row.steps} steps, {row.wall_time_s:.2f} s ({row.us_per_step:.1f} µs/step, field build "
-              f"{row.field_build_s:.2f} s, {row.status})", flush=True)
+        print(f"{name}: {row.steps} steps, {row.run_time_s:.2f} s ({row.us_per_step:.1f} µs/step, set-up "
+              f"{row.set_up_s:.2f} s, {row.status})", flush=True)
     steps = 200 if quick else 1000
     deployments = {name: Deployment(seed_scene(), solver_options=options) for name, options in SETTINGS}
     windows = {(name, moment): math.inf for name in deployments for moment in states}
@@ -263,9 +295,9 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         p.graph_us_per_step = windows[SETTINGS[-1][0], p.state]
     damping = damping_us(states["last 15 mm"])
     floor = launch_floor_us(device)
-    run_table = markdown_table(["setting", "steps", "wall time (s)", "µs per step", "of which field build (s)",
-                                "status"],
-                               [[r.setting, r.steps, r.wall_time_s, r.us_per_step, r.field_build_s, r.status]
+    run_table = markdown_table(["setting", "steps", "time (s)", "µs per step", "of which set-up, field build "
+                                                                            "included (s)", "status"],
+                               [[r.setting, r.steps, r.run_time_s, r.us_per_step, r.set_up_s, r.status]
                                 for r in rows])
     window_table = markdown_table(
         ["setting: µs per step (graph replay, fastest of the repeats)"] + list(states),
@@ -281,7 +313,9 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         f"Damping solve over the {len(states['last 15 mm']['v'])} nodes (last 15 mm state, one launch): "
         + ", ".join(f"{k} {v:.2f} µs" for k, v in damping.items()) + ".",
         f"Launch floor (the same launches on a 3-node coil, graph replay): {floor:.3g} µs per step. "
-        "Compute floor at a state: its graph-replay cost minus the launch floor.",
+        "Compute floor at a state: its graph-replay cost minus the launch floor. "
+        + ("Times are this process's CPU time (the machine is shared; time given to other processes is left out)."
+           if device.is_cpu else "Times are wall times."),
     ]
     write_report(out / "steps.md", "Seed-case step cost, change by change, and where a step's time goes",
                  "warpcoil bench steps" + (" --quick" if quick else "") + f" --repeats {repeats}",
