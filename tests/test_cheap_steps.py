@@ -115,3 +115,19 @@ def test_wall_forces_from_the_field_are_the_bvh_forces_within_the_error_bound():
     allowed = stiffness * 0.05 * c.c0_mm + np.linalg.norm(forces["bvh"], axis=1) * math.radians(6.0)
     diff = np.linalg.norm(forces["sdf"] - forces["bvh"], axis=1)
     assert np.all(diff <= allowed + 1e-9)
+
+
+def test_the_scene_key_chooses_the_wall_query_and_names_a_bad_value():
+    from warpcoil.deploy import Deployment
+    from warpcoil.scene import SceneError
+
+    field_run = Deployment(load_scene(SEED, {"contact.wall_query": "sdf", "contact.wall_voxel_mm": 0.08}))
+    field = field_run.solver.wall_fields[0]
+    assert field is not None and field.voxel_mm == 0.08 and field.voxels > 0
+    assert Deployment(load_scene(SEED)).solver.wall_fields == [None]  # default: the exact BVH
+    try:
+        load_scene(SEED, {"contact.wall_query": "octree"})
+    except SceneError as error:
+        assert "contact.wall_query" in str(error) and "sdf" in str(error)
+    else:
+        raise AssertionError("a bad wall_query was accepted")

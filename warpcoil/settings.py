@@ -79,15 +79,15 @@ class ContactSettings:
     P0_uN: force at zero clearance (≈ 13 kPa mean local pressure × a node's
     patch d·l0 ≈ 1e3 µN). c0_mm: clearance where contact starts (default
     0.1·d, a few times the wall's RMS roughness).
-    wall_query: "sdf" (wall distance and normal sampled from a narrow-band
-    signed distance field of voxel ``wall_voxel_mm``, the exact BVH query where
-    the field cannot be trusted) or "bvh" (the BVH everywhere: exact, slower;
-    the validation mode). docs/FORMULATION.md states the field's error.
+    wall_query: "bvh" (the exact BVH query, with anchors: the default) or "sdf"
+    (wall distance and normal sampled from a narrow-band signed distance field
+    of voxel ``wall_voxel_mm``, the BVH where the field cannot be trusted).
+    docs/FORMULATION.md states the field's error, BENCHMARKS.md its cost.
     """
 
     P0_uN: float = 1.0e3
     c0_mm: float | None = None
-    wall_query: str = "sdf"
+    wall_query: str = "bvh"  # "sdf": −22 % per seed-case step, but +67 % steps to rest on C0003 (BENCHMARKS)
     wall_voxel_mm: float = 0.04  # = wall_field.DEFAULT_VOXEL_MM
 
 

@@ -166,14 +166,14 @@ class Solver:
     field of voxel ``wall_voxel_mm`` (wall_field.py) over the contact range +
     ``wall_search_mm`` (at most WALL_SEARCH_MM), within the largest loop diameter + FIELD_REGION_MM of the
     catheter tip, falling back to the BVH where the field is untrusted or absent;
-    "bvh" queries the BVH only (exact: the validation mode).
+    "bvh" (default) queries the BVH only (exact).
     """
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
                  wall_guard_steps: int = WALL_GUARD_STEPS, neighbour_capacity: int = NEIGHBOUR_CAPACITY,
-                 wall_query: str = "sdf", wall_voxel_mm: float = DEFAULT_VOXEL_MM):
+                 wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM):
         if wall_query not in WALL_QUERIES:
             raise ValueError(f"wall_query must be one of {WALL_QUERIES}, got {wall_query!r}")
         self.model = model
