@@ -51,7 +51,7 @@ def test_result_json_reports_the_run(run_dir):
     assert result["status"] == "completed"
     for key in ("steps", "dt_s", "wall_time_s", "coil_length_mm", "deployed_length_mm", "packing_density",
                 "length_outside_sac_mm", "min_wall_gap_mm", "min_coil_gap_mm", "max_wall_force_uN",
-                "max_push_force_uN", "stored_energy_nJ", "final_kinetic_nJ", "final_bend_nJ"):
+                "push_force_peak_uN", "push_force_mean_max_uN", "push_force_rms_uN", "stored_energy_nJ", "final_kinetic_nJ", "final_bend_nJ"):
         assert key in result
     assert result["deployed_length_mm"] == pytest.approx(result["coil_length_mm"])
     assert result["length_outside_sac_mm"] == 0.0
@@ -74,7 +74,7 @@ def test_timeseries_has_one_row_per_frame(run_dir):
     assert times[0] == 0.0 and all(b > a for a, b in zip(times, times[1:]))
     deployed = [float(r["deployed_length_mm"]) for r in rows]
     assert all(b >= a for a, b in zip(deployed, deployed[1:]))
-    assert {"push_force_uN", "kinetic_nJ", "bend_nJ", "wall_contacts", "coil_contacts"} <= set(rows[0])
+    assert {"push_force_mean_uN", "push_force_peak_uN", "push_force_rms_uN", "kinetic_nJ", "bend_nJ", "wall_contacts", "coil_contacts"} <= set(rows[0])
 
 
 def test_usd_plays_back_with_prims_widths_and_time_samples(run_dir):

@@ -32,7 +32,8 @@ def assert_same_run(single, member):
     for a, b in zip(single.positions_mm, member.positions_mm):
         assert np.array_equal(a, b)
     assert member.min_coil_gap_mm == single.min_coil_gap_mm
-    assert member.max_push_force_uN == single.max_push_force_uN
+    assert member.push_force_peak_uN == single.push_force_peak_uN
+    assert member.push_force_rms_uN == single.push_force_rms_uN
     assert [f.kinetic_nJ for f in member.frames] == [f.kinetic_nJ for f in single.frames]
 
 

@@ -142,7 +142,8 @@ def test_failed_tube_writes_leave_no_file(tmp_path: Path, two_coil_mesh: trimesh
 def frames_to(deployed_mm: np.ndarray) -> list[Frame]:
     zeros = {f.name: 0.0 for f in fields(Frame)}
     return [
-        Frame(**{**zeros, "deployed_length_mm": x, "push_force_uN": 50.0 * x, "push_force_max_uN": 60.0 * x})
+        Frame(**{**zeros, "deployed_length_mm": x, "push_force_mean_uN": 50.0 * x, "push_force_peak_uN": 60.0 * x,
+                    "push_force_rms_uN": 55.0 * x, "time_s": x / 50.0})
         for x in deployed_mm
     ]
 

@@ -1,53 +1,125 @@
 """Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``.
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
-validation case out of tolerance), 2 bad input, 3 jammed or timed out.
+validation case out of tolerance), 2 bad input, 3 jammed or timed out,
+130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
 
-EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3}
+EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+SWEEP_OUTPUTS = ("summary.csv", "summary.md")
+
+
+def _positive_seconds(text: str) -> float:
+    """argparse type: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number of seconds > 0; give e.g. 0.01")
+    return value
+
+
+def _device(name: str | None):
+    """The Warp device asked for (None: Warp's default); a CUDA device on a machine
+    without a CUDA driver is refused here, once, in plain words."""
+    if name is None:
+        return None
+    import warp as wp
+
+    from .preflight import SetupError
+
+    if name.startswith("cuda") and not wp.is_cuda_available():
+        raise SetupError(f"--device {name}: no NVIDIA CUDA driver was found on this machine, so Warp can only run on "
+                         "the CPU here; fix: use --device cpu (or leave --device out), or run on a machine with an "
+                         "NVIDIA GPU and driver")
+    try:
+        return wp.get_device(name)
+    except (RuntimeError, ValueError) as error:
+        raise SetupError(f"--device {name}: {error}; fix: give cpu or cuda:N") from None
+
+
+def _force_text(frame) -> str:
+    """The frame's push force for the progress display, named as in timeseries.csv (mN)."""
+    mN = lambda uN: round(uN / 1e3, 6) + 0.0  # noqa: E731  (no -2e-18 for a zero)
+    return (f"push mean {mN(frame.push_force_mean_uN):.3g} mN, peak {mN(frame.push_force_peak_uN):.3g} mN, "
+            f"t = {frame.time_s:.2f} s")
 
 
 def _run(args: argparse.Namespace) -> int:
     from .deploy import Deployment
+    from .preflight import SetupError, preflight
     from .preshape import PreshapeError
     from .recorder import outputs
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
     from .scene import SceneError, load_scene
     from .solver import UnstableStepError
     from .wall import WallError
 
+    out = Path(args.output) if args.output else Path("out") / Path(args.scene).stem
     try:
+        check_output_path(out)
+        device = _device(args.device)
         scene = load_scene(args.scene)
         if args.frame_interval is not None:
             scene = replace(scene, simulation=replace(scene.simulation, frame_interval_s=args.frame_interval))
-        deployment = Deployment(scene)
-    except (SceneError, WallError, PreshapeError, UnstableStepError) as error:
+        try:
+            deployment = Deployment(scene, device)
+        except UnstableStepError as error:
+            raise SceneError(f"{scene.source}: simulation.dt_s: {error}") from None
+        warnings = preflight(scene, deployment.anatomy, device)
+    except (SceneError, WallError, PreshapeError, SetupError, OutputFolderError) as error:
         print(f"warpcoil run: {error}", file=sys.stderr)
         return 2
-    out = Path(args.output) if args.output else Path("out") / Path(args.scene).stem
-    out.mkdir(parents=True, exist_ok=True)
-    usd = None
+    wall = deployment.anatomy.wall
+    for note in (wall.notes if wall is not None else ()):
+        print(f"warpcoil run: wall {wall.source}: {note}", file=sys.stderr)
+    for warning in warnings:
+        print(f"warpcoil run: warning: {warning}", file=sys.stderr)
+    try:
+        with claimed_folder(out, outputs.RUN_OUTPUTS, args.overwrite):
+            return _deploy_into(out, scene, deployment, args, warnings)
+    except OutputFolderError as error:
+        print(f"warpcoil run: {error}", file=sys.stderr)
+        return 2
+
+
+def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warnings: list[str]) -> int:
+    """The run itself, into the claimed folder ``out``: frames to the USD and the
+    animation as they come, then the outputs; the exit code of its status."""
+    from .progress import Progress
+    from .recorder import outputs
+
+    recorders = []
     if scene.output.usd and not args.no_usd:
-        usd = outputs.UsdFrames.for_model(out / outputs.DEPLOYMENT_USD, deployment.model,
-                                          scene.simulation.frame_interval_s)
-    progress = _progress(deployment, quiet=args.quiet)
+        recorders.append(outputs.UsdFrames.for_model(out / outputs.DEPLOYMENT_USD, deployment.model,
+                                                     scene.simulation.frame_interval_s))
+    if scene.output.animation:
+        from .recorder.animation import AnimationFrames
+
+        recorders.append(AnimationFrames.for_model(out / outputs.ANIMATION_GIF, deployment.model,
+                                                   deployment.anatomy.catheter, scene.simulation.frame_interval_s))
+    progress = Progress("deployed", "mm", total=round(float(deployment.coil_lengths_mm.sum()), 1), quiet=args.quiet)
 
     def on_frame(frame, state):
-        if usd is not None:
-            usd(frame, state)
-        progress(frame)
+        for recorder in recorders:
+            recorder(frame, state)
+        progress.update(frame.deployed_length_mm, _force_text(frame))
 
     result = deployment.run(on_frame)
-    progress(None)
-    if usd is not None:
-        usd.close()
-    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source)})
+    progress.close()
+    for recorder in recorders:
+        recorder.close()
+    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings})
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
@@ -55,28 +127,13 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_FOR_STATUS[result.status]
 
 
-def _progress(deployment, quiet: bool):
-    """A tqdm bar over the deployed length (mm), with push force; silent when quiet."""
-    if quiet:
-        return lambda frame: None
-    from tqdm import tqdm
-
-    bar = tqdm(total=round(float(deployment.coil_lengths_mm.sum()), 1), unit="mm", desc="deployed",
-               bar_format="{desc} {n:.1f}/{total} mm |{bar}| {elapsed} {postfix}")
-
-    def update(frame):
-        if frame is None:
-            bar.close()
-            return
-        bar.n = round(frame.deployed_length_mm, 1)
-        bar.set_postfix_str(f"push {frame.push_force_uN:8.1f} µN, t = {frame.time_s:.3f} s", refresh=True)
-
-    return update
-
-
 def _sweep(args: argparse.Namespace) -> int:
     from .model import EnsembleError
+    from .preflight import SetupError
     from .preshape import PreshapeError
+    from .progress import Progress
+    from .recorder import outputs
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
     from .scene import SceneError
     from .solver import UnstableStepError
     from .sweep import SweepError, parse_vary, run_sweep
@@ -84,22 +141,18 @@ def _sweep(args: argparse.Namespace) -> int:
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
     try:
+        check_output_path(out)
+        device = _device(args.device)
         varies = [parse_vary(v) for v in args.vary]
         if args.jobs < 1:
             raise SweepError(f"--jobs {args.jobs}: give 1 or more worker processes")
-        bar = None
-        if not args.quiet:
-            from tqdm import tqdm
-            bar = tqdm(unit="deployment", desc="sweep")
-
-        def progress(done, total):
-            bar.total = total
-            bar.update(done - bar.n)
-
-        todo = run_sweep(Path(args.scene), varies, out, args.device, progress if bar else None, args.jobs, args.usd)
-        if bar:
-            bar.close()
-    except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError) as error:
+        progress = Progress("sweep", "deployments", quiet=args.quiet, decimals=0)
+        with claimed_folder(out, SWEEP_OUTPUTS + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+"):
+            todo = run_sweep(Path(args.scene), varies, out, device,
+                             lambda done, total: progress.update(done, total=total), args.jobs, args.usd)
+        progress.close()
+    except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError, SetupError,
+            OutputFolderError) as error:
         print(f"warpcoil sweep: {error}", file=sys.stderr)
         return 2
     print((out / "summary.md").read_text())
@@ -141,9 +194,16 @@ def _bench(args: argparse.Namespace) -> int:
     return bench_main(out, quick=args.quick, repeats=repeats)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (what is wrong, where to look) and exit 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message}; see {self.prog} --help\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="warpcoil", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = _Parser(prog="warpcoil", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     from .validation import CASES
 
     validate = sub.add_parser("validate", help="run the validation cases and print a table; exit 1 on a failure")
@@ -151,8 +211,13 @@ def build_parser() -> argparse.ArgumentParser:
                           help=f"subset of: {', '.join(CASES)} (default: all)")
     validate.set_defaults(func=_validate)
 
-    bench = sub.add_parser("bench", help="benchmarks: run time against error, stress sweep")
-    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble", "steps"])
+    bench = sub.add_parser("bench", help="benchmarks: accuracy (run time against error), stress (hard cases), peers "
+                                         "(against PyElastica and the NumPy twin), ensemble (batched deployments), "
+                                         "steps (per-step cost, change by change)")
+    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble", "steps"],
+                       help="accuracy: run time against error; stress: hard set-ups; peers: against PyElastica and "
+                            "the NumPy twin; ensemble: deployments per minute of batched sweeps; steps: the seed "
+                            "case's per-step cost with each cheap-step change and a per-launch profile")
     bench.add_argument("--device", help="Warp device for `ensemble` (cpu, cuda:0; default Warp's)")
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")
@@ -170,21 +235,33 @@ def build_parser() -> argparse.ArgumentParser:
                        help="worker processes, each running a share of the members (on the CPU a launch uses one "
                             "core: give the number of cores; default 1)")
     sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
-    sweep.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument("--overwrite", action="store_true",
+                       help="replace the outputs of an earlier sweep in the output folder (default: refuse)")
+    sweep.add_argument("-q", "--quiet", action="store_true",
+                       help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")
     run.add_argument("--no-usd", action="store_true", help="skip deployment.usdc")
-    run.add_argument("--frame-interval", type=float, help="seconds of simulated time between recorded frames")
-    run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--frame-interval", type=_positive_seconds,
+                     help="seconds of simulated time between recorded frames (> 0)")
+    run.add_argument("--device", help="Warp device, e.g. cpu or cuda:0 (default Warp's: a GPU if there is one)")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace the outputs of an earlier run in the output folder (default: refuse)")
+    run.add_argument("-q", "--quiet", action="store_true",
+                     help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     run.set_defaults(func=_run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:  # a second Ctrl-C, or one outside the stepping (a run's first ends it cleanly)
+        print(f"warpcoil {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

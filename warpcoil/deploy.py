@@ -9,7 +9,11 @@ unstable). Units mm, g, s, µN, nJ.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Sequence
 
@@ -21,7 +25,7 @@ from .settings import CatheterSpec, Scene
 from .solver import Control, Solver, Stepper
 from .state import State, new_state_like, packed_state
 
-COMPLETED, JAMMED, TIMEOUT, FAILED = "completed", "jammed", "timeout", "failed"
+COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
@@ -33,8 +37,9 @@ class Frame:
 
     time_s: float
     deployed_length_mm: float
-    push_force_uN: float  # mean over the frame's steps
-    push_force_max_uN: float  # largest single step
+    push_force_mean_uN: float  # signed mean over the frame's steps (compressive > 0)
+    push_force_peak_uN: float  # largest compressive single-step value in the frame (≥ 0)
+    push_force_rms_uN: float  # root mean square over the frame's steps
     kinetic_nJ: float
     bend_nJ: float
     twist_nJ: float
@@ -67,7 +72,9 @@ class RunResult:
     min_wall_gap_mm: float
     min_coil_gap_mm: float
     max_wall_force_uN: float
-    max_push_force_uN: float  # largest frame-mean push force (single steps ring: see the frames)
+    push_force_peak_uN: float  # largest compressive single-step push force of the run
+    push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
+    push_force_rms_uN: float  # root mean square over every step while a coil was pushed
     stored_energy_nJ: float
     final_kinetic_nJ: float
     final_bend_nJ: float
@@ -76,6 +83,9 @@ class RunResult:
     coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
     regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
+    wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
+    catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
+    catheter_direction: tuple | None = None
     frames: list[Frame] = field(default_factory=list, repr=False)
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
 
@@ -188,6 +198,8 @@ class Member:
                                  - model.coil_first[self.coils.start:self.coils.stop] + 1)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
+        self.stall_force_uN = sim.stall_force_uN  # None: no force criterion
+        self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
         self.steps = 0
@@ -275,8 +287,9 @@ class Ensemble:
         arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
         return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
 
-    def _measure(self, member: Member, snap: Snapshot, energies: dict, push: tuple[float, float]) -> Frame:
-        """Frame quantities of one member at the snapshot."""
+    def _measure(self, member: Member, snap: Snapshot, energies: dict, push: tuple[float, float, float]) -> Frame:
+        """Frame quantities of one member at the snapshot; ``push``: the frame's
+        push force mean, peak and RMS (µN)."""
         w, sl, m = member.world, member.nodes, self.model
         free = snap.free[sl] == 1
         advance = snap.advance[member.coils.start:member.coils.stop]
@@ -296,8 +309,9 @@ class Ensemble:
         in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
         coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (self.solver.coil_contact and free.any()) else np.inf
         return Frame(
-            time_s=snap.time_s, deployed_length_mm=deployed, push_force_uN=float(push[0]),
-            push_force_max_uN=float(push[1]), kinetic_nJ=float(energies["kinetic_nJ"][w]),
+            time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
+            push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),
+            kinetic_nJ=float(energies["kinetic_nJ"][w]),
             bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
             stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
             coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
@@ -354,23 +368,63 @@ class Ensemble:
 
     # --- the run ---------------------------------------------------------------
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
-        if status in (TIMEOUT, FAILED) and member.jam_reasons:
+        if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
         member.steps = self._steps_before + self.stepper.steps
         member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
         self.control.stop(member.world)
 
+    def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
+        """Why the member's deployment has stalled (None while it has not): the coil in
+        the sac fills more than stall_packing of it (coils cannot pack that densely, so
+        more coil can only pass through coil), or (when the scene sets stall_force_uN)
+        the frame-mean push force has stayed above it for the stall window.
+        ``advance``: the member's coils' pusher advance (mm)."""
+        sim, k = member.scene.simulation, member.active
+        if k < 0:
+            member.resisted_since_s = None
+            return None
+        areas = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in member.scene.coils])
+        deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
+        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
+        sac = member.anatomy.sac_volume_mm3
+        packing = in_sac / sac if sac else 0.0
+        where = (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "
+                 f"{member.coil_lengths_mm.sum():.2f} mm deployed" + (f", packing density {100 * packing:.1f} %"
+                                                                       if sac else ""))
+        fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
+        if sac and packing > sim.stall_packing:
+            return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
+                    f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
+        if member.stall_force_uN is None or frame.push_force_mean_uN <= member.stall_force_uN:
+            member.resisted_since_s = None
+            return None
+        if member.resisted_since_s is None:
+            member.resisted_since_s = frame.time_s - frame_s
+        if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
+            return None
+        return (f"stalled: {where}: the mean push force stayed above stall_force_uN = {member.stall_force_uN:g} µN "
+                f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
+                f"µN), a resistance that does not let up; {fix}")
+
     def _advance_member(self, member: Member, frame: Frame, started: float, snap: Snapshot) -> None:
-        """After a frame: jam, detach and next coil, rest, timeout."""
+        """After a frame: stall, jam, detach and next coil, rest, timeout."""
         sim = member.scene.simulation
         active = member.active
         coil = member.coils.start + active
-        if active >= 0 and frame.push_force_uN > sim.jam_force_uN:
+        stalled = self._stalled(member, frame, self.stepper.chunk * self.solver.dt_s,
+                                snap.advance[member.coils.start:member.coils.stop])
+        if stalled is not None:
+            member.coil_status[active] = JAMMED
+            self._finish(member, JAMMED, stalled, started, snap)
+            return
+        if active >= 0 and frame.push_force_mean_uN > sim.jam_force_uN:
             member.coil_status[active] = JAMMED
             deployed = float(np.clip(snap.advance[coil], 0.0, member.coil_lengths_mm[active]))
             member.jam_reasons.append(
-                f"coil {active} ({member.scene.coils[active].name}) jammed: push force {frame.push_force_uN:.4g} µN"
-                f" > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
+                f"coil {active} ({member.scene.coils[active].name}) jammed: mean push force "
+                f"{frame.push_force_mean_uN:.4g} µN"
+                f" over a frame > jam_force_uN = {sim.jam_force_uN:g} µN with {deployed:.2f} of "
                 f"{member.coil_lengths_mm[active]:.2f} mm deployed; the rest was withdrawn")
             self._retract(member, active)
             self._activate(member, active + 1)
@@ -392,6 +446,21 @@ class Ensemble:
             on_frame(member, frame, self.stepper.state)
 
     def run(self, on_frame: Callable[[Member, Frame, State], None] | None = None) -> list[RunResult]:
+        """Deploy every member; Ctrl-C (SIGINT, in the main thread) ends the run after
+        the current frame, each unfinished member with status ``interrupted``."""
+        with _stop_on_interrupt() as interrupted:
+            return self._run(on_frame, interrupted)
+
+    def _interrupt(self, members: list[Member], started: float) -> None:
+        snap = self._snapshot(self.stepper.state)
+        for member in members:
+            deployed = float(np.clip(snap.advance[member.coils.start:member.coils.stop], 0.0,
+                                     member.coil_lengths_mm).sum())
+            self._finish(member, INTERRUPTED, f"interrupted (Ctrl-C) at t = {snap.time_s:.4f} s with {deployed:.2f} "
+                         f"of {member.coil_lengths_mm.sum():.2f} mm deployed; results are those of that moment",
+                         started, snap)
+
+    def _run(self, on_frame, interrupted: list[bool]) -> list[RunResult]:
         started = time.perf_counter()
         single = len(self.members) == 1
         for member in self.members:
@@ -400,23 +469,26 @@ class Ensemble:
         energies, _ = self.solver.world_health(state)
         snap = self._snapshot(state)
         for member in self.members:
-            self._record(member, self._measure(member, snap, energies, (0.0, 0.0)), on_frame)
+            self._record(member, self._measure(member, snap, energies, (0.0, 0.0, 0.0)), on_frame)
             if state.time_s >= member.max_time_s:
                 self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
                              started, snap)
         rerun: list[Member] = []
         snapshot = new_state_like(self.model)
         while any(m.result is None and m not in rerun for m in self.members):
+            if interrupted[0]:
+                self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
+                break
             snapshot.copy_from(self.stepper.state)
             self.stepper.run_chunk()
             state = self.stepper.state
-            push_mean, push_max = self.solver.take_push_force(self.stepper.chunk)
+            push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
             snap = self._snapshot(state)
             budgets = np.zeros(self.model.world_count)
             for m in running:
                 budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
-                                                      push_mean[m.world])
+                                                      push.mean_uN[m.world])
             energies, problems = self.solver.world_health(state, budgets)
             unstable = [m for m in running if problems[m.world] is not None]
             if unstable and single:
@@ -425,7 +497,8 @@ class Ensemble:
                     member.pusher_work_nJ, member.last_advance_mm = self._work_before
                     self._halve_step(snapshot, problems[member.world])
                     continue
-                self._finish(member, FAILED, problems[member.world], started, snap)
+                # the last healthy state (the frame's start): no non-finite geometry in the results
+                self._finish(member, FAILED, problems[member.world], started, self._snapshot(snapshot))
                 break
             for member in unstable:  # run alone afterwards, where its step can be halved
                 self.control.stop(member.world)
@@ -434,11 +507,14 @@ class Ensemble:
             for member in running:
                 if member in unstable:
                     continue
-                frame = self._measure(member, snap, energies, (push_mean[member.world], push_max[member.world]))
+                frame = self._measure(member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
+        if interrupted[0] and rerun:
+            self._interrupt(rerun, started)  # (restored to their last healthy frame)
+            rerun = []
         for member in rerun:
             alone = Ensemble([member.scene], self.device, [member.anatomy])
             alone.members[0].index = member.index
@@ -483,10 +559,15 @@ class Ensemble:
             min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
             min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
             max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-            max_push_force_uN=max(f.push_force_uN for f in frames),
+            push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
+            push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
+            push_force_rms_uN=_run_rms(frames),
             stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
             final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
-            regions=self._regions(member, x, free), step_reductions=list(self.step_reductions), frames=frames,
+            regions=self._regions(member, x, free), step_reductions=list(self.step_reductions),
+            wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
+            catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
+            frames=frames,
             positions_mm=[x[s] for s in local])
 
     def _regions(self, member: Member, x: np.ndarray, free: np.ndarray) -> dict | None:
@@ -503,6 +584,37 @@ class Ensemble:
         density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
                                    r.neck_band_mm, r.boundary_mm)
         return {k: float(v) for k, v in asdict(density).items()}
+
+
+def _run_rms(frames: list[Frame]) -> float:
+    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
+    length grew; each frame spans the same simulated time, so this is the RMS over
+    that time)."""
+    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
+              f.deployed_length_mm > before.deployed_length_mm]
+    return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
+
+
+@contextmanager
+def _stop_on_interrupt() -> Iterator[list[bool]]:
+    """While a run steps, the first Ctrl-C (SIGINT) only sets the yielded flag,
+    which the run checks between frames; a second one interrupts at once.
+    Outside the main thread (where no handler can be set) nothing changes."""
+    flag = [False]
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+
+    def handler(_signum, _frame):
+        if flag[0]:
+            raise KeyboardInterrupt
+        flag[0] = True
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def world_bounds(model: Model) -> list:

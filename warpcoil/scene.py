@@ -182,11 +182,14 @@ _SIMULATION = {
     "allow_unstable_dt": _Key(_bool),
     "mass_scale": _Key(_positive),
     "jam_force_uN": _Key(_positive),
+    "stall_force_uN": _Key(_positive),
+    "stall_window_s": _Key(_positive),
+    "stall_packing": _Key(_fraction),
     "rest_kinetic_energy_nJ": _Key(_positive),
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),
 }
-_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool)}
+_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool)}
 _TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
 
 

@@ -110,6 +110,13 @@ class SimulationSettings:
       reported in results; BENCHMARKS.md shows what it does to the error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).
+    * stall_packing: a deployment whose coil inside the sac fills more than this
+      fraction of it has stalled (no coil packing comes close: clinical 20–35 %;
+      more coil could only pass through coil): the run ends there as "jammed".
+    * stall_force_uN, stall_window_s: optional (None: off): so has one whose
+      frame-mean push force stays above stall_force_uN in every frame for
+      stall_window_s (an operator's "stop when it keeps resisting"). No default
+      is safe: patient framing coils legitimately hold several mN for 0.7 s.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
       is below this; None → ½ M (0.25 mm/s)², M the coils' total (scaled) mass,
       i.e. an rms node speed of 0.25 mm/s (about 1e-3 nJ for the seed coil).
@@ -125,6 +132,9 @@ class SimulationSettings:
     allow_unstable_dt: bool = False
     mass_scale: float = DEFAULT_MASS_SCALE
     jam_force_uN: float = 1.0e5
+    stall_force_uN: float | None = None
+    stall_window_s: float = 0.3
+    stall_packing: float = 0.5
     rest_kinetic_energy_nJ: float | None = None
     max_time_s: float | None = None
     frame_interval_s: float = 0.01
@@ -133,11 +143,13 @@ class SimulationSettings:
 @dataclass(frozen=True)
 class OutputSettings:
     """What a run writes besides result.json and the CSVs: the USD animation, a
-    PNG summary, and the coil surface as a closed tube mesh (STL + VTP) for CFD."""
+    PNG summary, the coil surface as a closed tube mesh (STL + VTP) for CFD, and
+    an animated GIF of the deployment from a fixed view."""
 
     usd: bool = True
     png: bool = False
     tube_mesh: bool = False
+    animation: bool = False
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -42,6 +43,18 @@ class SimulationUnstable(RuntimeError):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+class PushForce(NamedTuple):
+    """The pusher's force over some steps, per world (µN, compressive > 0): the
+    push force of a step is the coil's internal force along the catheter axis
+    at the tip (MODEL.md). ``mean_uN``: signed mean over the steps;
+    ``peak_uN``: largest compressive step value (≥ 0); ``rms_uN``: root mean
+    square over the steps."""
+
+    mean_uN: np.ndarray
+    peak_uN: np.ndarray
+    rms_uN: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -142,6 +155,14 @@ class Control:
         first = int(self.model.world_first_coil[world])
         self.active_coil[world:world + 1].fill_(-1 if coil < 0 else first + coil)
 
+    def set_push_speed(self, speed_mm_s: float, world: int | None = None) -> None:
+        """Pusher speed (mm/s) of world ``world`` (None: every world); 0 stops the pusher
+        (the coil stays where it is in the catheter; its deployed part moves freely)."""
+        if world is None:
+            self.push_speed_mm_s.fill_(float(speed_mm_s))
+        else:
+            self.push_speed_mm_s[world:world + 1].fill_(float(speed_mm_s))
+
     def stop(self, world: int) -> None:
         """Freeze a world: from the next step on it keeps its state."""
         self.running[world:world + 1].fill_(0)
@@ -229,8 +250,8 @@ class Solver:
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
-        # Σ and max of the step push force, per world
-        self.push_accumulator = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
+        # per world: Σ, max, Σ² of the step push force, and the steps counted
+        self.push_accumulator = wp.zeros((model.world_count, 4), dtype=wp.float64, device=dev)
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
         cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
         self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
@@ -364,12 +385,14 @@ class Solver:
         """Kinetic (free nodes, translation + spin), stretching, bending and twisting energy, nJ (all worlds)."""
         return {k: float(v.sum()) for k, v in self.world_energies(state)[0].items()}
 
-    def take_push_force(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """Per world: mean and largest push force (µN, compressive > 0) over the last
-        ``steps`` steps; restarts the accumulation."""
+    def take_push_force(self) -> PushForce:
+        """Per world, over the steps since the last call (the solver counts them):
+        the push force's signed mean, peak compressive value and RMS (µN,
+        compressive > 0); restarts the accumulation."""
         acc = self.push_accumulator.numpy().copy()  # a CPU array's numpy() is a view
         self.push_accumulator.zero_()
-        return acc[:, 0] / max(steps, 1), acc[:, 1]
+        steps = np.maximum(acc[:, 3], 1.0)
+        return PushForce(acc[:, 0] / steps, acc[:, 1], np.sqrt(acc[:, 2] / steps))
 
     def world_health(self, state: State, energy_budget_nJ: np.ndarray | None = None
                      ) -> tuple[dict[str, np.ndarray], list[str | None]]:
@@ -412,8 +435,8 @@ GRAPH_STEPS_MAX = 64  # steps per captured graph: capturing costs ~30 µs per la
 
 def graph_steps(chunk: int) -> int:
     """Steps per captured graph: the largest even divisor of ``chunk`` up to GRAPH_STEPS_MAX
-    (a chunk replays its graph chunk / that many times)."""
-    return max(g for g in range(2, min(chunk, GRAPH_STEPS_MAX) + 1, 2) if chunk % g == 0)
+    (a chunk replays its graph chunk / that many times); 0 for a chunk under 2 steps."""
+    return max((g for g in range(2, min(chunk, GRAPH_STEPS_MAX) + 1, 2) if chunk % g == 0), default=0)
 
 
 class Stepper:
@@ -422,13 +445,14 @@ class Stepper:
     as often as the chunk needs.
 
     The current state is always ``self.state``; between chunks the host may
-    read it, change the control arrays' contents, or stop.
+    read it, change the control arrays' contents, or stop. A chunk may have any
+    number of steps ≥ 1: an odd one ends with one more step and a copy back.
     """
 
     def __init__(self, solver: Solver, state: State, control: Control, chunk: int = 100,
                  use_graph: bool = True):
-        if chunk < 2 or chunk % 2:
-            raise ValueError("chunk must be an even number of steps ≥ 2")
+        if chunk < 1:
+            raise ValueError(f"chunk must be 1 or more steps, got {chunk}")
         self.solver, self.control, self.chunk = solver, control, chunk
         self._a, self._b = state, new_state_like(solver.model)
         self._b.copy_from(state)
@@ -448,8 +472,9 @@ class Stepper:
     def run_chunk(self) -> State:
         """Advance by ``chunk`` steps; returns the current state."""
         start = self._a.time_s
-        per_graph = graph_steps(self.chunk)
-        if self._use_graph and self._graph is None:
+        even = self.chunk - self.chunk % 2
+        per_graph = graph_steps(even)
+        if self._use_graph and self._graph is None and per_graph:
             for module in (contact, elastic, integrate):
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
@@ -464,10 +489,13 @@ class Stepper:
                     self._launch_steps(per_graph)
             self._graph = capture.graph
         if self._graph is not None:
-            for _ in range(self.chunk // per_graph):
+            for _ in range(even // per_graph):
                 wp.capture_launch(self._graph)
         else:
-            self._launch_steps(self.chunk)
+            self._launch_steps(even)
+        if self.chunk % 2:  # the odd step, into the other buffer and back
+            self.solver.step(self._a, self._b, self.control)
+            self._a.copy_from(self._b)
         self.steps += self.chunk
         self._a.time_s = start + self.chunk * self.solver.dt_s
         return self._a

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import Ensemble, RunResult, ensemble_groups, resolve_anatomies
+from .preflight import check_catheter
 from .recorder.atomic import write_text_atomic
 from .scene import load_scene
 
@@ -76,7 +77,7 @@ def _summary_row(member: Member) -> dict:
     row = {"member": f"member_{member.index:03d}", **member.values, "status": r.status,
            "packing_density": r.packing_density, "length_outside_sac_mm": r.length_outside_sac_mm,
            "neck_coverage": regions.get("neck_coverage"), "min_coil_gap_mm": r.min_coil_gap_mm,
-           "min_wall_gap_mm": r.min_wall_gap_mm, "max_push_force_uN": r.max_push_force_uN, "steps": r.steps,
+           "min_wall_gap_mm": r.min_wall_gap_mm, "push_force_peak_uN": r.push_force_peak_uN, "steps": r.steps,
            "wall_time_s": r.wall_time_s}
     return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                 (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}
@@ -151,6 +152,8 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
         stale.unlink(missing_ok=True)
     started = time.perf_counter()
     anatomies = resolve_anatomies(scenes)  # walls read and necks cut once, for grouping and (one job) the runs
+    for scene, anatomy in zip(scenes, anatomies):  # a catheter outside the lumen: SetupError before any step
+        check_catheter(scene, anatomy, device)
     groups = ensemble_groups(scenes, device, anatomies)
     batches = [part for group in groups for part in (group[i::jobs] for i in range(jobs)) if part]
 

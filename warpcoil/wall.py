@@ -120,12 +120,28 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return vertices.astype(np.float64), faces.astype(np.int64)
 
 
+def _is_stl(path: Path) -> bool:
+    """A binary STL's size is 84 + 50 × its triangle count (header); an ASCII one starts with "solid"."""
+    size = path.stat().st_size
+    with path.open("rb") as file:
+        head = file.read(84)
+    if head[:5].lower() == b"solid":
+        return True
+    return len(head) == 84 and size == 84 + 50 * int.from_bytes(head[80:84], "little")
+
+
 def _read_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    kind = path.suffix[1:].upper()
+    not_a_mesh = _error(path, f"is not a mesh: it cannot be read as {kind}",
+                        f"check that the file is a triangle surface saved as {kind}, or re-export it")
+    if path.suffix.lower() == ".stl" and not _is_stl(path):
+        raise not_a_mesh
     try:
         loaded = trimesh.load_mesh(path, process=False)
-    except Exception as exc:  # trimesh's parsers raise many kinds on malformed files
-        problem = f"cannot be read as {path.suffix[1:].upper()} ({exc})"
-        raise _error(path, problem, "check or re-export the file") from exc
+    except Exception as exc:  # trimesh's parsers raise many kinds (even ImportError) on malformed files
+        raise not_a_mesh from exc
+    if not hasattr(loaded, "faces"):
+        raise not_a_mesh
     return np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 

@@ -85,7 +85,7 @@ class Record:
     min_wall_centre_mm: float | None = None  # signed centre distance of free nodes to the wall (< 0: outside)
     min_coil_gap_mm: float | None = None
     max_energy_ratio: float = 0.0  # kinetic energy over the energy put in (see FrameChecks)
-    max_push_force_uN: float | None = None  # largest frame-mean push force
+    push_force_peak_uN: float | None = None  # largest compressive single-step push force
     final_kinetic_nJ: float | None = None
     crashed: bool = False  # an exception other than the simulator's own refusals
     verdict: str = ""  # ok, explained, unexplained
@@ -132,7 +132,7 @@ class FrameChecks:
             self.tunnel += centre < 0.0
         self.min_gap = min(self.min_gap, frame.min_coil_gap_mm)
         self.crossing += frame.min_coil_gap_mm < -self.d
-        self.work_nJ += abs(frame.push_force_max_uN) * self.speed * (frame.time_s - self.last_time_s)
+        self.work_nJ += abs(frame.push_force_peak_uN) * self.speed * (frame.time_s - self.last_time_s)
         self.last_time_s = frame.time_s
         self.released_mass_g = max(self.released_mass_g, float(self.mass[free].sum()))
         energy_in = self.deployment.stored_energy_nJ + self.work_nJ + 0.5 * self.released_mass_g * self.speed**2
@@ -170,7 +170,7 @@ def run_case(case: Case) -> Record:
         result = deployment.run(checks)
         record.status, record.reason, record.steps = result.status, result.reason, result.steps
         record.simulated_time_s, record.packing_density = result.simulated_time_s, result.packing_density
-        record.max_push_force_uN, record.final_kinetic_nJ = result.max_push_force_uN, result.final_kinetic_nJ
+        record.push_force_peak_uN, record.final_kinetic_nJ = result.push_force_peak_uN, result.final_kinetic_nJ
     except Exception as error:  # a crash is recorded (and unexplained), the sweep goes on
         record.crashed, record.reason = True, f"crashed: {type(error).__name__}: {error}"
         record.steps, record.simulated_time_s = deployment.stepper.steps, deployment.stepper.state.time_s
@@ -352,7 +352,7 @@ def _row(r: Record) -> list:
     return [r.case, _fmt(r.dt_ratio), r.outcome, r.steps, f"{r.wall_time_s:.1f}",
             _fmt(None if r.packing_density is None else 100 * r.packing_density, ".1f"),
             _fmt(r.min_wall_centre_mm, ".4f"), _fmt(r.min_coil_gap_mm, ".4f"), _fmt(r.max_energy_ratio, ".2g"),
-            _fmt(r.max_push_force_uN, ".3g"), _fmt(r.final_kinetic_nJ, ".2g"),
+            _fmt(r.push_force_peak_uN, ".3g"), _fmt(r.final_kinetic_nJ, ".2g"),
             r.verdict, "; ".join(r.problems) or "–"]
 
 

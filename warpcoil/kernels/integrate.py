@@ -260,12 +260,15 @@ def transported_directors(
 def accumulate_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32),
                           accumulator: wp.array2d(dtype=wp.float64)):
     """One thread per world: this step's push force (µN) = Σ push shares of its
-    nodes; adds it to accumulator[w, 0] and keeps the step maximum in
-    accumulator[w, 1] (a fixed-order sum, so the result does not depend on the
-    device or on the other worlds)."""
+    nodes; adds it to accumulator[w, 0], keeps the step maximum (from 0: the
+    peak compressive force) in accumulator[w, 1], adds its square to
+    accumulator[w, 2] and counts the step in accumulator[w, 3] (a fixed-order
+    sum, so the result does not depend on the device or on the other worlds)."""
     w = wp.tid()
     total = wp.float64(0.0)
     for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
         total = total + push_share[i]
     accumulator[w, 0] = accumulator[w, 0] + total
     accumulator[w, 1] = wp.max(accumulator[w, 1], total)
+    accumulator[w, 2] = accumulator[w, 2] + total * total
+    accumulator[w, 3] = accumulator[w, 3] + wp.float64(1.0)

@@ -1,7 +1,7 @@
 """A one-page PNG summary of a run: the final coils in the sac, push force and packing density.
 
 Headless: a bare :class:`~matplotlib.figure.Figure` on the Agg canvas, never
-pyplot's global state. Units mm, µN.
+pyplot's global state. Units mm, s; push force drawn in mN (stored in µN).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ FIGSIZE_IN = (12.0, 9.0)
 DPI = 100
 VIEWS_DEG = ((20.0, -60.0), (20.0, 30.0))  # (elevation, azimuth): two views 90° apart
 MAX_WALL_FACES = 20_000  # more are subsampled (drawing speed)
-MAX_LINEWIDTH_PT = 2.5  # the thickest wire's line
+SMOOTHING_S = 0.05  # the push force's frame mean is drawn as a moving average over this time
 VIEW_PADDING = 0.25  # the view box is the coils' bounding box grown by this fraction of its largest side
 
 
@@ -59,23 +59,59 @@ def _view_box_mm(coils_mm: list[np.ndarray], wall_vertices_mm: np.ndarray) -> tu
 
 
 def _wall_triangles_mm(
-    vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray
+    vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray, max_faces: int = MAX_WALL_FACES
 ) -> np.ndarray:
-    """(F,3,3) wall triangles wholly inside the view box, at most MAX_WALL_FACES of them."""
+    """(F,3,3) wall triangles wholly inside the view box, at most ``max_faces`` of them."""
     triangles = vertices_mm[faces]
     triangles = triangles[np.all((triangles >= low) & (triangles <= high), axis=(1, 2))]
-    return triangles[:: max(1, math.ceil(len(triangles) / MAX_WALL_FACES))]
+    return triangles[:: max(1, math.ceil(len(triangles) / max_faces))]
+
+
+def wall_collection(vertices_mm: np.ndarray, faces: np.ndarray, low: np.ndarray, high: np.ndarray,
+                    max_faces: int = MAX_WALL_FACES) -> Poly3DCollection:
+    """The wall inside the view box as a faint see-through surface."""
+    return Poly3DCollection(_wall_triangles_mm(vertices_mm, faces, low, high, max_faces),
+                            facecolors=(0.6, 0.65, 0.75, 0.06), edgecolors=(0.35, 0.4, 0.5, 0.06), linewidths=0.3,
+                            zorder=1)
+
+
+def line_width_pt(diameter_mm: float, box_extent_mm: np.ndarray, panel_width_in: float) -> float:
+    """Line width (pt) that draws a wire of ``diameter_mm`` at its true thickness in a
+    3D panel ``panel_width_in`` wide whose box spans ``box_extent_mm`` (the box's
+    largest side takes about half the panel's width, as measured on the summary's
+    views; at least 0.5 pt)."""
+    pt_per_mm = 0.49 * panel_width_in * 72.0 / max(float(np.max(box_extent_mm)), 1e-6)
+    return max(diameter_mm * pt_per_mm, 0.5)
+
+
+def catheter_polyline_mm(tip_mm, direction, centerline_mm, box_extent_mm: np.ndarray) -> np.ndarray | None:
+    """The catheter to draw: its centerline, or a straight piece as long as the view
+    box behind the tip; None when unknown."""
+    if tip_mm is None or direction is None:
+        return None
+    if centerline_mm is not None:
+        return np.asarray(centerline_mm, dtype=float)
+    tip, axis = np.asarray(tip_mm, dtype=float), np.asarray(direction, dtype=float)
+    return np.vstack([tip - float(np.max(box_extent_mm)) * axis, tip])
+
+
+def draw_catheter(ax, polyline_mm: np.ndarray | None, width_pt: float) -> None:
+    """The catheter as a grey tube-like line ending at the tip."""
+    if polyline_mm is not None:
+        ax.plot(*polyline_mm.T, color="0.45", alpha=0.55, lw=width_pt, solid_capstyle="round", zorder=2,
+                label="catheter")
 
 
 def _draw_3d(ax, triangles_mm: np.ndarray, coils_mm: list[np.ndarray], linewidths_pt: list[float],
-             low: np.ndarray, high: np.ndarray, view_deg: tuple[float, float]) -> list:
-    """Wall and coils in one 3D axes; returns the coils' line artists."""
+             low: np.ndarray, high: np.ndarray, view_deg: tuple[float, float], catheter_mm: np.ndarray | None) -> list:
+    """Wall, catheter and coils in one 3D axes; returns the coils' line artists."""
     ax.computed_zorder = False  # coils always over the translucent wall
     if len(triangles_mm):
         ax.add_collection3d(Poly3DCollection(
             triangles_mm, facecolors=(0.6, 0.65, 0.75, 0.06), edgecolors=(0.35, 0.4, 0.5, 0.06),
             linewidths=0.3, zorder=1))
-    lines = [ax.plot(*np.reshape(coil, (-1, 3)).T, color=f"C{k % 10}", linewidth=width, zorder=2 + k)[0]
+    draw_catheter(ax, catheter_mm, 1.6 * max(linewidths_pt, default=1.0))
+    lines = [ax.plot(*np.reshape(coil, (-1, 3)).T, color=f"C{k % 10}", linewidth=width, zorder=3 + k)[0]
              for k, (coil, width) in enumerate(zip(coils_mm, linewidths_pt))]
     ax.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]), zlim=(low[2], high[2]),
            xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm)")
@@ -84,6 +120,39 @@ def _draw_3d(ax, triangles_mm: np.ndarray, coils_mm: list[np.ndarray], linewidth
     ax.set_title(f"elevation {view_deg[0]:g}°, azimuth {view_deg[1]:g}°", fontsize=9)
     ax.tick_params(labelsize=7)
     return lines
+
+
+def smoothed(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average over ``window`` samples (shorter at the ends)."""
+    values = np.asarray(values, dtype=float)
+    if window <= 1 or len(values) < 2:
+        return values
+    kernel = np.ones(window)
+    return np.convolve(values, kernel, "same") / np.convolve(np.ones(len(values)), kernel, "same")
+
+
+def _draw_push_force(ax, frames: list[Frame]) -> None:
+    """Push force against time (mN): peak per frame shaded, the frame mean smoothed over
+    SMOOTHING_S, the RMS per frame thin; symmetric-log axis so ringing peaks and the
+    small mean both read."""
+    t = np.array([f.time_s for f in frames])
+    peak = np.array([f.push_force_peak_uN for f in frames]) / 1e3
+    mean = np.array([f.push_force_mean_uN for f in frames]) / 1e3
+    rms = np.array([f.push_force_rms_uN for f in frames]) / 1e3
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    window = max(1, round(SMOOTHING_S / step))
+    mean_smooth = smoothed(mean, window)
+    ax.fill_between(t, 0.0, peak, step="mid", color="C1", alpha=0.3, lw=0,
+                    label="push_force_peak (largest step per frame)")
+    ax.plot(t, rms, color="C3", lw=0.6, alpha=0.8, label="push_force_rms (per frame)")
+    ax.plot(t, mean_smooth, color="C0", lw=1.6,
+            label=f"push_force_mean (per frame, smoothed over {window * step:.2g} s)")
+    scale = float(np.percentile(np.abs(mean_smooth), 95)) if len(t) else 0.0
+    ax.set_yscale("symlog", linthresh=10.0 ** math.floor(math.log10(max(scale, 1e-4))))  # linear up to the mean
+    ax.axhline(0.0, color="0.5", lw=0.5)
+    ax.set(xlabel="time (s)", ylabel="push force (mN, compressive > 0)", title="Push force")
+    ax.legend(fontsize=7, loc="best", framealpha=0.8)
+    ax.grid(alpha=0.3)
 
 
 def write_summary_png(
@@ -96,15 +165,20 @@ def write_summary_png(
     wire_diameters_mm: list[float],
     coil_boundaries_mm: list[float] | None = None,
     title: str = "",
+    catheter: tuple | None = None,
 ) -> None:
-    """Two 3D views of the final coils in the wall, push force and packing density
-    against deployed length, as one PNG of FIGSIZE_IN at DPI, written atomically."""
+    """Two 3D views of the final coils (at their wire thickness) in the wall with the
+    catheter, push force and packing density against time, as one PNG of FIGSIZE_IN
+    at DPI, written atomically. ``catheter``: (tip_mm, direction, centerline_mm or
+    None), or None. Non-finite values are left out of every panel."""
     if len(coils_mm) != len(wire_diameters_mm):
         raise ValueError(f"{len(coils_mm)} coils but {len(wire_diameters_mm)} wire diameters")
+    coils_mm = [np.reshape(c, (-1, 3))[np.isfinite(np.reshape(c, (-1, 3))).all(axis=1)] for c in coils_mm]
     vertices = np.asarray(wall_vertices_mm, dtype=float).reshape(-1, 3)
     faces = np.asarray(wall_faces, dtype=np.int64).reshape(-1, 3)
     low, high = _view_box_mm(coils_mm, vertices)
     triangles = _wall_triangles_mm(vertices, faces, low, high)
+    catheter_mm = catheter_polyline_mm(*catheter, high - low) if catheter is not None else None
 
     fig = Figure(figsize=FIGSIZE_IN, dpi=DPI)
     FigureCanvasAgg(fig)
@@ -113,38 +187,33 @@ def write_summary_png(
     if title:
         fig.suptitle(title)
 
-    # Line widths follow the wire diameters: to scale (a 3D panel spans ~60% of its
-    # ~5 in width) but at most MAX_LINEWIDTH_PT, so that dense packings stay legible.
-    pt_per_mm = 0.6 * 0.45 * FIGSIZE_IN[0] * 72.0 / float((high - low).max())
     diameters = np.asarray(wire_diameters_mm, dtype=float)
-    scale = min(pt_per_mm, MAX_LINEWIDTH_PT / diameters.max()) if len(diameters) else 0.0
-    linewidths_pt = np.maximum(diameters * scale, 0.5).tolist()
+    linewidths_pt = [line_width_pt(d, high - low, 0.45 * FIGSIZE_IN[0]) for d in diameters]
     for column, view in enumerate(VIEWS_DEG):
         lines = _draw_3d(fig.add_subplot(grid[0, column], projection="3d"), triangles, coils_mm,
-                         linewidths_pt, low, high, view)
+                         linewidths_pt, low, high, view, catheter_mm)
     if lines:
-        fig.axes[0].legend(lines, [f"coil {k}, {d:g} mm wire" for k, d in enumerate(diameters)],
+        fig.axes[0].legend(lines, [f"coil {k}, {d:g} mm wire (drawn to scale)" for k, d in enumerate(diameters)],
                            loc="upper left", fontsize=8)
 
-    deployed_mm = np.array([f.deployed_length_mm for f in frames])
-    force = fig.add_subplot(grid[1, 0])
-    force.plot(deployed_mm, [f.push_force_max_uN for f in frames], color="C1", lw=0.7, alpha=0.6,
-               label="max per frame")
-    force.plot(deployed_mm, [f.push_force_uN for f in frames], color="C0", lw=1.2, label="frame mean")
-    force.set(xlabel="deployed length (mm)", ylabel="push force (µN)", title="Push force")
-    force.legend(fontsize=8)
-    force.grid(alpha=0.3)
+    frames = [f for f in frames if math.isfinite(f.time_s) and math.isfinite(f.deployed_length_mm)]
+    _draw_push_force(fig.add_subplot(grid[1, 0]), frames)
 
     packing = fig.add_subplot(grid[1, 1])
     if sac_volume_mm3 is None:
         packing.text(0.5, 0.5, "no sac volume", ha="center", va="center", transform=packing.transAxes)
         packing.set_axis_off()
     else:
+        t = np.array([f.time_s for f in frames])
+        deployed_mm = np.array([f.deployed_length_mm for f in frames])
+        inside_mm = deployed_mm - np.array([f.length_outside_sac_mm for f in frames])
         percent = packing_percent(deployed_mm, sac_volume_mm3, wire_diameters_mm, coil_boundaries_mm)
-        packing.plot(deployed_mm, percent, color="C2", lw=1.2)
+        in_sac = packing_percent(np.maximum(inside_mm, 0.0), sac_volume_mm3, wire_diameters_mm, coil_boundaries_mm)
+        packing.plot(t, percent, color="C2", lw=1.0, ls="--", label="all deployed coil")
+        packing.plot(t, in_sac, color="C2", lw=1.6, label="coil inside the sac")
         final = f" (final {percent[-1]:.1f} %)" if len(percent) else ""
-        packing.set(xlabel="deployed length (mm)", ylabel="packing density (%)",
-                    title=f"Packing density{final}")
+        packing.set(xlabel="time (s)", ylabel="packing density (%)", title=f"Packing density{final}")
+        packing.legend(fontsize=7, loc="upper left")
         packing.grid(alpha=0.3)
 
     with atomic_path(Path(path)) as tmp_path:

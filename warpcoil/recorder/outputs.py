@@ -28,6 +28,9 @@ TIMESERIES_CSV = "timeseries.csv"
 DEPLOYMENT_USD = "deployment.usdc"
 SUMMARY_PNG = "summary.png"
 TUBE_STL, TUBE_VTP = "coils.stl", "coils.vtp"
+ANIMATION_GIF = "deployment.gif"
+RUN_OUTPUTS = (RESULT_JSON, CENTERLINE_CSV, TIMESERIES_CSV, DEPLOYMENT_USD, SUMMARY_PNG, TUBE_STL, TUBE_VTP,
+               ANIMATION_GIF)  # every file a run may write (recorder.folder clears exactly these)
 
 
 def _json_ready(value):
@@ -78,7 +81,8 @@ class UsdFrames:
                  wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float):
         self.coil_nodes = coil_nodes
         self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
-                                    wall_faces, time_codes_per_second=1.0 / frame_interval_s)
+                                    wall_faces, time_codes_per_second=1.0 / frame_interval_s,
+                                    frames_per_second=1.0 / frame_interval_s)  # one code per frame: real time
 
     @staticmethod
     def for_model(path: Path, model: Model, frame_interval_s: float) -> "UsdFrames":
@@ -100,11 +104,19 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
     """Everything a run writes after it ends (the USD is recorded during the run):
     CSVs, then the pictures and tube meshes the scene asks for, then result.json
     last, so its presence means the folder is complete. ``wall``: the run's
-    WallMesh (Anatomy.wall) or None."""
+    WallMesh (Anatomy.wall) or None. Final positions with a non-finite value
+    (they should not occur: a failed run reports its last healthy frame) are
+    not written as geometry; result.json says so in ``not_written``."""
     from .figures import write_summary_png
     from .tube import coils_tube_mesh, write_tube_stl, write_tube_vtp
 
     write_timeseries_csv(out / TIMESERIES_CSV, result.frames)
+    extra = dict(extra or {})
+    if not all(np.isfinite(x).all() for x in result.positions_mm):
+        extra["not_written"] = [CENTERLINE_CSV, TUBE_STL, TUBE_VTP, SUMMARY_PNG]
+        extra["not_written_reason"] = "the final node positions hold non-finite values"
+        write_result_json(out / RESULT_JSON, result, extra)
+        return
     write_centerline_csv(out / CENTERLINE_CSV, result.positions_mm)
     diameters = [c.d for c in scene.coils]
     if scene.output.tube_mesh:
@@ -117,5 +129,6 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
             out / SUMMARY_PNG, wall.vertices_mm if wall is not None else np.zeros((0, 3)),
             wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
             result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
-            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %")
+            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %",
+            catheter=(result.catheter_tip_mm, result.catheter_direction, scene.catheter.centerline_mm))
     write_result_json(out / RESULT_JSON, result, extra)

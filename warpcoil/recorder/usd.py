@@ -48,6 +48,9 @@ class UsdRecorder:
         wall_faces: (F, 3) triangle vertex indices, required with the vertices.
         time_codes_per_second: USD time codes per simulated second; a frame at
             ``time_s`` is stored at code ``round(time_s * time_codes_per_second)``.
+        frames_per_second: the playback rate viewers use (codes per wall-clock
+            second); equal to ``time_codes_per_second`` (the default) plays in
+            real time, a smaller value in slow motion.
         up_axis: stage up axis, "Y" or "Z".
 
     Frames whose time codes round to the same code collapse onto one sample:
@@ -64,6 +67,7 @@ class UsdRecorder:
         wall_faces: np.ndarray | None = None,
         time_codes_per_second: float = 100.0,
         up_axis: str = "Z",
+        frames_per_second: float | None = None,
     ) -> None:
         self.path = Path(path)
         if self.path.suffix not in USD_SUFFIXES:
@@ -87,6 +91,8 @@ class UsdRecorder:
         UsdGeom.SetStageMetersPerUnit(self._stage, UsdGeom.LinearUnits.millimeters)
         UsdGeom.SetStageUpAxis(self._stage, up_axis)
         self._stage.SetTimeCodesPerSecond(self.time_codes_per_second)
+        self._stage.SetFramesPerSecond(self.time_codes_per_second if frames_per_second is None
+                                       else float(frames_per_second))
 
         world = UsdGeom.Xform.Define(self._stage, "/World")
         Usd.ModelAPI(world.GetPrim()).SetKind(Kind.Tokens.component)

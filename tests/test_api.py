@@ -1,0 +1,73 @@
+"""The Python API's one-call controls: stop the pusher, read the push force without
+counting steps, Stepper chunks of any size (issue 13, item 12)."""
+
+import numpy as np
+import pytest
+
+import warpcoil as wc
+
+
+def pushed_coil():
+    spec = wc.CoilSpec(length_mm=6.0, loop_diameter_mm=2.0, pitch_mm=0.6)
+    builder = wc.ModelBuilder(catheter=wc.CatheterSpec(), settings=wc.SimulationSettings(push_speed_mm_s=100.0))
+    builder.add_coil(spec)
+    model = builder.finalize("cpu")
+    return model, wc.Solver(model), wc.Control.create(model, active_coil=0, push_speed_mm_s=100.0)
+
+
+def test_odd_chunks_give_the_same_states_as_even_ones_bit_for_bit():
+    """21 steps as 3 chunks of 7 (odd: graph of 6 + one step and a copy), as 21 of 1
+    and as one plain chunk of 21 without a graph: the same state, bit for bit."""
+    results = []
+    for chunk, use_graph in ((7, True), (1, True), (21, False)):
+        model, solver, control = pushed_coil()
+        stepper = wc.Stepper(solver, wc.packed_state(model), control, chunk=chunk, use_graph=use_graph)
+        while stepper.steps < 21:
+            stepper.run_chunk()
+        assert stepper.steps == 21
+        assert stepper.state.time_s == pytest.approx(21 * solver.dt_s, rel=1e-12)
+        results.append((stepper.state.x.numpy().copy(), stepper.state.advance.numpy().copy()))
+    for x, advance in results[1:]:
+        assert np.array_equal(x, results[0][0]) and np.array_equal(advance, results[0][1])
+    assert results[0][1][0] == pytest.approx(100.0 * 21 * solver.dt_s, rel=1e-9)  # pushed 21 steps
+
+
+def test_take_push_force_counts_its_steps():
+    """Over 12 steps read at once: mean = the mean of the 12 step values, peak = the
+    largest compressive one (≥ 0), RMS = sqrt(mean of squares)."""
+    model, solver, control = pushed_coil()
+    one = wc.Stepper(solver, wc.packed_state(model), control, chunk=1)
+    steps = []
+    for _ in range(12):
+        one.run_chunk()
+        push = solver.take_push_force()
+        assert push.rms_uN[0] == pytest.approx(abs(push.mean_uN[0]), rel=1e-12, abs=1e-300)  # one step
+        steps.append(float(push.mean_uN[0]))
+    model, solver, control = pushed_coil()
+    wc.Stepper(solver, wc.packed_state(model), control, chunk=12).run_chunk()
+    push = solver.take_push_force()
+    steps = np.array(steps)
+    assert push.mean_uN[0] == pytest.approx(steps.mean(), rel=1e-12, abs=1e-12)
+    assert push.peak_uN[0] == pytest.approx(max(steps.max(), 0.0), rel=1e-12, abs=1e-12)
+    assert push.rms_uN[0] == pytest.approx(np.sqrt(np.mean(steps**2)), rel=1e-12)
+    assert np.abs(steps).max() > 0.0  # the pusher did push
+
+
+def test_set_push_speed_zero_stops_the_pusher():
+    model, solver, control = pushed_coil()
+    stepper = wc.Stepper(solver, wc.packed_state(model), control, chunk=50)
+    stepper.run_chunk()
+    moved = float(stepper.state.advance.numpy()[0])
+    assert moved == pytest.approx(100.0 * 50 * solver.dt_s, rel=1e-9)
+    control.set_push_speed(0.0)
+    stepper.run_chunk()
+    assert float(stepper.state.advance.numpy()[0]) == moved  # not one step further
+    control.set_push_speed(50.0, world=0)
+    stepper.run_chunk()
+    assert float(stepper.state.advance.numpy()[0]) == pytest.approx(moved + 50.0 * 50 * solver.dt_s, rel=1e-9)
+
+
+def test_a_chunk_below_one_step_is_refused():
+    model, solver, control = pushed_coil()
+    with pytest.raises(ValueError, match="1 or more"):
+        wc.Stepper(solver, wc.packed_state(model), control, chunk=0)

@@ -1,0 +1,375 @@
+"""The command line as a user meets it (issue 13): each test runs ``warpcoil`` as a
+subprocess with stdout and stderr redirected to files, and checks the exit code,
+the message and the output folder. Tiny scenes keep them fast."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SPHERE = """
+[wall]
+sphere_diameter_mm = 3.5
+
+[catheter]
+tip = [0.0, 0.0, -1.45]
+direction = [0.0, 0.0, 1.0]
+
+[[coil]]
+shape = "helix"
+wire_diameter_mm = 0.2921
+loop_diameter_mm = 2.5
+pitch_mm = 0.6
+length_mm = 4.0
+
+[simulation]
+push_speed_mm_s = 100.0
+frame_interval_s = 0.005
+
+[output]
+usd = false
+"""
+
+
+def scene(tmp_path: Path, text: str = SPHERE, name: str = "tiny.toml", **replace: str) -> Path:
+    """The scene ``text`` with each key of ``replace`` (a line of it) replaced, as tmp_path/name."""
+    for old, new in replace.items():
+        assert old in text, old
+        text = text.replace(old, new)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def cli(tmp_path: Path, *args: str, wait: bool = True, log: str = "log"):
+    """``warpcoil ARGS`` with stdout and stderr in files under tmp_path; (exit code, stdout, stderr)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env.setdefault("WARPCOIL_KERNEL_CACHE", str(ROOT / ".warp_cache"))
+    out, err = tmp_path / f"{log}.out", tmp_path / f"{log}.err"
+    with out.open("w") as stdout, err.open("w") as stderr:
+        process = subprocess.Popen([sys.executable, "-m", "warpcoil.cli", *args], stdout=stdout, stderr=stderr,
+                                   cwd=tmp_path, env=env)
+        if not wait:
+            return process, out, err
+        code = process.wait(timeout=600)
+    return code, out.read_text(), err.read_text()
+
+
+def one_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def leftovers(folder: Path) -> list[str]:
+    """Temporary files and locks left in a folder (there must be none)."""
+    return [p.name for p in folder.rglob(".*")]
+
+
+# --- 1, 9: sweep and run progress, redirected or quiet ------------------------------
+def test_sweep_without_q_prints_progress_lines_to_a_log(tmp_path):
+    code, out, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "simulation.push_speed_mm_s=100,150",
+                         "-o", "sweep")
+    assert code == 0, err
+    assert "\r" not in err and "Traceback" not in err
+    assert "sweep 2/2 deployments (100 %)" in err
+    assert "2 completed" in out
+    rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
+    assert [r["status"] for r in rows] == ["completed", "completed"]
+    assert leftovers(tmp_path / "sweep") == []
+
+
+# --- 2, 7, 8, 9, 10, 11, 13: a run into a folder, and again --------------------------
+def damaged_sphere_stl(path: Path) -> None:
+    """A 3.5 mm sphere written with inward normals and one face twice (intake repairs both)."""
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.75)
+    faces = np.vstack([sphere.faces[:, ::-1], sphere.faces[:1, ::-1]])
+    trimesh.Trimesh(sphere.vertices, faces, process=False).export(path)
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("user")
+    damaged_sphere_stl(tmp_path / "sac.stl")
+    text = SPHERE.replace("sphere_diameter_mm = 3.5", 'mesh = "sac.stl"').replace(
+        "usd = false", "usd = true\npng = true\nanimation = true")
+    path = scene(tmp_path, text)
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
+    return tmp_path, path, code, out, err
+
+
+def test_run_reports_repairs_push_forces_and_plays_in_real_time(first_run):
+    tmp_path, _, code, out, err = first_run
+    folder = tmp_path / "run"
+    assert code == 0, err
+    assert out.startswith("completed: ")
+    # 7: repairs printed and kept
+    assert "removed 1 duplicate face" in err and "flipped inward-facing normals" in err
+    result = json.loads((folder / "result.json").read_text())
+    assert result["wall_repairs"] == ["removed 1 duplicate face", "flipped inward-facing normals"]
+    # 9, 11: progress as plain lines, no carriage returns, no CUDA driver notice
+    assert "\r" not in err and "CUDA" not in err
+    progress = [line for line in err.splitlines() if line.startswith("deployed ")]
+    assert progress and progress[-1].startswith("deployed 4.0/4.0 mm (100 %), push mean")
+    # 8: one definition each, in result.json and the CSV
+    rows = list(csv.DictReader((folder / "timeseries.csv").open()))
+    peak = [float(r["push_force_peak_uN"]) for r in rows]
+    mean = [float(r["push_force_mean_uN"]) for r in rows]
+    rms = [float(r["push_force_rms_uN"]) for r in rows]
+    assert result["push_force_peak_uN"] == pytest.approx(max(peak), rel=1e-6) and max(peak) > 0.0
+    assert result["push_force_mean_max_uN"] == pytest.approx(max(mean), rel=1e-6)
+    assert all(r >= abs(m) * (1 - 1e-9) and p >= m * (1 - 1e-9) for m, p, r in zip(mean, peak, rms))  # RMS ≥ |mean|
+    deployed = [float(r["deployed_length_mm"]) for r in rows]
+    pushed = [r for r, now, before in zip(rms[1:], deployed[1:], deployed) if now > before]
+    assert result["push_force_rms_uN"] == pytest.approx(math.sqrt(np.mean(np.square(pushed))), rel=1e-4)
+    # 10: one USD time code per frame, played at as many frames per second: real time
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(folder / "deployment.usdc"))
+    frame_s = float(rows[1]["time_s"]) - float(rows[0]["time_s"])
+    assert stage.GetTimeCodesPerSecond() == pytest.approx(1.0 / frame_s, rel=1e-2)  # a frame: whole steps
+    assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond()
+    # 13: an animated GIF of the frames
+    from PIL import Image
+
+    with Image.open(folder / "deployment.gif") as gif:
+        assert gif.n_frames == min(60, len(rows)) and gif.size[0] >= 300
+    assert (folder / "summary.png").stat().st_size > 10_000
+    assert leftovers(folder) == []
+
+
+def test_a_used_folder_is_refused_then_overwritten_with_only_the_new_run(first_run):
+    tmp_path, path, first_code, _, _ = first_run
+    folder = tmp_path / "run"
+    assert first_code == 0
+    (folder / "notes.txt").write_text("mine")  # not warpcoil's: must survive
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "run", "-q", log="again")
+    assert code == 2
+    assert "Traceback" not in err
+    line = err.strip().splitlines()[-1]  # after the two wall-repair lines
+    assert "already holds the outputs of an earlier run" in line and "--overwrite" in line
+    before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    assert "summary.png" in before and "deployment.gif" in before
+    lean = path.read_text().replace("png = true\nanimation = true", "png = false")
+    path.write_text(lean)
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "run", "-q", "--overwrite", log="overwrite")
+    assert code == 0, err
+    assert "deployed " not in err  # -q: no progress at all
+    names = sorted(p.name for p in folder.iterdir())
+    assert names == ["centerline.csv", "deployment.usdc", "notes.txt", "result.json", "timeseries.csv"]
+
+
+def test_a_folder_in_use_by_another_run_is_refused(tmp_path):
+    path = scene(tmp_path)
+    (tmp_path / "busy").mkdir()
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        import socket
+
+        (tmp_path / "busy" / ".warpcoil.lock").write_text(f"{sleeper.pid} {socket.gethostname()}\n")
+        code, _, err = cli(tmp_path, "run", str(path), "-o", "busy", "-q")
+        assert code == 2 and f"another warpcoil run (process {sleeper.pid}" in one_line(err)
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "busy", "-q")  # its lock is stale now: taken over
+    assert code == 0, err
+    assert json.loads((tmp_path / "busy" / "result.json").read_text())["status"] == "completed"
+    assert leftovers(tmp_path / "busy") == []
+
+
+# --- 3: an unstable run ---------------------------------------------------------------
+def test_an_unstable_run_fails_with_a_reason_and_finite_outputs(tmp_path):
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 5e-5\n"
+                              "allow_unstable_dt = true", "usd = false": "usd = true\npng = true\ntube_mesh = true"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "bad", "-q")
+    assert code == 1, err
+    assert "Traceback" not in err
+    folder = tmp_path / "bad"
+    result = json.loads((folder / "result.json").read_text())
+    assert result["status"] == "failed" and "simulation.dt_s" in result["reason"]
+    assert out.startswith("failed: ")
+    x = np.loadtxt(folder / "centerline.csv", delimiter=",", skiprows=1)
+    assert np.isfinite(x).all() and len(x) > 10
+    assert np.isfinite(trimesh.load_mesh(folder / "coils.stl").vertices).all()
+    assert (folder / "summary.png").stat().st_size > 10_000
+    assert leftovers(folder) == []
+
+
+# --- 5: the catheter ---------------------------------------------------------------------
+def test_a_tip_outside_the_lumen_is_refused_before_stepping(tmp_path):
+    path = scene(tmp_path, **{"tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -2.0]"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "never")
+    assert code == 2
+    line = one_line(err)
+    assert "tiny.toml" in line and "catheter.tip" in line and "outside the lumen" in line and "fix:" in line
+    assert not (tmp_path / "never").exists()
+
+
+def test_a_centerline_leaving_the_lumen_is_refused(tmp_path):
+    path = scene(tmp_path, **{"direction = [0.0, 0.0, 1.0]": "direction = [0.0, 0.0, 1.0]\n"
+                              "centerline = [[0.0, 0.0, -3.0], [0.0, 0.0, -1.45]]"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
+    assert code == 2
+    assert "catheter.centerline leaves the lumen" in one_line(err)
+    assert not (tmp_path / "never").exists()
+
+
+def test_a_catheter_pointing_out_of_the_sac_is_warned_about(tmp_path):
+    path = scene(tmp_path, **{"direction = [0.0, 0.0, 1.0]": "direction = [0.3, 0.0, -1.0]",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nmax_time_s = 0.01"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "out", "-q")
+    assert code == 3  # the short time limit: ran, and timed out
+    assert "warning:" in err and "points away from the sac" in err
+    assert json.loads((tmp_path / "out" / "result.json").read_text())["warnings"][0].endswith("catheter.angle_deg)")
+
+
+# --- 6: bad command lines and Ctrl-C ------------------------------------------------------
+@pytest.mark.parametrize("interval", ["0", "-0.01", "nan"])
+def test_a_bad_frame_interval_is_one_line(tmp_path, interval):
+    code, _, err = cli(tmp_path, "run", "any.toml", f"--frame-interval={interval}")
+    assert code == 2
+    assert "--frame-interval" in one_line(err) and "> 0" in err
+
+
+def test_an_output_path_that_is_a_file_is_one_line(tmp_path):
+    (tmp_path / "taken").write_text("a file")
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "taken")
+    assert code == 2
+    assert "is an existing file, not a folder" in one_line(err)
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "taken/run")
+    assert code == 2
+    assert "taken is a file, so the folder cannot be created" in one_line(err)
+    assert (tmp_path / "taken").read_text() == "a file"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+def test_an_output_folder_that_is_not_writable_is_one_line(tmp_path):
+    (tmp_path / "locked").mkdir(mode=0o555)
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "locked/run")
+    assert code == 2 and "is not writable" in one_line(err)
+
+
+def test_ctrl_c_ends_the_run_as_interrupted(tmp_path):
+    path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 20.0", "push_speed_mm_s = 100.0":
+                              "push_speed_mm_s = 20.0", "usd = false": "usd = true"})
+    process, out, err = cli(tmp_path, "run", str(path), "-o", "stopped", wait=False)
+    deadline = time.monotonic() + 300
+    while "deployed " not in err.read_text() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.2)  # the first progress line: it is stepping
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=300) == 130
+    folder = tmp_path / "stopped"
+    result = json.loads((folder / "result.json").read_text())
+    assert result["status"] == "interrupted" and "Ctrl-C" in result["reason"]
+    assert 0.0 < result["deployed_length_mm"] < 20.0
+    assert out.read_text().startswith("interrupted: ")
+    assert "Traceback" not in err.read_text()
+    assert (folder / "deployment.usdc").exists() and leftovers(folder) == []
+
+
+# --- 11: smaller things ---------------------------------------------------------------------
+def test_bench_help_names_all_four_kinds(tmp_path):
+    code, out, _ = cli(tmp_path, "bench", "--help")
+    assert code == 0
+    for kind in ("accuracy", "stress", "peers", "ensemble"):
+        assert f"{kind}:" in out
+
+
+def test_cuda_asked_for_without_a_driver_is_said_once(tmp_path):
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has CUDA")
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "--device", "cuda:0", "-o", "never")
+    assert code == 2
+    line = one_line(err)
+    assert "--device cuda:0" in line and "no NVIDIA CUDA driver" in line and "--device cpu" in line
+
+
+def test_a_binary_garbage_stl_is_not_a_mesh(tmp_path):
+    (tmp_path / "sac.stl").write_bytes(np.random.default_rng(1).bytes(3000))
+    path = scene(tmp_path, **{"sphere_diameter_mm = 3.5": 'mesh = "sac.stl"'})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
+    assert code == 2
+    assert "sac.stl: is not a mesh" in one_line(err) and "charset" not in err
+
+
+def test_a_step_above_the_bound_names_the_scene_file_and_key(tmp_path):
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 1e-3"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
+    assert code == 2
+    line = one_line(err)
+    assert "tiny.toml: simulation.dt_s" in line and "stable bound" in line
+
+
+# --- 4: an impossible deployment ------------------------------------------------------------
+def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
+    """40 mm of coil (2.7 mm³) for a 2 mm sac (4.2 mm³, 64 %): warned before the run;
+    it ends as jammed ("stalled") once the coil in the sac fills half of it
+    (stall_packing), well before the coil is in."""
+    path = scene(tmp_path, **{"sphere_diameter_mm = 3.5": "sphere_diameter_mm = 2.0",
+                              "tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -0.8]",
+                              "loop_diameter_mm = 2.5": "loop_diameter_mm = 1.5",
+                              "length_mm = 4.0": "length_mm = 40.0"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "full", "-q")
+    assert code == 3, err
+    assert "warning:" in err and "64 % of the sac's" in err and "fills 50 % of it, after about 31 mm" in err
+    result = json.loads((tmp_path / "full" / "result.json").read_text())
+    assert result["status"] == "jammed" and result["reason"].startswith("stalled: coil 0")
+    assert "stall_packing = 0.5" in result["reason"]
+    area = math.pi * 0.14605**2
+    in_sac = area * (result["deployed_length_mm"] - result["length_outside_sac_mm"]) / result["sac_volume_mm3"]
+    assert 0.5 < in_sac < 0.5 + area * 0.5 / result["sac_volume_mm3"]  # stopped in the frame that crossed 50 %
+    assert out.startswith("jammed: stalled")
+
+
+def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force(tmp_path):
+    """A 35 mm loop for the 3.5 mm sac: warned before the run; with the optional force
+    criterion it ends as stalled once the push force has resisted for the window."""
+    path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
+                              "length_mm = 4.0": "length_mm = 20.0",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nstall_force_uN = 500.0\n"
+                              "stall_window_s = 0.05"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
+    assert code == 3, err
+    assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
+    result = json.loads((tmp_path / "big" / "result.json").read_text())
+    assert result["status"] == "jammed" and "stall_force_uN = 500 µN" in result["reason"], result["reason"]
+    rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
+    frame_s = float(rows[-1]["time_s"]) - float(rows[-2]["time_s"])
+    count = math.ceil(0.05 / frame_s - 1e-9)  # frames that span the window
+    mean = [float(r["push_force_mean_uN"]) for r in rows]
+    assert min(mean[-count:]) > 500.0 and mean[-count - 1] <= 500.0  # every frame of the window above, no more
+    assert result["deployed_length_mm"] < 19.0
+
+
+def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):
+    path = scene(tmp_path, **{"tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -2.0]"})
+    code, _, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "never")
+    assert code == 2
+    assert "catheter.tip [0, 0, -2] mm is 0.25 mm outside the lumen" in one_line(err)
+    assert not (tmp_path / "never").exists()
+
+
+def test_an_unwritable_parent_is_refused_in_one_line(tmp_path, monkeypatch):
+    """(The subprocess test above is skipped as root, who may write anywhere.)"""
+    from warpcoil.recorder import folder
+
+    monkeypatch.setattr(folder.os, "access", lambda path, mode: False)
+    with pytest.raises(folder.OutputFolderError, match=r"is not writable; fix: choose a folder you can write to"):
+        folder.check_output_path(tmp_path / "run")

@@ -1,0 +1,165 @@
+"""Checks of a scene's set-up before the first step (one clear message each).
+
+* The catheter tip must lie inside the lumen (the wall's winding number, via
+  its ``wp.Mesh``), and so must a given catheter centerline: otherwise
+  :class:`SetupError` naming the scene file, the key and the fix (exit 2).
+* Warnings, for a run that may go on but will likely disappoint: a catheter
+  pointing away from the sac, coils whose volume exceeds MAX_PACKING of the
+  sac, a loop far larger than the sac.
+
+Units mm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .settings import Scene
+
+MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
+MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
+CENTERLINE_SAMPLE_MM = 0.1  # spacing of the checked points along a catheter centerline
+
+
+class SetupError(ValueError):
+    """A set-up that cannot be deployed; the message names the file, the key and the fix."""
+
+
+@wp.kernel
+def _depth_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), max_distance: float,
+                  depth: wp.array(dtype=float)):
+    """Distance of each point to the surface, > 0 inside (winding number), < 0 outside."""
+    i = wp.tid()
+    query = wp.mesh_query_point_sign_winding_number(mesh, points[i], max_distance)
+    if query.result:
+        closest = wp.mesh_eval_position(mesh, query.face, query.u, query.v)
+        depth[i] = -query.sign * wp.length(points[i] - closest)
+    else:
+        depth[i] = -max_distance
+
+
+def depth_inside_wall_mm(wall, points_mm: np.ndarray, device=None) -> np.ndarray:
+    """Per point: its distance to the wall (mm), positive inside the lumen, negative
+    outside (the sign from the winding number of a ``wp.Mesh``, robust near seams).
+    ``wall``: a :class:`warpcoil.wall.WallMesh`."""
+    origin = 0.5 * (wall.vertices_mm.min(axis=0) + wall.vertices_mm.max(axis=0))
+    points = np.atleast_2d(np.asarray(points_mm, dtype=np.float64)) - origin
+    mesh = wp.Mesh(points=wp.array((wall.vertices_mm - origin).astype(np.float32), dtype=wp.vec3, device=device),
+                   indices=wp.array(np.asarray(wall.faces, dtype=np.int32).ravel(), dtype=wp.int32, device=device),
+                   support_winding_number=True)
+    span = float(np.ptp(wall.vertices_mm, axis=0).max())
+    max_distance = 10.0 * span + float(np.abs(points).max(initial=0.0))
+    out = wp.zeros(len(points), dtype=float, device=device)
+    wp.launch(_depth_inside, len(points), device=device, inputs=[
+        mesh.id, wp.array(points.astype(np.float32), dtype=wp.vec3, device=device), max_distance, out])
+    return out.numpy().astype(np.float64)
+
+
+def _polyline_samples(points: np.ndarray, spacing_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every ≤ spacing along a polyline, and the index of the segment each lies on."""
+    samples, segment = [], []
+    for k, (a, b) in enumerate(zip(points[:-1], points[1:])):
+        count = max(1, math.ceil(np.linalg.norm(b - a) / spacing_mm))
+        t = np.linspace(0.0, 1.0, count + 1)[:-1, None]
+        samples.append(a + t * (b - a))
+        segment += [k] * count
+    samples.append(points[-1:])
+    segment.append(len(points) - 2)
+    return np.vstack(samples), np.array(segment)
+
+
+def _where(scene: Scene) -> str:
+    return str(scene.source) if scene.source is not None else "scene"
+
+
+def _vec(values) -> str:
+    return "[" + ", ".join(f"{v:.3g}" for v in np.round(np.asarray(values, dtype=float), 4) + 0.0) + "]"
+
+
+def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
+    """Raise SetupError for a tip (or centerline) outside the lumen; warn when the
+    catheter points away from the sac. ``anatomy``: the resolved Anatomy."""
+    wall = anatomy.wall
+    if wall is None:
+        return []
+    catheter = anatomy.catheter
+    tip = np.asarray(catheter.tip_mm, dtype=np.float64)
+    depth = float(depth_inside_wall_mm(wall, tip, device)[0])
+    low, high = wall.vertices_mm.min(axis=0), wall.vertices_mm.max(axis=0)
+    if depth <= 0.0:
+        if catheter.placement == "neck":
+            raise SetupError(
+                f"{_where(scene)}: catheter.depth_mm = {catheter.depth_mm:g} puts the tip at {_vec(tip)} mm, "
+                f"{-depth:.3g} mm outside the lumen; fix: give a depth that stays inside the sac (e.g. 0.5)")
+        raise SetupError(
+            f"{_where(scene)}: catheter.tip {_vec(tip)} mm is {-depth:.3g} mm outside the lumen (the wall spans "
+            f"{_vec(low)} to {_vec(high)} mm); fix: move catheter.tip inside the wall, a little inside the sac")
+    if catheter.centerline_mm is not None:
+        line = np.asarray(catheter.centerline_mm, dtype=np.float64)
+        samples, segment = _polyline_samples(line, CENTERLINE_SAMPLE_MM)
+        outside = np.flatnonzero(depth_inside_wall_mm(wall, samples, device) <= 0.0)
+        if outside.size:
+            k = int(segment[outside[0]])
+            raise SetupError(
+                f"{_where(scene)}: catheter.centerline leaves the lumen at {_vec(samples[outside[0]])} mm, between "
+                f"points {k} and {k + 1}; fix: route the centerline inside the vessel and sac (every point and the "
+                "straight pieces between them)")
+    centre = _sac_centre_mm(anatomy)
+    direction = np.asarray(catheter.direction, dtype=np.float64)
+    to_centre = centre - tip
+    if np.dot(direction, to_centre) < 0.0:
+        angle = math.degrees(math.acos(np.clip(np.dot(direction, to_centre) / max(np.linalg.norm(to_centre), 1e-12),
+                                               -1.0, 1.0)))
+        return [f"{_where(scene)}: catheter direction {_vec(direction)} points away from the sac (at {angle:.0f}° "
+                f"to the line from the tip to the sac's centre {_vec(centre)} mm): the coil will first run into the "
+                "wall next to the tip; check catheter.direction (or catheter.angle_deg)"]
+    return []
+
+
+def _sac_centre_mm(anatomy) -> np.ndarray:
+    import trimesh
+
+    if anatomy.sac is not None:
+        return np.asarray(anatomy.sac.closed_surface.center_mass)
+    wall = anatomy.wall
+    return np.asarray(trimesh.Trimesh(wall.vertices_mm, wall.faces, process=False).center_mass)
+
+
+def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
+    """Warnings for coils that cannot fit: volume over MAX_PACKING of the sac, a loop
+    over MAX_LOOP_OVER_SAC × the sac's equivalent-sphere diameter."""
+    if not sac_volume_mm3:
+        return []
+    warnings = []
+    volume = sum(math.pi * (c.wire_diameter_mm / 2.0) ** 2 * c.length_mm for c in scene.coils)
+    if volume > MAX_PACKING * sac_volume_mm3:
+        stall = scene.simulation.stall_packing * sac_volume_mm3
+        filled, at_mm = 0.0, 0.0
+        for coil in scene.coils:  # the deployed length at which the sac holds stall_packing
+            area = math.pi * (coil.wire_diameter_mm / 2.0) ** 2
+            take = min(coil.length_mm, max(stall - filled, 0.0) / area)
+            filled, at_mm = filled + take * area, at_mm + take
+        when = (f"; the run will end as jammed (stalled) when the coil in the sac fills "
+                f"{100 * scene.simulation.stall_packing:.0f} % of it, after about {at_mm:.0f} mm"
+                if filled >= stall * (1 - 1e-9) else "")
+        warnings.append(
+            f"{_where(scene)}: the coils' volume {volume:.3g} mm³ is {100 * volume / sac_volume_mm3:.0f} % of the "
+            f"sac's {sac_volume_mm3:.3g} mm³ (clinical packing is 20–35 %; above {100 * MAX_PACKING:.0f} % the sac "
+            f"cannot hold them){when}; use shorter coils (coil.length_mm)")
+    sac_diameter = (6.0 * sac_volume_mm3 / math.pi) ** (1.0 / 3.0)
+    for k, coil in enumerate(scene.coils):
+        if coil.loop_diameter_mm > MAX_LOOP_OVER_SAC * sac_diameter:
+            warnings.append(
+                f"{_where(scene)}: coil[{k}].loop_diameter_mm = {coil.loop_diameter_mm:g} is "
+                f"{coil.loop_diameter_mm / sac_diameter:.1f}× the sac's size ({sac_diameter:.2g} mm, the diameter "
+                "of a sphere of its volume): the coil cannot form its loops; choose a loop about the sac's size")
+    return warnings
+
+
+def preflight(scene: Scene, anatomy, device=None) -> list[str]:
+    """Every check of a scene and its resolved Anatomy before the first step; returns
+    the warnings (raises SetupError)."""
+    return check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)

@@ -1,0 +1,129 @@
+"""One output folder holds exactly one run's outputs.
+
+A command *claims* its folder before it writes anything: it takes a lock file
+(``.warpcoil.lock``, created exclusively, holding the process id), so two
+runs into one folder cannot interleave; a lock left by a process that no
+longer exists (a killed run) is taken over. A folder that already holds a
+run's outputs (any file name warpcoil writes, or a leftover temporary file)
+is refused, unless ``overwrite``: then exactly those files are deleted first,
+so no old ``result.json``, picture or animation ever sits beside new data.
+Files that warpcoil does not write are left alone.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import socket
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+LOCK_NAME = ".warpcoil.lock"
+TEMPORARY = re.compile(r"^\..+\.tmp-[0-9a-f]{8}")  # atomic_path's temporary names
+
+
+class OutputFolderError(ValueError):
+    """An output folder that cannot be used; the message names it and the fix."""
+
+
+def check_output_path(path: Path, option: str = "-o") -> None:
+    """Refuse, before any work, an output path that is a file or cannot be created or written."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputFolderError(f"{option} {path}: is an existing file, not a folder; fix: give a folder path "
+                                f"(it is created if missing), e.g. {option} {path.with_suffix('')}_out")
+    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise OutputFolderError(f"{option} {path}: {existing} is a file, so the folder cannot be created; fix: "
+                                "choose another output folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputFolderError(f"{option} {path}: {existing} is not writable; fix: choose a folder you can "
+                                "write to, or change its permissions")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _take_lock(folder: Path, option: str) -> Path:
+    lock = folder / LOCK_NAME
+    me = f"{os.getpid()} {socket.gethostname()}\n"
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid_text, _, host = lock.read_text().partition(" ")
+                pid, host = int(pid_text), host.strip()
+            except (OSError, ValueError):
+                pid, host = -1, ""
+            if host == socket.gethostname() and pid > 0 and not _pid_alive(pid):
+                lock.unlink(missing_ok=True)  # left by a run that was killed: take it over
+                continue
+            owner = f"process {pid} on {host}" if pid > 0 else "another process"
+            raise OutputFolderError(
+                f"{option} {folder}: another warpcoil run ({owner}) is writing into this folder; fix: wait for it "
+                f"to finish or choose another output folder (if no run is going on, delete {lock})") from None
+        with os.fdopen(fd, "w") as file:
+            file.write(me)
+        return lock
+    raise OutputFolderError(f"{option} {folder}: cannot take the lock {lock}; fix: delete it and run again")
+
+
+def previous_outputs(folder: Path, names: Iterable[str], folder_pattern: str | None = None) -> list[Path]:
+    """The files (and, matching ``folder_pattern``, sub-folders) of an earlier run in ``folder``."""
+    names = set(names)
+    found = []
+    for entry in sorted(folder.iterdir()):
+        if entry.name in names or TEMPORARY.match(entry.name):
+            found.append(entry)
+        elif folder_pattern and entry.is_dir() and re.fullmatch(folder_pattern, entry.name):
+            found.append(entry)
+    return found
+
+
+@contextmanager
+def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: str = "-o",
+                   folder_pattern: str | None = None) -> Iterator[Path]:
+    """Create (if needed) and lock ``path`` for one run; refuse or (``overwrite``)
+    delete an earlier run's outputs (``names``; sub-folders matching
+    ``folder_pattern``). On exit the lock is released, and a folder this call
+    created that is still empty is removed again."""
+    path = Path(path)
+    check_output_path(path, option)
+    created = not path.exists()
+    path.mkdir(parents=True, exist_ok=True)
+    try:
+        lock = _take_lock(path, option)
+    except OutputFolderError:
+        if created:
+            shutil.rmtree(path, ignore_errors=True)
+        raise
+    try:
+        names = tuple(names)
+        old = previous_outputs(path, names, folder_pattern)
+        if old and not overwrite:
+            shown = ", ".join(p.name for p in old[:4]) + (", …" if len(old) > 4 else "")
+            raise OutputFolderError(f"{option} {path}: already holds the outputs of an earlier run ({shown}); fix: "
+                                    "add --overwrite to replace them, or choose another output folder")
+        for entry in old:
+            if entry.is_dir():
+                for inner in previous_outputs(entry, names):
+                    inner.unlink()
+                if not any(entry.iterdir()):
+                    entry.rmdir()
+            else:
+                entry.unlink()
+        yield path
+    finally:
+        lock.unlink(missing_ok=True)
+        if created and path.is_dir() and not any(path.iterdir()):
+            path.rmdir()
