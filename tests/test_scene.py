@@ -224,6 +224,8 @@ ERRORS = {
     ),
     "primary wire too thick": (with_coil(primary_wire_diameter_mm="0.3"), "coil[0]", "smaller than wire_diameter_mm"),
     "second coil": (MINIMAL_COIL + with_coil(wire_diameter_mm='"x"'), "coil[1].wire_diameter_mm", "number"),
+    "porous without wall": (MINIMAL_COIL + "[output]\nporous = true\n", "output.porous", "no [wall]"),
+    "porous voxel": (MINIMAL_COIL + "[output]\nporous_voxel_mm = 0\n", "output.porous_voxel_mm", "> 0"),
 }
 
 

@@ -38,3 +38,10 @@ def test_free_release_from_catheter_forms_the_helix():
 
 def test_undamped_energy_is_conserved():
     assert_rows_pass(validation.energy_conservation())
+
+
+def test_porous_field_volume_and_permeabilities():
+    rows = validation.porous_cases()
+    assert_rows_pass(rows)
+    volume_errors = [r.error for r in rows if "capsule volume" in r.case]
+    assert volume_errors[-1] < volume_errors[0]  # converges as the voxel shrinks

@@ -1,4 +1,5 @@
-"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``.
+"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``,
+``warpcoil coils``.
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
@@ -119,12 +120,25 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     progress.close()
     for recorder in recorders:
         recorder.close()
-    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings})
+    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings},
+                      sac=deployment.anatomy.sac)
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
           f"{result.steps} steps of {result.dt_s:.3g} s in {result.wall_time_s:.1f} s wall time -> {out}")
     return EXIT_FOR_STATUS[result.status]
+
+
+def _coils(args: argparse.Namespace) -> int:
+    from .catalog import CatalogueError, listing, select
+
+    try:
+        lines = select(args.family)
+    except CatalogueError as error:
+        print(f"warpcoil coils: --family: {error}", file=sys.stderr)
+        return 2
+    sys.stdout.write(listing(lines))
+    return 0
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -240,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("-q", "--quiet", action="store_true",
                        help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
+    coils = sub.add_parser("coils", help="list the coil catalogue (families, shapes, sizes, sources) for product = ...")
+    coils.add_argument("--family", help="only the families whose name contains this text (case-insensitive)")
+    coils.set_defaults(func=_coils)
     run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")

@@ -66,6 +66,7 @@ class CoilSpec:
     axial_stiffness_uN: float | None = None
     stretch_resistant: bool = True
     name: str = field(default="coil", compare=False)
+    notes: tuple[str, ...] = field(default=(), compare=False)  # catalogue notes, reported as warnings
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:

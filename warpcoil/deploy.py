@@ -14,14 +14,15 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
 
-from .kernels.contact import FAR_MM
+from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
+from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .settings import CatheterSpec, Scene
+from .settings import Scene
 from .solver import Control, Solver, Stepper
 from .state import State, new_state_like, packed_state
 
@@ -29,129 +30,6 @@ COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeou
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
-
-
-@dataclass
-class Frame:
-    """What a run reports per recorded frame."""
-
-    time_s: float
-    deployed_length_mm: float
-    push_force_mean_uN: float  # signed mean over the frame's steps (compressive > 0)
-    push_force_peak_uN: float  # largest compressive single-step value in the frame (≥ 0)
-    push_force_rms_uN: float  # root mean square over the frame's steps
-    kinetic_nJ: float
-    bend_nJ: float
-    twist_nJ: float
-    stretch_nJ: float
-    wall_contacts: int  # free nodes with wall gap < c0
-    coil_contacts: int  # edge pairs with gap < c0
-    max_wall_force_uN: float
-    min_wall_gap_mm: float
-    min_coil_gap_mm: float
-    length_outside_sac_mm: float
-
-
-@dataclass
-class RunResult:
-    """End-of-run report (MODEL.md, "What a run reports"); keys carry their units."""
-
-    status: str
-    reason: str
-    steps: int
-    dt_s: float
-    step_bound_s: float
-    mass_scale: float
-    wall_time_s: float
-    simulated_time_s: float
-    coil_length_mm: float
-    deployed_length_mm: float
-    sac_volume_mm3: float | None
-    packing_density: float | None
-    length_outside_sac_mm: float
-    min_wall_gap_mm: float
-    min_coil_gap_mm: float
-    max_wall_force_uN: float
-    push_force_peak_uN: float  # largest compressive single-step push force of the run
-    push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
-    push_force_rms_uN: float  # root mean square over every step while a coil was pushed
-    stored_energy_nJ: float
-    final_kinetic_nJ: float
-    final_bend_nJ: float
-    final_twist_nJ: float
-    final_stretch_nJ: float
-    coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
-    regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
-    step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
-    wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
-    catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
-    catheter_direction: tuple | None = None
-    frames: list[Frame] = field(default_factory=list, repr=False)
-    positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
-
-    def summary(self) -> dict:
-        """The JSON-ready scalars (no frames or positions)."""
-        d = asdict(self)
-        d.pop("frames")
-        d.pop("positions_mm")
-        return d
-
-
-@dataclass
-class Anatomy:
-    """The wall and, with a [neck], the sac it closes off; the catheter as placed."""
-
-    wall: object | None  # warpcoil.wall.WallMesh
-    sac: object | None  # warpcoil.sac.Sac
-    catheter: CatheterSpec
-
-    @property
-    def sac_volume_mm3(self) -> float | None:
-        if self.sac is not None:
-            return self.sac.volume_mm3
-        return self.wall.volume_mm3 if self.wall is not None else None
-
-
-def resolve_anatomy(scene: Scene) -> Anatomy:
-    """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
-    from . import sac as sacs
-    from .wall import load_wall
-
-    wall = load_wall(scene.wall) if scene.wall is not None else None
-    sac = None
-    if scene.neck is not None:
-        hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
-        if scene.neck.contour is not None:
-            neck = sacs.neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
-        else:
-            neck = sacs.neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
-                                        wall, sac_side_point_mm=hint)
-        sac = sacs.sac_from_neck(wall, neck)
-    catheter = scene.catheter
-    if catheter.placement == "neck":
-        tip, direction = sacs.catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-        catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    return Anatomy(wall=wall, sac=sac, catheter=catheter)
-
-
-def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
-    """:func:`resolve_anatomy` for each scene; scenes with the same wall and neck
-    share one wall mesh and sac (read and cut once, one BVH on the device)."""
-    from .sac import catheter_from_neck
-
-    shared: dict[tuple, Anatomy] = {}
-    anatomies = []
-    for scene in scenes:
-        key = (repr(scene.wall), repr(scene.neck))
-        if key not in shared:
-            shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
-        base = shared[key]
-        catheter = scene.catheter
-        if catheter.placement == "neck":
-            tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-            catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter))
-    return anatomies
 
 
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
@@ -216,25 +94,6 @@ class Member:
         speed = self.scene.simulation.push_speed_mm_s
         return self.stored_energy_nJ + self.pusher_work_nJ + 0.5 * released * speed**2 + 1.0
 
-    def in_sac(self, points_mm: np.ndarray) -> np.ndarray:
-        from .sac import inside_sac
-
-        return inside_sac(self.anatomy.sac, points_mm)
-
-
-@dataclass
-class Snapshot:
-    """Host copies of the solver arrays a frame's measurement reads (all worlds)."""
-
-    time_s: float
-    x: np.ndarray
-    free: np.ndarray
-    advance: np.ndarray
-    wall_distance: np.ndarray
-    wall_force: np.ndarray
-    coil_gap: np.ndarray
-    coil_contacts: np.ndarray
-
 
 class Ensemble:
     """Deployments of several scenes advanced by one set of launches (one world
@@ -279,44 +138,6 @@ class Ensemble:
         self.step_reductions: list[str] = []
         self._steps_before = 0  # steps of chunks dropped by a step halving
         self._work_before = (0.0, 0.0)  # a single run's pusher work and advance at the last frame
-
-    # --- measurement ---------------------------------------------------------
-    def _snapshot(self, state: State) -> Snapshot:
-        s = self.solver
-        s.compute_contacts(state, wall_search_mm=float(FAR_MM), running=self.control.running)  # exact distances
-        arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
-        return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
-
-    def _measure(self, member: Member, snap: Snapshot, energies: dict, push: tuple[float, float, float]) -> Frame:
-        """Frame quantities of one member at the snapshot; ``push``: the frame's
-        push force mean, peak and RMS (µN)."""
-        w, sl, m = member.world, member.nodes, self.model
-        free = snap.free[sl] == 1
-        advance = snap.advance[member.coils.start:member.coils.stop]
-        deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
-        c0 = m.contact.c0_mm
-        wall_gap = np.inf
-        wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
-        if m.world_walls[w] is not None and free.any():
-            centre = snap.wall_distance[sl][free]
-            gaps = centre - member.radius[free]
-            wall_gap = float(gaps.min())
-            wall_contacts = int((gaps < c0).sum())
-            max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
-            outside = float(member.segment[free][centre < 0.0].sum())
-        if member.anatomy.sac is not None and free.any():
-            outside = float(member.segment[free][~member.in_sac(snap.x[sl][free])].sum())
-        in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
-        coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (self.solver.coil_contact and free.any()) else np.inf
-        return Frame(
-            time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
-            push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),
-            kinetic_nJ=float(energies["kinetic_nJ"][w]),
-            bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
-            stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
-            coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if self.solver.coil_contact else 0,
-            max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
-            length_outside_sac_mm=outside)
 
     # --- coil sequence -------------------------------------------------------------
     def _activate(self, member: Member, coil: int) -> None:
@@ -371,7 +192,8 @@ class Ensemble:
         if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
         member.steps = self._steps_before + self.stepper.steps
-        member.result = self._result(member, status, reason, time.perf_counter() - started, snap)
+        member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
+                                   snap, self.step_reductions)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
@@ -452,7 +274,7 @@ class Ensemble:
             return self._run(on_frame, interrupted)
 
     def _interrupt(self, members: list[Member], started: float) -> None:
-        snap = self._snapshot(self.stepper.state)
+        snap = take_snapshot(self.solver, self.stepper.state, self.control.running)
         for member in members:
             deployed = float(np.clip(snap.advance[member.coils.start:member.coils.stop], 0.0,
                                      member.coil_lengths_mm).sum())
@@ -467,9 +289,9 @@ class Ensemble:
             self._activate(member, 0)
         state = self.stepper.state
         energies, _ = self.solver.world_health(state)
-        snap = self._snapshot(state)
+        snap = take_snapshot(self.solver, state, self.control.running)
         for member in self.members:
-            self._record(member, self._measure(member, snap, energies, (0.0, 0.0, 0.0)), on_frame)
+            self._record(member, measure_frame(self.model, self.solver, member, snap, energies, (0.0, 0.0, 0.0)), on_frame)
             if state.time_s >= member.max_time_s:
                 self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
                              started, snap)
@@ -484,7 +306,7 @@ class Ensemble:
             state = self.stepper.state
             push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
-            snap = self._snapshot(state)
+            snap = take_snapshot(self.solver, state, self.control.running)
             budgets = np.zeros(self.model.world_count)
             for m in running:
                 budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
@@ -498,7 +320,7 @@ class Ensemble:
                     self._halve_step(snapshot, problems[member.world])
                     continue
                 # the last healthy state (the frame's start): no non-finite geometry in the results
-                self._finish(member, FAILED, problems[member.world], started, self._snapshot(snapshot))
+                self._finish(member, FAILED, problems[member.world], started, take_snapshot(self.solver, snapshot, self.control.running))
                 break
             for member in unstable:  # run alone afterwards, where its step can be halved
                 self.control.stop(member.world)
@@ -507,7 +329,7 @@ class Ensemble:
             for member in running:
                 if member in unstable:
                     continue
-                frame = self._measure(member, snap, energies, tuple(p[member.world] for p in push))
+                frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)
             if single:
@@ -521,79 +343,6 @@ class Ensemble:
             result = alone.run(on_frame)[0]
             member.frames, member.result = alone.members[0].frames, result
         return [m.result for m in self.members]
-
-    def _result(self, member: Member, status: str, reason: str, wall_time_s: float, snap: Snapshot) -> RunResult:
-        """The member's RunResult from its frames and the frame's snapshot."""
-        m, sl = self.model, member.nodes
-        frames = member.frames
-        last = frames[-1]
-        sac_volume = member.anatomy.sac_volume_mm3
-        advance = snap.advance[member.coils.start:member.coils.stop]
-        deployed_each = np.clip(advance, 0.0, member.coil_lengths_mm)
-        coil_specs = [m.coils[c] for c in member.coils]
-        volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in coil_specs]) * deployed_each
-        coil_volume = float(volumes.sum())
-        density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
-        x = snap.x[sl]
-        free = snap.free[sl] == 1
-        outside = np.zeros(len(x), bool)
-        if member.anatomy.sac is not None:
-            outside[free] = ~member.in_sac(x[free])
-        elif m.world_walls[member.world] is not None:
-            outside[free] = snap.wall_distance[sl][free] < 0.0
-        local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
-        coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
-                      length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
-                      loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(member.coil_lengths_mm[k]),
-                      deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
-                      cumulative_packing_density=density(volumes[: k + 1].sum()))
-                 for k, c in enumerate(coil_specs)]
-        finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
-        return RunResult(
-            status=status, reason=reason, steps=member.steps, dt_s=self.solver.dt_s,
-            step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
-            simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
-            deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
-            packing_density=coil_volume / sac_volume if sac_volume else None,
-            length_outside_sac_mm=last.length_outside_sac_mm,
-            min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
-            min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
-            max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-            push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
-            push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
-            push_force_rms_uN=_run_rms(frames),
-            stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
-            final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
-            regions=self._regions(member, x, free), step_reductions=list(self.step_reductions),
-            wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
-            catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
-            frames=frames,
-            positions_mm=[x[s] for s in local])
-
-    def _regions(self, member: Member, x: np.ndarray, free: np.ndarray) -> dict | None:
-        """Regional densities of the final coils (only where a neck defines the sac)."""
-        if member.anatomy.sac is None:
-            return None
-        from .sac import regional_density
-
-        m, r, sl = self.model, member.scene.regions, member.nodes
-        coils = [(x[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start],
-                  free[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start], m.coils[c].d)
-                 for c in member.coils]
-        kept = [(pts[f], d) for pts, f, d in coils if f.sum() >= 2]
-        density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
-                                   r.neck_band_mm, r.boundary_mm)
-        return {k: float(v) for k, v in asdict(density).items()}
-
-
-def _run_rms(frames: list[Frame]) -> float:
-    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
-    length grew; each frame spans the same simulated time, so this is the RMS over
-    that time)."""
-    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
-              f.deployed_length_mm > before.deployed_length_mm]
-    return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
-
 
 @contextmanager
 def _stop_on_interrupt() -> Iterator[list[bool]]:

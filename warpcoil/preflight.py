@@ -162,4 +162,5 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
 def preflight(scene: Scene, anatomy, device=None) -> list[str]:
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError)."""
-    return check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
+    notes = [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
+    return notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)

@@ -32,8 +32,9 @@ The neck normal then points to the side where the sac wall lies (area-weighted
 mean height of the sac faces over the ostium plane > 0); :func:`sac_from_neck`
 takes the side the normal points into.
 
-Everything is vectorised with numpy; inside tests cast rays along +z (or the neck
-normal) and count crossings, found through a bucket grid of the triangles.
+Cutting is vectorised with numpy. The geometric queries (inside tests, distances
+to the wall, rays onto the ostium, points near coil segments) run in Warp kernels
+on Warp's BVH (:mod:`warpcoil.geometry`), on the CPU or the GPU.
 """
 
 from __future__ import annotations
@@ -44,16 +45,19 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.ndimage import distance_transform_edt
 from trimesh.grouping import group_rows
 from vtkmodules.util.numpy_support import vtk_to_numpy
 
+from .geometry import SurfaceBVH, inside_points, inside_voxels, points_near_segments, ray_hits, surface_bvh, \
+    surface_voxels
 from .preshape import PreshapeError, read_centerline
 from .wall import WallMesh, component_labels, read_vtk_polydata
 
 CAP_MIN_VALENCE = 10  # a capped open end: a fan of at least this many triangles around one hub vertex
 CAP_MAX_WARP = 0.02  # ... whose ring lies within this fraction of its diameter of a plane
 CAP_MIN_FRACTION = 0.25  # ... and spans at least this fraction of the ostium's equivalent diameter
-PAIR_CHUNK = 1_000_000  # candidate (point, primitive) pairs handled at once
+PAIR_CHUNK = 1_000_000  # (point, contour segment) pairs handled at once
 MAX_VOXELS = 4_000_000  # the default voxel edge grows so that the sac's bounding box holds at most this many
 CONTOUR_SUFFIXES = (".vtk", ".vtp", ".csv", ".txt", ".xyz", ".npy")
 
@@ -144,9 +148,8 @@ def sac_from_neck(wall: WallMesh, neck: Neck) -> Sac:
 
 
 def inside_sac(sac: Sac, points_mm: np.ndarray) -> np.ndarray:
-    """Bool per point: inside the closed sac surface (ray parity)."""
-    surface = sac.closed_surface
-    return _inside_points(np.asarray(surface.vertices), np.asarray(surface.faces), _points(points_mm))
+    """Bool per point: inside the closed sac surface (side of the first face a ray along +z meets)."""
+    return inside_points(_sac_bvh(sac), _points(points_mm))
 
 
 def herniated_length_mm(sac: Sac, wall: WallMesh, points_mm: np.ndarray, segment_lengths_mm: np.ndarray) -> float:
@@ -156,7 +159,7 @@ def herniated_length_mm(sac: Sac, wall: WallMesh, points_mm: np.ndarray, segment
     if len(weights) != len(points):
         raise ValueError(f"herniated_length_mm: {len(points)} points but {len(weights)} segment lengths; "
                          "give one length (weight) per node")
-    in_lumen = _inside_points(wall.vertices_mm, wall.faces, points)
+    in_lumen = inside_points(surface_bvh(wall, wall.vertices_mm, wall.faces), points)
     outside = in_lumen & ~inside_sac(sac, points)
     return float(weights[outside].sum())
 
@@ -218,19 +221,16 @@ def regional_density(
 
     origin = lo - h
     shape = tuple(int(n) for n in np.ceil((hi - lo) / h).astype(np.int64) + 2)
-    inside = _inside_grid(vertices, faces, origin, h, shape)
+    inside = inside_voxels(_sac_bvh(sac), origin, h, shape)
     flat = np.flatnonzero(inside)
     centres = origin + h * (np.column_stack(np.unravel_index(flat, shape)) + 0.5)
-    filled = _points_near_segments(centres, segments_a, segments_b, radii)
+    filled = points_near_segments(centres, segments_a, segments_b, radii)
 
-    # boundary: within boundary_mm of a voxel the sac wall (not the ostium fan) passes through
+    # boundary: within boundary_mm of the centre of a voxel the sac wall (not the ostium fan) passes through
     hub = np.flatnonzero(np.all(vertices == neck.centroid_mm, axis=1))
-    wall_faces = faces[~np.isin(faces, hub).any(axis=1)]
-    samples = _sample_triangles(vertices[wall_faces], 0.5 * h)
-    cells = np.floor((samples - origin) / h).astype(np.int64)
-    features = np.zeros(shape, dtype=bool)
-    features[tuple(np.clip(cells, 0, np.array(shape) - 1).T)] = True
-    near_wall = _within_distance(features, boundary_mm / h)[inside]
+    wall_part = SurfaceBVH(vertices, faces[~np.isin(faces, hub).any(axis=1)])
+    crossed = surface_voxels(wall_part, origin, h, shape)
+    near_wall = (distance_transform_edt(~crossed) <= boundary_mm / h)[inside]
 
     # neck: above the ostium fan (height map along the normal) by at most neck_band_mm
     frame = np.array(neck_frame(neck.normal))
@@ -243,7 +243,7 @@ def regional_density(
     in_core = ~near_wall & ~in_neck
     fraction = [float(filled[r].mean()) if r.any() else float("nan") for r in (in_neck, in_boundary, in_core)]
     total = float(filled.mean()) if len(filled) else float("nan")
-    covered = _points_near_segments(ostium.samples_mm, segments_a, segments_b, radii)
+    covered = points_near_segments(ostium.samples_mm, segments_a, segments_b, radii)
     coverage = float((ostium.weights * covered).sum() / ostium.weights.sum()) if len(covered) else float("nan")
     return RegionalDensity(
         neck=fraction[0], boundary=fraction[1], core=fraction[2], total_voxel=total, neck_coverage=coverage,
@@ -467,7 +467,7 @@ def _sac_side(
     """+1 or -1: the sac's side of the contour, by the rule in the module docstring."""
     if hint is not None:
         point = np.asarray(hint, dtype=np.float64).reshape(1, 3)
-        holding = [s for s, piece in pieces.items() if _inside_points(piece.vertices, piece.faces, point)[0]]
+        holding = [s for s, piece in pieces.items() if inside_points(SurfaceBVH(piece.vertices, piece.faces), point)[0]]
         if len(holding) != 1:
             raise _error(source, f"sac_side_point_mm {point[0]} lies in {'neither' if not holding else 'both'} "
                          "of the two lumen pieces cut off by the neck", "give a point inside the sac lumen")
@@ -523,25 +523,6 @@ def _points(points_mm: np.ndarray) -> np.ndarray:
     return points
 
 
-def _expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(owner, local index) for ``counts[i]`` items of each owner i."""
-    counts = np.asarray(counts, dtype=np.int64)
-    owner = np.repeat(np.arange(len(counts)), counts)
-    local = np.arange(len(owner)) - (np.cumsum(counts) - counts)[owner]
-    return owner, local
-
-
-def _chunks(counts: np.ndarray, limit: int = PAIR_CHUNK) -> Iterator[slice]:
-    """Consecutive slices of owners holding about ``limit`` items each (at least one owner)."""
-    total = np.cumsum(counts)
-    start = 0
-    while start < len(counts):
-        base = total[start - 1] if start else 0
-        stop = max(int(np.searchsorted(total, base + limit, side="right")), start + 1)
-        yield slice(start, stop)
-        start = stop
-
-
 def _row_chunks(rows: int, width: int) -> Iterator[slice]:
     step = max(1, PAIR_CHUNK // max(width, 1))
     for start in range(0, rows, step):
@@ -564,159 +545,6 @@ def _nearest_on_loop(points: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, 
         distance[rows] = np.sqrt(d2[np.arange(len(d2)), segment[rows]])
     t = np.clip(np.einsum("ij,ij->i", points - start[segment], step[segment]) / length2[segment], 0.0, 1.0)
     return distance, segment, start[segment] + t[:, None] * step[segment]
-
-
-def _vertical_hits(triangles: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every (point, triangle, z) where the vertical line through a point meets a triangle.
-
-    Triangles and points are bucketed on an xy grid of about one triangle's
-    size. The line is shifted by a fixed sub-nanometre offset so that it does
-    not pass exactly through an edge or vertex.
-    """
-    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
-    if not len(triangles) or not len(points):
-        return empty
-    low, high = triangles[..., :2].min(axis=1), triangles[..., :2].max(axis=1)
-    cell = max(float(np.median((high - low).max(axis=1))), 1e-9)
-    origin = points[:, :2].min(axis=0)
-    dims = np.floor((points[:, :2].max(axis=0) - origin) / cell).astype(np.int64) + 1
-    cell_of_point = np.floor((points[:, :2] - origin) / cell).astype(np.int64)
-    point_key = cell_of_point[:, 0] * dims[1] + cell_of_point[:, 1]
-    order = np.argsort(point_key, kind="stable")
-    sorted_key = point_key[order]
-    first = np.clip(np.floor((low - origin) / cell).astype(np.int64), 0, None)
-    last = np.minimum(np.floor((high - origin) / cell).astype(np.int64), dims - 1)
-    extent = np.maximum(last - first + 1, 0)
-    tri, local = _expand(extent[:, 0] * extent[:, 1])
-    key = (first[tri, 0] + local // extent[tri, 1]) * dims[1] + first[tri, 1] + local % extent[tri, 1]
-    begin = np.searchsorted(sorted_key, key, side="left")
-    counts = np.searchsorted(sorted_key, key, side="right") - begin
-    shift = cell * np.array([3.1e-9, 4.7e-9])
-    found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    for part in _chunks(counts):
-        pair, k = _expand(counts[part])
-        t = tri[part][pair]
-        p = order[begin[part][pair] + k]
-        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-        e0, e1, q = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2], points[p, :2] + shift - a[:, :2]
-        det = e0[:, 0] * e1[:, 1] - e1[:, 0] * e0[:, 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = (q[:, 0] * e1[:, 1] - e1[:, 0] * q[:, 1]) / det
-            v = (e0[:, 0] * q[:, 1] - q[:, 0] * e0[:, 1]) / det
-            hit = (det != 0.0) & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0)
-        z = a[hit, 2] + u[hit] * (b[hit, 2] - a[hit, 2]) + v[hit] * (c[hit, 2] - a[hit, 2])
-        found.append((p[hit], t[hit], z))
-    if not found:
-        return empty
-    return tuple(np.concatenate(column) for column in zip(*found))  # type: ignore[return-value]
-
-
-def _inside_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Inside a closed surface: odd number of crossings of the ray from each point along +z."""
-    vertices, points = np.asarray(vertices, dtype=np.float64), np.asarray(points, dtype=np.float64)
-    result = np.zeros(len(points), dtype=bool)
-    if not len(points):
-        return result
-    box = np.all((points >= vertices.min(axis=0)) & (points <= vertices.max(axis=0)), axis=1)
-    candidates = np.flatnonzero(box)
-    point, _, z = _vertical_hits(vertices[np.asarray(faces)], points[candidates])
-    above = z > points[candidates[point], 2]
-    crossings = np.bincount(point[above], minlength=len(candidates))
-    result[candidates] = crossings % 2 == 1
-    return result
-
-
-def _inside_grid(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, h: float, shape: tuple) -> np.ndarray:
-    """Voxels (centre origin + h·(index + ½)) inside a closed surface: crossings below each centre per column."""
-    nx, ny, nz = shape
-    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    columns = np.column_stack((origin[0] + h * (i.ravel() + 0.5), origin[1] + h * (j.ravel() + 0.5), np.zeros(nx * ny)))
-    column, _, z = _vertical_hits(vertices[faces], columns)
-    first_above = np.clip(np.ceil((z - origin[2]) / h - 0.5), 0, nz).astype(np.int64)
-    toggles = np.bincount(column * (nz + 1) + first_above, minlength=nx * ny * (nz + 1)).reshape(nx * ny, nz + 1)
-    return (np.cumsum(toggles[:, :nz], axis=1) % 2 == 1).reshape(nx, ny, nz)
-
-
-def _point_segment_distance2(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Squared distance from each point p[i] to the segment (a[i], b[i])."""
-    step, offset = b - a, p - a
-    t = np.einsum("ij,ij->i", offset, step) / np.maximum(np.einsum("ij,ij->i", step, step), 1e-300)
-    gap = offset - np.clip(t, 0.0, 1.0)[:, None] * step
-    return np.einsum("ij,ij->i", gap, gap)
-
-
-def _points_near_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """Bool per point: within ``radius[s]`` of some segment s = (a[s], b[s]).
-
-    Points are bucketed on a grid of cell 2·max radius; segments are cut into
-    pieces no longer than a cell, each checked against the points of the cells
-    its radius-grown box touches.
-    """
-    near = np.zeros(len(points), dtype=bool)
-    if not len(points) or not len(a):
-        return near
-    cell = 2.0 * float(radius.max())
-    pieces = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / cell)).astype(np.int64)
-    seg, k = _expand(pieces)  # split long segments into pieces no longer than a cell
-    frac0, frac1 = (k / pieces[seg])[:, None], ((k + 1) / pieces[seg])[:, None]
-    start, end, r = a[seg] + frac0 * (b - a)[seg], a[seg] + frac1 * (b - a)[seg], radius[seg]
-    origin = points.min(axis=0)
-    dims = np.floor((points.max(axis=0) - origin) / cell).astype(np.int64) + 1
-    index = np.floor((points - origin) / cell).astype(np.int64)
-    point_key = (index[:, 0] * dims[1] + index[:, 1]) * dims[2] + index[:, 2]
-    order = np.argsort(point_key, kind="stable")
-    sorted_key = point_key[order]
-    low = np.clip(np.floor((np.minimum(start, end) - r[:, None] - origin) / cell).astype(np.int64), 0, None)
-    high = np.minimum(np.floor((np.maximum(start, end) + r[:, None] - origin) / cell).astype(np.int64), dims - 1)
-    extent = np.maximum(high - low + 1, 0)
-    piece, local = _expand(extent.prod(axis=1))
-    ex = extent[piece]
-    ci = low[piece, 0] + local // (ex[:, 1] * ex[:, 2])
-    cj = low[piece, 1] + (local // ex[:, 2]) % ex[:, 1]
-    ck = low[piece, 2] + local % ex[:, 2]
-    key = (ci * dims[1] + cj) * dims[2] + ck
-    begin = np.searchsorted(sorted_key, key, side="left")
-    counts = np.searchsorted(sorted_key, key, side="right") - begin
-    for part in _chunks(counts):
-        pair, j = _expand(counts[part])
-        q = piece[part][pair]
-        p = order[begin[part][pair] + j]
-        close = _point_segment_distance2(points[p], start[q], end[q]) <= r[q] ** 2
-        near[p[close]] = True
-    return near
-
-
-def _sample_triangles(triangles: np.ndarray, spacing: float) -> np.ndarray:
-    """Points on a barycentric lattice of each triangle, no farther apart than ``spacing``."""
-    edges = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2).max(axis=1)
-    divisions = np.maximum(1, np.ceil(edges / spacing)).astype(np.int64)
-    samples = []
-    for n in np.unique(divisions):  # a handful of lattice sizes
-        i, j = np.indices((n + 1, n + 1)).reshape(2, -1)
-        keep = i + j <= n
-        u, v = i[keep] / n, j[keep] / n
-        tri = triangles[divisions == n]
-        base, e0, e1 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        samples.append((base[:, None] + u[None, :, None] * e0[:, None] + v[None, :, None] * e1[:, None]).reshape(-1, 3))
-    return np.concatenate(samples) if samples else np.zeros((0, 3))
-
-
-def _within_distance(features: np.ndarray, radius_voxels: float) -> np.ndarray:
-    """Voxels whose centre is within ``radius_voxels`` of a feature voxel's centre.
-
-    Separable squared-distance passes over a window of ±floor(radius) voxels per
-    axis: exact for every distance up to the radius.
-    """
-    reach = int(np.floor(radius_voxels))
-    squared = np.where(features, 0.0, np.inf).astype(np.float32)
-    for axis in range(3):
-        moved = np.moveaxis(squared, axis, 0)
-        best = moved.copy()
-        for k in range(1, min(reach, moved.shape[0] - 1) + 1):  # a handful of shifts
-            best[k:] = np.minimum(best[k:], moved[:-k] + k * k)
-            best[:-k] = np.minimum(best[:-k], moved[k:] + k * k)
-        squared = np.moveaxis(best, 0, axis)
-    return squared <= radius_voxels**2
 
 
 def _coil_segments(
@@ -754,20 +582,20 @@ class _OstiumMap:
     @classmethod
     def build(cls, neck: Neck, frame: np.ndarray, spacing_mm: float) -> _OstiumMap:
         spokes = (neck.contour_mm - neck.centroid_mm) @ frame.T
-        rings = int(np.ceil(np.linalg.norm(spokes, axis=1).max() / (4.0 * spacing_mm)))
-        fan = _ringed_fan(spokes, rings)
-        low, high = fan[..., :2].min(axis=(0, 1)), fan[..., :2].max(axis=(0, 1))
+        corners = np.vstack((spokes, np.zeros(3)))  # the contour and the hub
+        fan = SurfaceBVH(corners, _fan_faces(len(spokes)))
+        low, high = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
         nu, nv = (np.ceil((high - low) / spacing_mm).astype(np.int64) + 1).tolist()
         i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-        grid = np.column_stack((low[0] + spacing_mm * i.ravel(), low[1] + spacing_mm * j.ravel(), np.zeros(nu * nv)))
-        column, tri, w = _vertical_hits(fan, grid)
+        below = corners[:, 2].min() - 1.0
+        grid = np.column_stack((low[0] + spacing_mm * i.ravel(), low[1] + spacing_mm * j.ravel(), np.full(nu * nv, below)))
+        column, _, t, normal = ray_hits(fan, grid, np.array([0.0, 0.0, 1.0]), 1e-6 * spacing_mm)
+        w = below + t
         w_low, w_high = np.full(nu * nv, np.inf), np.full(nu * nv, -np.inf)
         np.minimum.at(w_low, column, w)
         np.maximum.at(w_high, column, w)
-        normals = np.cross(fan[:, 1] - fan[:, 0], fan[:, 2] - fan[:, 0])
-        cosine = np.abs(normals[:, 2]) / np.maximum(np.linalg.norm(normals, axis=1), 1e-300)
         samples = neck.centroid_mm + np.column_stack((grid[column, :2], w)) @ frame
-        return cls(low, spacing_mm, (nu, nv), w_low, w_high, samples, 1.0 / np.maximum(cosine[tri], 1e-3))
+        return cls(low, spacing_mm, (nu, nv), w_low, w_high, samples, 1.0 / np.maximum(np.abs(normal[:, 2]), 1e-3))
 
     def heights_at(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lowest and highest fan height over the grid point nearest to each (u, v) (inf / -inf: off the ostium)."""
@@ -777,15 +605,12 @@ class _OstiumMap:
         return np.where(on, self.w_low[key], np.inf), np.where(on, self.w_high[key], -np.inf)
 
 
-def _ringed_fan(spokes: np.ndarray, rings: int) -> np.ndarray:
-    """The fan from the origin over the closed loop ``spokes`` (K, 3), each triangle cut into ``rings`` bands.
+def _fan_faces(count: int) -> np.ndarray:
+    """Triangles (hub = vertex ``count``, contour k, contour k+1) of the fan over a closed loop of ``count`` points."""
+    k = np.arange(count)
+    return np.column_stack((np.full(count, count), k, (k + 1) % count))
 
-    Same surface as the plain fan; the pieces have compact bounding boxes, which
-    keeps the bucketed ray search cheap for the long, thin fan triangles.
-    """
-    inner = np.arange(rings)[:, None, None, None] / rings
-    outer = inner + 1.0 / rings
-    here, following = spokes[None, :, None, :], np.roll(spokes, -1, axis=0)[None, :, None, :]
-    a, b, c, d = inner * here, inner * following, outer * following, outer * here  # (rings, K, 1, 3)
-    quads = np.concatenate((np.concatenate((a, b, c), axis=2), np.concatenate((a, c, d), axis=2)))
-    return quads.reshape(-1, 3, 3)
+
+def _sac_bvh(sac: Sac) -> SurfaceBVH:
+    surface = sac.closed_surface
+    return surface_bvh(sac, np.asarray(surface.vertices), np.asarray(surface.faces))

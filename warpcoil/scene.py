@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from .catalog import CatalogueError, find_line
 from .coil import SHAPES, CoilSpec
 from .settings import (
     CatheterSpec,
@@ -171,6 +172,8 @@ _COIL = {
     "axial_stiffness_uN": _Key(_positive),
     "stretch_resistant": _Key(_bool),
 }
+_PRODUCT = {"product": _Key(_text), "size": _Key(_text)}  # a catalogue coil: warpcoil/catalog.py
+_PRODUCT_COIL = {**{key: spec._replace(required=False) for key, spec in _COIL.items()}, **_PRODUCT}
 _CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "wall_query": _Key(_choice("sdf", "bvh")),
             "wall_voxel_mm": _Key(_positive)}
 _SIMULATION = {
@@ -189,7 +192,8 @@ _SIMULATION = {
     "max_time_s": _Key(_positive),
     "frame_interval_s": _Key(_positive),
 }
-_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool)}
+_OUTPUT = {"usd": _Key(_bool), "png": _Key(_bool), "tube_mesh": _Key(_bool), "animation": _Key(_bool),
+           "porous": _Key(_bool), "porous_voxel_mm": _Key(_positive)}
 _TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions")
 
 
@@ -236,15 +240,53 @@ class _Reader:
 
     def coil(self, value: object, index: int) -> CoilSpec:
         where = f"coil[{index}]"
+        if isinstance(value, dict) and any(key in value for key in _PRODUCT):
+            return self.product_coil(value, index)
         values = self.table(value, _COIL, where)
-        shape = values.get("shape", CoilSpec.shape)
+        return self.build(CoilSpec, {"name": f"coil_{index}", **self.shaped(value, values, where)}, where)
+
+    def shaped(self, value: dict[str, Any], values: dict[str, Any], where: str,
+               shape: str | None = None) -> dict[str, Any]:
+        """``values`` after checking the keys that belong to one pre-shape only."""
+        shape = shape or values.get("shape", CoilSpec.shape)
         for key, spec in _COIL.items():
             if spec.shape is not None and spec.shape != shape and key in value:
                 raise self.error(f"{where}.{key}", f"is only for shape = {spec.shape!r}, not {shape!r}", "remove it")
         if shape == "file" and "file" not in value:
             fix = 'add file = "preshape.txt" (x y z per line, mm)'
             raise self.error(f"{where}.file", "is required for shape = 'file'", fix)
-        return self.build(CoilSpec, {"name": f"coil_{index}", **values}, where)
+        return values
+
+    def product_coil(self, value: dict[str, Any], index: int) -> CoilSpec:
+        """A coil named by catalogue ``product`` and ``size``: the line's geometry and
+        material; keys it publishes are refused, keys it derives may be overridden."""
+        where = f"coil[{index}]"
+        values = self.table(value, _PRODUCT_COIL, where)
+        for key, example in (("product", '"Axium Prime 3D"'), ("size", '"6 x 20" (loop mm x length cm)')):
+            if key not in value:
+                raise self.error(f"{where}.{key}", "product and size go together; this one is missing",
+                                 f"add {key} = {example}")
+        try:
+            line = find_line(values.pop("product"))
+        except CatalogueError as bad:
+            raise self.error(f"{where}.product", bad.problem, bad.fix) from None
+        for key in value:
+            if key in line.published_keys:
+                raise self.error(f"{where}.{key}", f"is set by product = {line.family!r} from its source ({line.source})",
+                                 "remove it, or describe the coil by its keys without product and size")
+        values = self.shaped(value, values, where, shape=line.model_shape)
+        try:
+            spec, note = line.spec(values.pop("size"), **values)
+        except CatalogueError as bad:
+            raise self.error(f"{where}.size", bad.problem, bad.fix) from None
+        except ValueError as exc:
+            raise self.error(where, str(exc), "correct the values of this table") from exc
+        notes = [note] if note else []
+        if "wire_diameter_mm" not in value and line.d_basis == "model default":
+            notes.append(f"{line.family}: no public source gives its secondary diameter; the model default "
+                         f"d = {line.d_mm:g} mm is used (set wire_diameter_mm from the instructions for use)")
+        name = values.get("name", f"coil_{index}")
+        return spec.with_(name=name, notes=tuple(notes))
 
     def catheter(self, document: dict[str, Any]) -> CatheterSpec:
         catheter = self.section(document, "catheter", _CATHETER, CatheterSpec)
@@ -289,6 +331,13 @@ class _Reader:
                 raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
         return self.build(WallSpec, values, "wall")
 
+    def output(self, document: dict[str, Any]) -> OutputSettings:
+        output = self.section(document, "output", _OUTPUT, OutputSettings)
+        if output.porous and "wall" not in document:
+            raise self.error("output.porous", "the porous field fills the sac, and there is no [wall]",
+                             "add a [wall] table (and a [neck] to cut the sac), or set porous = false")
+        return output
+
     def scene(self, document: dict[str, Any]) -> Scene:
         for key in document:
             if key not in _TABLES:
@@ -302,7 +351,7 @@ class _Reader:
             wall=self.wall(document) if "wall" in document else None,
             contact=self.section(document, "contact", _CONTACT, ContactSettings),
             simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
-            output=self.section(document, "output", _OUTPUT, OutputSettings),
+            output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
             source=self.source,

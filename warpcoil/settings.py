@@ -144,12 +144,16 @@ class SimulationSettings:
 class OutputSettings:
     """What a run writes besides result.json and the CSVs: the USD animation, a
     PNG summary, the coil surface as a closed tube mesh (STL + VTP) for CFD, and
-    an animated GIF of the deployment from a fixed view."""
+    an animated GIF of the deployment from a fixed view, and the sac as a porous
+    medium (porous.vti, voxel edge ``porous_voxel_mm``, default half the smallest
+    wire diameter)."""
 
     usd: bool = True
     png: bool = False
     tube_mesh: bool = False
     animation: bool = False
+    porous: bool = False
+    porous_voxel_mm: float | None = None
 
 
 @dataclass(frozen=True)

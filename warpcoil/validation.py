@@ -309,6 +309,39 @@ def wall_field_cases(diameter_mm: float = 3.5, voxels_mm: tuple[float, float] = 
     ]
 
 
+# --- porous field ------------------------------------------------------------------
+def porous_cases(d_mm: float = 0.3) -> list[CaseResult]:
+    """Sampled coil volume of one oblique capsule against π r² L + 4/3 π r³ as the voxel shrinks
+    (d/2 → d/8); an aligned array of rods: its mean solid fraction, and the tensor of one of its
+    voxels along and across the rods against Happel's K∥, K⊥ at that voxel's solid fraction."""
+    import trimesh
+
+    from .porous import happel_permeabilities_mm2, porous_field
+
+    box = trimesh.creation.box(extents=[3.0] * 3)
+    vertices, faces = np.asarray(box.vertices), np.asarray(box.faces)
+    r = 0.5 * d_mm
+    piece = np.array([[-1.0, 0.1234, -0.0771], [1.0, -0.0567, 0.0913]])
+    exact = math.pi * r**2 * float(np.linalg.norm(piece[1] - piece[0])) + 4.0 / 3.0 * math.pi * r**3
+    rows = []
+    for divisor, tolerance in ((2, 0.05), (4, 0.01), (8, 0.005)):
+        h = d_mm / divisor
+        field = porous_field(vertices, faces, [piece], [d_mm], h)
+        volume = float(((1.0 - field.porosity) * field.sac_fraction).sum() * h**3)
+        rows.append(_row(f"porous: capsule volume, voxel d/{divisor} (mm3)", exact, volume, tolerance))
+    offsets = np.arange(-2, 3) * 0.57 + 0.137  # 5 × 5 rods along z, 0.57 mm apart (off the sample lattice), in the box
+    rods = [np.array([[x, y, -2.0], [x, y, 2.0]]) for x in offsets for y in offsets]
+    field = porous_field(vertices, faces, rods, [d_mm] * len(rods), 0.5 * d_mm)
+    solid = float(((1.0 - field.porosity) * field.sac_fraction).sum() / field.sac_fraction.sum())
+    voxel = np.unravel_index(np.argmax((field.porosity < 1.0) & (field.sac_fraction == 1.0)), field.shape)
+    parallel, transverse = happel_permeabilities_mm2(np.array(1.0 - field.porosity[voxel]), np.array(r))
+    tensor = field.permeability_tensor_mm2()[voxel]
+    rows += [_row("porous: aligned rods, mean solid fraction", len(rods) * math.pi * r**2 / 9.0, solid, 0.01),
+             _row("porous: aligned rods, K along = Happel K∥ (mm2)", float(parallel), tensor[2, 2], 1e-12),
+             _row("porous: aligned rods, K across = Happel K⊥ (mm2)", float(transverse), tensor[0, 0], 1e-12)]
+    return rows
+
+
 CASES = {
     "contact": contact_law,
     "gradient": gradient_cases,
@@ -317,6 +350,7 @@ CASES = {
     "release": free_release,
     "energy": energy_conservation,
     "wall_field": wall_field_cases,
+    "porous": porous_cases,
 }
 
 

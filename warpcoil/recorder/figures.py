@@ -14,7 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-from ..deploy import Frame
+from ..measure import Frame
 from .atomic import atomic_path
 
 FIGSIZE_IN = (12.0, 9.0)

@@ -1,4 +1,4 @@
-"""Run outputs: result.json, centerline.csv, timeseries.csv and deployment.usdc.
+"""Run outputs: result.json, centerline.csv, timeseries.csv, deployment.usdc and porous.vti.
 
 Every file is written under a temporary name and renamed when complete
 (:mod:`warpcoil.recorder.atomic`), so a failed run leaves no half-written file.
@@ -15,11 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..deploy import Frame, RunResult
+from ..measure import Frame, RunResult
 from ..model import Model
 from ..settings import Scene
 from ..state import State
 from .atomic import write_text_atomic
+from .porous import POROUS_VTI, write_porous_vti
 from .usd import UsdRecorder
 
 RESULT_JSON = "result.json"
@@ -30,7 +31,7 @@ SUMMARY_PNG = "summary.png"
 TUBE_STL, TUBE_VTP = "coils.stl", "coils.vtp"
 ANIMATION_GIF = "deployment.gif"
 RUN_OUTPUTS = (RESULT_JSON, CENTERLINE_CSV, TIMESERIES_CSV, DEPLOYMENT_USD, SUMMARY_PNG, TUBE_STL, TUBE_VTP,
-               ANIMATION_GIF)  # every file a run may write (recorder.folder clears exactly these)
+               ANIMATION_GIF, POROUS_VTI)  # every file a run may write (recorder.folder clears exactly these)
 
 
 def _json_ready(value):
@@ -100,20 +101,40 @@ class UsdFrames:
         self.recorder.close()
 
 
-def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None) -> None:
+def write_porous(path: Path, scene: Scene, wall, sac, positions_mm: list[np.ndarray]) -> None:
+    """porous.vti of the final coils in the sac (the whole wall when the scene has no [neck])."""
+    from ..porous import porous_field
+
+    if sac is None and scene.neck is not None:
+        from ..anatomy import resolve_anatomy
+
+        sac = resolve_anatomy(scene).sac
+    if sac is not None:
+        vertices, faces = np.asarray(sac.closed_surface.vertices), np.asarray(sac.closed_surface.faces)
+    elif wall is not None:
+        vertices, faces = wall.vertices_mm, wall.faces
+    else:
+        raise ValueError(f"{scene.source}: output.porous needs a [wall]; fix: add a [wall] or set porous = false")
+    field = porous_field(vertices, faces, positions_mm, [c.d for c in scene.coils], scene.output.porous_voxel_mm)
+    write_porous_vti(path, field)
+
+
+def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None, sac=None) -> None:
     """Everything a run writes after it ends (the USD is recorded during the run):
-    CSVs, then the pictures and tube meshes the scene asks for, then result.json
-    last, so its presence means the folder is complete. ``wall``: the run's
-    WallMesh (Anatomy.wall) or None. Final positions with a non-finite value
-    (they should not occur: a failed run reports its last healthy frame) are
-    not written as geometry; result.json says so in ``not_written``."""
+    CSVs, then the pictures, tube meshes and porous field the scene asks for, then
+    result.json last, so its presence means the folder is complete. ``wall``: the
+    run's WallMesh (Anatomy.wall) or None; ``sac``: its Sac (Anatomy.sac), cut again
+    from the scene when the porous field needs it and it is not given. Final
+    positions with a non-finite value (they should not occur: a failed run reports
+    its last healthy frame) are not written as geometry; result.json says so in
+    ``not_written``."""
     from .figures import write_summary_png
     from .tube import coils_tube_mesh, write_tube_stl, write_tube_vtp
 
     write_timeseries_csv(out / TIMESERIES_CSV, result.frames)
     extra = dict(extra or {})
     if not all(np.isfinite(x).all() for x in result.positions_mm):
-        extra["not_written"] = [CENTERLINE_CSV, TUBE_STL, TUBE_VTP, SUMMARY_PNG]
+        extra["not_written"] = [CENTERLINE_CSV, TUBE_STL, TUBE_VTP, SUMMARY_PNG, POROUS_VTI]
         extra["not_written_reason"] = "the final node positions hold non-finite values"
         write_result_json(out / RESULT_JSON, result, extra)
         return
@@ -123,6 +144,8 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
         mesh = coils_tube_mesh(result.positions_mm, diameters)
         write_tube_stl(out / TUBE_STL, mesh)
         write_tube_vtp(out / TUBE_VTP, mesh)
+    if scene.output.porous:
+        write_porous(out / POROUS_VTI, scene, wall, sac, result.positions_mm)
     if scene.output.png:
         starts = np.cumsum([c["deployed_length_mm"] for c in result.coils])[:-1].tolist()
         write_summary_png(

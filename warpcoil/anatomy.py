@@ -1,0 +1,69 @@
+"""Anatomy: the wall, the sac cut at the neck, and the catheter placed at it (mm).
+
+Scene → anatomy → model: read once per wall and neck, shared by every deployment
+of them (one wall mesh and BVH for an ensemble).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from .sac import Sac, catheter_from_neck, neck_from_contour, neck_from_plane, sac_from_neck
+from .settings import CatheterSpec, Scene
+from .wall import WallMesh, load_wall
+
+
+@dataclass
+class Anatomy:
+    """The wall and, with a [neck], the sac it closes off; the catheter as placed."""
+
+    wall: WallMesh | None
+    sac: Sac | None
+    catheter: CatheterSpec
+
+    @property
+    def sac_volume_mm3(self) -> float | None:
+        if self.sac is not None:
+            return self.sac.volume_mm3
+        return self.wall.volume_mm3 if self.wall is not None else None
+
+
+def resolve_anatomy(scene: Scene) -> Anatomy:
+    """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
+    wall = load_wall(scene.wall) if scene.wall is not None else None
+    sac = None
+    if scene.neck is not None:
+        hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
+        if scene.neck.contour is not None:
+            neck = neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
+        else:
+            neck = neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
+                                        wall, sac_side_point_mm=hint)
+        sac = sac_from_neck(wall, neck)
+    catheter = scene.catheter
+    if catheter.placement == "neck":
+        tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+        catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
+    return Anatomy(wall=wall, sac=sac, catheter=catheter)
+
+
+def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
+    """:func:`resolve_anatomy` for each scene; scenes with the same wall and neck
+    share one wall mesh and sac (read and cut once, one BVH on the device)."""
+    shared: dict[tuple, Anatomy] = {}
+    anatomies = []
+    for scene in scenes:
+        key = (repr(scene.wall), repr(scene.neck))
+        if key not in shared:
+            shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
+        base = shared[key]
+        catheter = scene.catheter
+        if catheter.placement == "neck":
+            tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+            catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
+        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter))
+    return anatomies
+

@@ -1,0 +1,233 @@
+"""What a deployment measures: per frame (:class:`Frame`, from a :class:`Snapshot` of
+the solver arrays) and at its end (:class:`RunResult`, with the regional densities).
+
+Functions of the model, the solver and a member's bookkeeping (:class:`Measured`,
+which :class:`warpcoil.deploy.Member` provides); nothing here steers the run.
+Units mm, g, s, µN, nJ.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Protocol
+
+import numpy as np
+import warp as wp
+
+from .anatomy import Anatomy
+from .kernels.contact import FAR_MM
+from .model import Model
+from .sac import inside_sac, regional_density
+from .settings import Scene
+from .solver import Solver
+from .state import State
+
+
+class Measured(Protocol):
+    """A member's bookkeeping that its measurements read (warpcoil.deploy.Member)."""
+
+    world: int
+    nodes: slice  # its nodes in the ensemble's state
+    coils: range  # its coils in the model
+    scene: Scene
+    anatomy: Anatomy
+    coil_lengths_mm: np.ndarray
+    radius: np.ndarray  # per node (mm)
+    segment: np.ndarray  # per node: the length it stands for (mm)
+    coil_status: list[str]
+    steps: int
+    step_bound_s: float
+    stored_energy_nJ: float
+    frames: list
+
+
+@dataclass
+class Frame:
+    """What a run reports per recorded frame."""
+
+    time_s: float
+    deployed_length_mm: float
+    push_force_mean_uN: float  # signed mean over the frame's steps (compressive > 0)
+    push_force_peak_uN: float  # largest compressive single-step value in the frame (≥ 0)
+    push_force_rms_uN: float  # root mean square over the frame's steps
+    kinetic_nJ: float
+    bend_nJ: float
+    twist_nJ: float
+    stretch_nJ: float
+    wall_contacts: int  # free nodes with wall gap < c0
+    coil_contacts: int  # edge pairs with gap < c0
+    max_wall_force_uN: float
+    min_wall_gap_mm: float
+    min_coil_gap_mm: float
+    length_outside_sac_mm: float
+
+
+@dataclass
+class RunResult:
+    """End-of-run report (MODEL.md, "What a run reports"); keys carry their units."""
+
+    status: str
+    reason: str
+    steps: int
+    dt_s: float
+    step_bound_s: float
+    mass_scale: float
+    wall_time_s: float
+    simulated_time_s: float
+    coil_length_mm: float
+    deployed_length_mm: float
+    sac_volume_mm3: float | None
+    packing_density: float | None
+    length_outside_sac_mm: float
+    min_wall_gap_mm: float
+    min_coil_gap_mm: float
+    max_wall_force_uN: float
+    push_force_peak_uN: float  # largest compressive single-step push force of the run
+    push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
+    push_force_rms_uN: float  # root mean square over every step while a coil was pushed
+    stored_energy_nJ: float
+    final_kinetic_nJ: float
+    final_bend_nJ: float
+    final_twist_nJ: float
+    final_stretch_nJ: float
+    coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
+    regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
+    step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
+    wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
+    catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
+    catheter_direction: tuple | None = None
+    frames: list[Frame] = field(default_factory=list, repr=False)
+    positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
+
+    def summary(self) -> dict:
+        """The JSON-ready scalars (no frames or positions)."""
+        d = asdict(self)
+        d.pop("frames")
+        d.pop("positions_mm")
+        return d
+
+
+@dataclass
+class Snapshot:
+    """Host copies of the solver arrays a frame's measurement reads (all worlds)."""
+
+    time_s: float
+    x: np.ndarray
+    free: np.ndarray
+    advance: np.ndarray
+    wall_distance: np.ndarray
+    wall_force: np.ndarray
+    coil_gap: np.ndarray
+    coil_contacts: np.ndarray
+
+
+def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
+    """Host copies of what a frame's measurement reads, with exact wall distances (all worlds)."""
+    s = solver
+    s.compute_contacts(state, wall_search_mm=float(FAR_MM), running=running)
+    arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
+    return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
+
+def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot, energies: dict,
+                  push: tuple[float, float, float]) -> Frame:
+    """Frame quantities of one member at the snapshot; ``push``: the frame's
+    push force mean, peak and RMS (µN)."""
+    w, sl, m = member.world, member.nodes, model
+    free = snap.free[sl] == 1
+    advance = snap.advance[member.coils.start:member.coils.stop]
+    deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
+    c0 = m.contact.c0_mm
+    wall_gap = np.inf
+    wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
+    if m.world_walls[w] is not None and free.any():
+        centre = snap.wall_distance[sl][free]
+        gaps = centre - member.radius[free]
+        wall_gap = float(gaps.min())
+        wall_contacts = int((gaps < c0).sum())
+        max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
+        outside = float(member.segment[free][centre < 0.0].sum())
+    if member.anatomy.sac is not None and free.any():
+        outside = float(member.segment[free][~inside_sac(member.anatomy.sac, snap.x[sl][free])].sum())
+    in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
+    coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (solver.coil_contact and free.any()) else np.inf
+    return Frame(
+        time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
+        push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),
+        kinetic_nJ=float(energies["kinetic_nJ"][w]),
+        bend_nJ=float(energies["bend_nJ"][w]), twist_nJ=float(energies["twist_nJ"][w]),
+        stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
+        coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if solver.coil_contact else 0,
+        max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
+        length_outside_sac_mm=outside)
+
+def run_result(model: Model, solver: Solver, member: Measured, status: str, reason: str, wall_time_s: float,
+               snap: Snapshot, step_reductions: list[str]) -> RunResult:
+    """The member's RunResult from its frames and the frame's snapshot."""
+    m, sl = model, member.nodes
+    frames = member.frames
+    last = frames[-1]
+    sac_volume = member.anatomy.sac_volume_mm3
+    advance = snap.advance[member.coils.start:member.coils.stop]
+    deployed_each = np.clip(advance, 0.0, member.coil_lengths_mm)
+    coil_specs = [m.coils[c] for c in member.coils]
+    volumes = np.array([math.pi * (c.d / 2.0) ** 2 for c in coil_specs]) * deployed_each
+    coil_volume = float(volumes.sum())
+    density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
+    x = snap.x[sl]
+    free = snap.free[sl] == 1
+    outside = np.zeros(len(x), bool)
+    if member.anatomy.sac is not None:
+        outside[free] = ~inside_sac(member.anatomy.sac, x[free])
+    elif m.world_walls[member.world] is not None:
+        outside[free] = snap.wall_distance[sl][free] < 0.0
+    local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
+    coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
+                  length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
+                  loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(member.coil_lengths_mm[k]),
+                  deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
+                  cumulative_packing_density=density(volumes[: k + 1].sum()))
+             for k, c in enumerate(coil_specs)]
+    finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
+    return RunResult(
+        status=status, reason=reason, steps=member.steps, dt_s=solver.dt_s,
+        step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
+        simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
+        deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
+        packing_density=coil_volume / sac_volume if sac_volume else None,
+        length_outside_sac_mm=last.length_outside_sac_mm,
+        min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
+        min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
+        max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
+        push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
+        push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
+        push_force_rms_uN=_run_rms(frames),
+        stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
+        final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
+        regions=regional_densities(model, member, x, free), step_reductions=list(step_reductions),
+        wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
+        catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
+        frames=frames,
+        positions_mm=[x[s] for s in local])
+
+def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.ndarray) -> dict | None:
+    """Regional densities of the final coils (only where a neck defines the sac)."""
+    if member.anatomy.sac is None:
+        return None
+    m, r, sl = model, member.scene.regions, member.nodes
+    coils = [(x[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start],
+              free[int(m.coil_first[c]) - sl.start:int(m.coil_last[c]) + 1 - sl.start], m.coils[c].d)
+             for c in member.coils]
+    kept = [(pts[f], d) for pts, f, d in coils if f.sum() >= 2]
+    density = regional_density(member.anatomy.sac, [p for p, _ in kept], [d for _, d in kept], r.voxel_mm,
+                               r.neck_band_mm, r.boundary_mm)
+    return {k: float(v) for k, v in asdict(density).items()}
+
+
+def _run_rms(frames: list[Frame]) -> float:
+    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
+    length grew; each frame spans the same simulated time, so this is the RMS over
+    that time)."""
+    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
+              f.deployed_length_mm > before.deployed_length_mm]
+    return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
