@@ -227,6 +227,9 @@ class NumpyTwin:
         self.coil_of = model.coil_of.numpy().astype(np.int64)
         self.arc_s = model.arc_s.numpy()
         self.fixed = model.fixed.numpy() != 0
+        if np.any(model.clamp_tangent.numpy() != 0.0):
+            raise NotImplementedError("the numpy twin has no clamp vertex (ModelBuilder.clamp with tangent): "
+                                      "compare it on models without one")
         self.inv_mass = model.inv_mass.numpy()
         self.damping_c = model.damping_c.numpy()
         self.damping_k = float(model.damping_k)
@@ -542,7 +545,8 @@ class NumpyTwin:
         t_old = normalize(self.x[i + 1] - self.x[i])
         t_new = normalize(x_new[i + 1] - x_new[i])
         m = transport(self.m1[i], t_old, t_new)
-        spins = (free_new[i] != 0) & (free_new[i + 1] != 0)
+        held0, held1 = self.fixed[i], self.fixed[i + 1]
+        spins = ((free_new[i] != 0) | held0) & ((free_new[i + 1] != 0) | held1) & ~(held0 & held1)
         inv_j = self.inv_inertia[i]
         w = (self.omega[i] + dt * self.torque[i] * inv_j) / (1.0 + dt * self.twist_damping[i] * inv_j)
         w = np.where(spins, w, 0.0)
@@ -599,8 +603,8 @@ class NumpyTwin:
         """Solver.energies: kinetic (free nodes, translation + edge spin),
         stretching, bending and twisting energy, nJ."""
         fr = self.free != 0
-        kinetic = np.where(fr, 0.5 * dot(self.v, self.v) / self.inv_mass
-                           + 0.5 * self.omega * self.omega / self.inv_inertia, 0.0)
+        kinetic = np.where(fr, 0.5 * dot(self.v, self.v) / self.inv_mass, 0.0) \
+            + 0.5 * self.omega * self.omega / self.inv_inertia
         ws, wb, wt = self.elastic_energies()
         return {"kinetic_nJ": float(kinetic.sum()), "stretch_nJ": float(ws.sum()),
                 "bend_nJ": float(wb.sum()), "twist_nJ": float(wt.sum())}

@@ -49,7 +49,9 @@ def test_neighbour_skin_and_wall_anchors_change_nothing_but_the_work(wall_query)
     for name in full:
         assert np.array_equal(full[name], fast[name]), name
     assert full_solver.grid_builds == steps  # every step
-    assert fast_solver.grid_builds < steps / 5  # only when a midpoint moved half the skin
+    # only when a midpoint moved half the skin (≈ every 5th step here: the distal end, half a segment's
+    # mass, whips out of the catheter; 18 % of the steps with full end masses, 21 % with half)
+    assert fast_solver.grid_builds < steps / 4
 
 
 @pytest.mark.parametrize("options", [{"neighbour_skin_mm": 0.3}, {"neighbour_capacity": 2}],

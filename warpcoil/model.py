@@ -10,10 +10,12 @@ A model may hold several independent *worlds* (ensemble members, each its own
 coils, catheter and wall, :func:`finalize_ensemble`): one set of launches
 advances them all, and nothing couples one world to another.
 
-Per-node mass is ``ρ l̄ · mass_scale`` with l̄ the coil's mean segment length;
-stiffnesses follow the coil: k_s = EA/l̄_i per edge, k_b = EI/l̄_j and
-k_t = GJ/l̄_j per vertex (l̄_j the mean of its two edges, so W_b → ∫ EI κ²/2 ds).
-Twist inertia per edge: ``m r²`` with r the winding radius (d − d_w)/2.
+Masses are lumped on each node's share of the coil (its Voronoi length, half of
+each adjacent rest edge): ``ρ (l̄_i−1 + l̄_i)/2 · mass_scale``, so an end node
+carries half a segment; the node damping follows the same length. Per edge:
+twist inertia ``ρ l̄_i r² · mass_scale`` (r the winding radius (d − d_w)/2) and
+its damping. Stiffnesses follow the coil: k_s = EA/l̄_i per edge, k_b = EI/l̄_j
+and k_t = GJ/l̄_j per vertex (l̄_j the mean of its two edges, so W_b → ∫ EI κ²/2 ds).
 """
 
 from __future__ import annotations
@@ -106,6 +108,8 @@ class Model:
     coil_of: wp.array
     arc_s: wp.array  # rest arc length from the coil's distal end, mm
     fixed: wp.array
+    clamp_tangent: wp.array  # vec3d per node: unit clamp direction at a coil's clamped first node, else 0
+    clamp_director: wp.array  # vec3d per node: the clamp's material director (normal to clamp_tangent), else 0
     inv_mass: wp.array  # 1/g
     damping_c: wp.array  # µN (high-speed limit of the damping force per node)
     damping_k: float  # mm/s
@@ -184,6 +188,11 @@ class Model:
             first_directors = np.stack([
                 _default_director(_unit(positions[f + 1] - positions[f])) for f in self.coil_first
             ])
+            clamp_t, clamp_d = self.clamp_tangent.numpy(), self.clamp_director.numpy()
+            for c, f in enumerate(self.coil_first):  # a clamped coil starts untwisted at its clamp
+                if np.any(clamp_t[f] != 0.0) and np.any(clamp_d[f] != 0.0):
+                    t0 = _unit(positions[f + 1] - positions[f])[None]
+                    first_directors[c] = _transport(clamp_d[f][None], clamp_t[f][None], t0)[0]
         m1 = wp.zeros(self.node_count, dtype=wp.vec3d, device=self.device)
         wp.launch(integrate.transported_directors, self.coil_count, device=self.device, inputs=[
             self.array(positions, wp.vec3d), self.array(self.coil_first, wp.int32),
@@ -193,6 +202,18 @@ class Model:
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
+
+
+def _transport(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` carried by the smallest rotation from unit ``a`` to unit ``b``
+    (rod.py ``transport``), made unit and normal to ``b``."""
+    k = np.cross(a, b)
+    c = np.sum(a * b, axis=1, keepdims=True)
+    if np.any(c < -0.999999999):
+        raise ValueError("clamp: the clamp direction reverses the coil's first edge")
+    out = v + np.cross(k, v) + np.cross(k, np.cross(k, v)) / (1.0 + c)
+    out -= np.sum(out * b, axis=1, keepdims=True) * b
+    return out / np.linalg.norm(out, axis=1)[:, None]
 
 
 class ModelBuilder:
@@ -208,6 +229,7 @@ class ModelBuilder:
         self._coils: list[CoilSpec] = []
         self._rest: list[np.ndarray] = []
         self._fixed: list[int] = []
+        self._clamps: dict[int, np.ndarray | None] = {}  # coil → clamp direction at its node 0 (None: rest)
         self._forces: list[tuple[int, np.ndarray]] = []
 
     def add_coil(self, spec: CoilSpec, rest_centerline: np.ndarray | None = None) -> int:
@@ -227,9 +249,30 @@ class ModelBuilder:
         offset = sum(len(r) for r in self._rest[:coil])
         return offset + (node % len(self._rest[coil]))
 
-    def clamp(self, coil: int, nodes: int = 2) -> None:
-        """Clamp the first ``nodes`` nodes of a coil (2 clamps position and direction)."""
-        self._fixed.extend(self._node(coil, k) for k in range(nodes))
+    def clamp(self, coil: int, node: int = 0, tangent: bool = True, direction=None) -> None:
+        """Clamp a coil at ``node`` (−1: its last node): the node's position is held.
+
+        With ``tangent`` (only at node 0) the coil's tangent *at the node* and its
+        material frame there are held too: the clamped section is node 0 itself.
+        The tangent is ``direction`` (unit or not; default the rest direction of the
+        first edge), and the pre-shape leaves the clamp straight and untwisted.
+        Discretely, vertex 0 gets a virtual, fixed previous edge along the clamp
+        direction and the half Voronoi cell l̄_0/2 of a boundary node, so it bends
+        with k_b = EI/(l̄_0/2) and twists with k_t = GJ/(l̄_0/2) — the half of a
+        mirror-symmetric rod, second order like the interior (docs/FORMULATION.md)."""
+        index = self._node(coil, node)
+        self._fixed.append(index)
+        if not tangent:
+            return
+        if index != self._node(coil, 0):
+            raise ValueError(f"clamp: a tangent can be held only at node 0 of a coil, not node {node}: "
+                             f"put the clamped end first, or clamp the position alone (tangent=False)")
+        if direction is not None:
+            direction = np.asarray(direction, np.float64)
+            if direction.shape != (3,) or not np.isfinite(direction).all() or np.linalg.norm(direction) == 0.0:
+                raise ValueError(f"clamp: direction must be a non-zero 3-vector, got {direction}")
+            direction = direction / np.linalg.norm(direction)
+        self._clamps[coil] = direction
 
     def apply_force(self, coil: int, node: int, force_uN) -> None:
         """A constant force (µN) on one node; node −1 is the coil's last node."""
@@ -261,15 +304,26 @@ class ModelBuilder:
             arc_s[sl] = np.concatenate([[0.0], np.cumsum(edge_len[first[c]:last[c]])])
 
         per_coil = lambda f: np.repeat([f(c) for c in self._coils], counts)  # noqa: E731
-        mean_len = np.repeat([edge_len[first[c]:last[c]].mean() for c in range(len(counts))], counts)
-        mass = per_coil(lambda c: c.rho) * mean_len * s.mass_scale
+        edge_prev = np.concatenate([[0.0], edge_len[:-1]])
+        edge_prev[first] = 0.0
+        node_len = 0.5 * (edge_prev + edge_len)  # Voronoi length: half a segment at a coil end
+        rho = per_coil(lambda c: c.rho)
+        mass = rho * node_len * s.mass_scale
         winding_r = per_coil(lambda c: 0.5 * (c.d - c.primary_wire_diameter_mm))
-        inertia = mass * winding_r**2
-        damping_c = s.damping_uN_per_mm * mean_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
+        spin_len = np.where(has_next == 1, edge_len, edge_prev)  # per edge; a coil's last index repeats its edge
+        inertia = rho * spin_len * s.mass_scale * winding_r**2
+        damping_c = s.damping_uN_per_mm * node_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
+        twist_damping = s.damping_uN_per_mm * spin_len * s.mass_scale / s.damping_speed_mm_s * winding_r**2
         vertex_len = np.zeros(n)
         interior = np.zeros(n, bool)
         interior[1:-1] = (has_next[1:-1] == 1) & (has_next[:-2] == 1)
         vertex_len[interior] = 0.5 * (edge_len[1:-1] + edge_len[:-2])[interior[1:-1]]
+        clamp_tangent = np.zeros((n, 3))
+        for c, direction in self._clamps.items():  # vertex 0 with a virtual edge of length 0: half a cell
+            j = first[c]
+            clamp_tangent[j] = _unit(rest[j + 1] - rest[j]) if direction is None else direction
+            interior[j] = True
+            vertex_len[j] = 0.5 * edge_len[j]
         with np.errstate(divide="ignore", invalid="ignore"):
             k_stretch = np.where(has_next == 1, per_coil(lambda c: c.EA) / edge_len, 0.0)
             k_bend = np.where(interior, per_coil(lambda c: c.EI) / vertex_len, 0.0)
@@ -288,9 +342,9 @@ class ModelBuilder:
             query_radius_mm=EDGE_STRETCH_MARGIN * float(edge_len.max()) + float(d.max()) + c0)
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
-            coil_of=coil_of, arc_s=arc_s, fixed=fixed, mass=mass, damping_c=damping_c, external=external,
+            coil_of=coil_of, arc_s=arc_s, fixed=fixed, clamp_tangent=clamp_tangent, mass=mass, damping_c=damping_c, external=external,
             edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
-            twist_damping=damping_c / s.damping_speed_mm_s * winding_r**2, k_bend=k_bend, k_twist=k_twist,
+            twist_damping=twist_damping, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
             mass_scale=float(s.mass_scale), damping_k=float(s.damping_speed_mm_s), wall=self.wall)
 
@@ -345,7 +399,8 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         device=device, coils=tuple(c for w in worlds for c in w["coils"]), coil_first=coil_first,
         coil_last=coil_last, rest_positions=cat("rest"),
         has_next=arr(cat("has_next"), wp.int32), coil_of=arr(coil_of, wp.int32), arc_s=arr(cat("arc_s"), wp.float64),
-        fixed=arr(cat("fixed"), wp.int32), inv_mass=arr(1.0 / cat("mass"), wp.float64),
+        fixed=arr(cat("fixed"), wp.int32), clamp_tangent=arr(cat("clamp_tangent"), wp.vec3d),
+        clamp_director=arr(np.zeros((n, 3)), wp.vec3d), inv_mass=arr(1.0 / cat("mass"), wp.float64),
         damping_c=arr(cat("damping_c"), wp.float64), damping_k=damping_k, external=arr(cat("external"), wp.vec3d),
         rest_length=arr(cat("edge_len"), wp.float64), k_stretch=arr(cat("k_stretch"), wp.float64),
         inv_inertia=arr(1.0 / cat("inertia"), wp.float64), twist_damping=arr(cat("twist_damping"), wp.float64),
@@ -364,9 +419,17 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         query_radius_of=arr(query_radius, wp.float64),
         world_walls=wall_models, **walls)
     rest_m1 = model.directors_along(model.rest_positions)
+    clamp_t = cat("clamp_tangent")
+    clamped = np.flatnonzero(np.linalg.norm(clamp_t, axis=1) > 0.0)
+    if clamped.size:  # the clamp's director: the rest director of edge 0 carried to the clamp direction
+        t0 = model.rest_positions[clamped + 1] - model.rest_positions[clamped]
+        t0 /= np.linalg.norm(t0, axis=1)[:, None]
+        director = np.zeros((n, 3))
+        director[clamped] = _transport(rest_m1[clamped], t0, clamp_t[clamped])
+        model.clamp_director.assign(director)
     wp.launch(elastic.rest_strains, n, device=device, inputs=[
         model.array(model.rest_positions, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,
-        model.rest_K0, model.rest_K1, model.rest_twist])
+        model.clamp_tangent, model.clamp_director, model.rest_K0, model.rest_K1, model.rest_twist])
     return model
 
 

@@ -98,8 +98,9 @@ class SimulationSettings:
     * push_speed_mm_s: pusher speed (clinically a few mm/s; faster is fine while
       kinetic/elastic energy stays small, which the run reports).
     * damping_uN_per_mm, damping_speed_mm_s: the nonlinear damping of MODEL.md,
-      force per node ``c (1 - exp(-|v|/k)) v/|v|`` with ``c = damping_uN_per_mm · l0``
-      and ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
+      force per node ``c (1 - exp(-|v|/k)) v/|v|`` with ``c = damping_uN_per_mm`` × the
+      node's share of the coil (l0; l0/2 at an end, like its mass) and
+      ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
     * dt_s: step; None → dt_safety (default 0.9) × the stable bound. A dt above

@@ -66,14 +66,29 @@ class StepBound:
     omega_rad_s: dict = field(default_factory=dict)
 
 
-def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
-    """Gershgorin bounds of the highest angular frequency of each term, per node:
+def _contact_inv_mass(model: Model, nodes: slice) -> np.ndarray:
+    """1/g per node for the contact terms: a node's contact stiffness grows with its
+    share of the coil (coil–coil forces reach a node through its edges, one at a
+    coil end), so an end node of half mass counts as an interior one."""
+    has_next = model.has_next.numpy()[nodes]
+    edges = has_next + np.concatenate([[0], has_next[:-1]])
+    return model.inv_mass.numpy()[nodes] * np.maximum(edges, 1) / 2.0
 
-    * stretching: 2 (k_s,i-1 + k_s,i) / m_i (4 k_s/m for a uniform chain)
-    * bending: 16 k_b / (m l̄²) (the squared second difference of a straight chain)
+
+def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
+    """Gershgorin bounds of the highest angular frequency of each term: the largest
+    absolute row sum of M⁻¹K over the nodes (edges for twist), K the term's
+    Hessian at the straight rest state (exact for a uniform chain):
+
+    * stretching: 2 (k_s,i-1 + k_s,i) / m_i (4 k_s/m in a chain; also 4 k_s/m at a
+      free end, whose node has half the mass and one spring)
+    * bending: Σ_j 4 |a_ij| k_b,j / l_j² / m_i over the vertices j that hold node i,
+      a = (1, 2, 1) its second-difference stencil (16 k_b/(m l²) inside a chain,
+      8 at a free end of half mass)
     * twisting: (4 k_t + k_b |K̄|²) / J
     * contact: the contact law's slope at the design overlap (u = 3, h = −2 c0),
-      times CONTACTS_PER_NODE, / m (when given)
+      times CONTACTS_PER_NODE, / m of an interior node (when given;
+      :func:`_contact_inv_mass`)
 
     ``nodes``: one world's nodes (default: every world, the smallest bound).
     """
@@ -87,17 +102,22 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes:
     ks_prev = np.concatenate([[0.0], ks[:-1]])
     kbar = np.maximum(np.linalg.norm(model.rest_K0.numpy()[nodes], axis=1),
                       np.linalg.norm(model.rest_K1.numpy()[nodes], axis=1))
-    kb_max = np.max(np.stack([kb, np.roll(kb, 1), np.roll(kb, -1)]), axis=0)
     kt_max = np.max(np.stack([kt, np.roll(kt, -1)]), axis=0)
-    l_min = np.minimum(l_edge, np.concatenate([[np.inf], l_edge[:-1]]))
+    kb_max = np.max(np.stack([kb, np.roll(kb, -1)]), axis=0)
+    l_min = np.minimum(l_edge, np.concatenate([[np.inf], l_edge[:-1]]))  # vertex j: its shorter edge
+    clamped = np.linalg.norm(model.clamp_tangent.numpy()[nodes], axis=1) > 0.0
+    l_min = np.where(clamped, l_edge, l_min)  # a clamp vertex's virtual edge has no length
+    c = 4.0 * kb / l_min**2  # per vertex (k_b = 0 where there is none)
+    bend_row = np.concatenate([[0.0], c[:-1]]) + 2.0 * c + np.concatenate([c[1:], [0.0]])
     inv_j = model.inv_inertia.numpy()[nodes]
     omega_sq = {
         "stretching (coil axial_stiffness_uN)": np.max(2.0 * (ks_prev + ks) * inv_m),
-        "bending (coil bending_stiffness_uN_mm2)": np.max(16.0 * kb_max * inv_m / l_min**2),
-        "twisting (coil twist_stiffness_uN_mm2)": np.max((4.0 * kt_max + kb_max * kbar**2) * inv_j),
+        "bending (coil bending_stiffness_uN_mm2)": np.max(bend_row * inv_m),
+        "twisting (coil twist_stiffness_uN_mm2)": np.max(np.where(has_next, (4.0 * kt_max + kb_max * kbar**2) * inv_j,
+                                                                  0.0)),
     }
     if contact_stiffness_uN_mm > 0.0:
-        omega_sq["contact (contact P0_uN / c0_mm)"] = contact_stiffness_uN_mm * np.max(inv_m)
+        omega_sq["contact (contact P0_uN / c0_mm)"] = contact_stiffness_uN_mm * np.max(_contact_inv_mass(model, nodes))
     omega = {k: math.sqrt(v) for k, v in omega_sq.items()}
     name = max(omega, key=omega.get)
     return StepBound(dt_s=2.0 / omega[name], limiting_term=name, omega_rad_s=omega)
@@ -107,11 +127,12 @@ def contact_linear_onset(model: Model, dt_s: float, nodes: slice = slice(None)) 
     """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
     MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
     step dt can integrate for the lightest node pressed from CONTACTS_AT_ONSET
-    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET); never below u = 2 (h = −c0).
+    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET, m an interior node's mass:
+    :func:`_contact_inv_mass`); never below u = 2 (h = −c0).
     Up to it the law is exact; past it the force keeps growing along the law's
     tangent, so deep overlaps in an overpacked sac stay stable instead of blowing
     up. For the default coil and step it is u ≈ 2.8 (|F| ≈ 24 P0)."""
-    m_min = 1.0 / float(model.inv_mass.numpy()[nodes].max())
+    m_min = 1.0 / float(_contact_inv_mass(model, nodes).max())
     k_max = m_min * (2.0 / dt_s) ** 2 / CONTACTS_AT_ONSET
     low, high = 2.0, 7.0
     if model.contact.stiffness_uN_mm(high) <= k_max:
@@ -320,10 +341,10 @@ class Solver:
         m, dev, n = self.model, self.model.device, self.model.node_count
         self.compute_contacts(state, running=running)
         wp.launch(elastic.vertex_gradients, n, device=dev, inputs=[
-            state.x, state.m1, state.free, m.has_next, m.k_bend, m.k_twist, m.rest_K0, m.rest_K1,
+            state.x, state.m1, state.free, m.has_next, m.clamp_tangent, m.clamp_director, m.k_bend, m.k_twist, m.rest_K0, m.rest_K1,
             m.rest_twist, self.grad_prev, self.grad_mid, self.grad_next, self.grad_theta])
         wp.launch(elastic.gather_forces, n, device=dev, inputs=[
-            state.x, state.free, m.has_next, m.k_stretch, m.rest_length, self.grad_prev, self.grad_mid,
+            state.x, state.free, m.has_next, m.clamp_tangent, m.k_stretch, m.rest_length, self.grad_prev, self.grad_mid,
             self.grad_next, self.grad_theta, m.external, self.contact_force, m.node_radius, m.contact.fold_span,
             m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, m.world_of, m.catheter_axis_of,
             self.force, self.torque, self.push_share])
@@ -339,7 +360,7 @@ class Solver:
             m.catheter_count, control.active_coil, control.push_speed_mm_s, control.running, dt,
             state_out.x, state_out.v, state_out.free, state_out.advance])
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
-            state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.has_next,
+            state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.fixed, m.has_next,
             m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
@@ -356,7 +377,7 @@ class Solver:
     def _launch_elastic_energies(self, state: State) -> None:
         m = self.model
         wp.launch(elastic.elastic_energies, m.node_count, device=m.device, inputs=[
-            state.x, state.m1, m.has_next, m.k_stretch, m.rest_length, m.k_bend, m.k_twist, m.rest_K0,
+            state.x, state.m1, m.has_next, m.clamp_tangent, m.clamp_director, m.k_stretch, m.rest_length, m.k_bend, m.k_twist, m.rest_K0,
             m.rest_K1, m.rest_twist, self._stretch_e, self._bend_e, self._twist_e])
 
     def elastic_energy_per_node(self, state: State) -> np.ndarray:

@@ -26,8 +26,10 @@ from .rod import (
     F64_0,
     F64_1,
     angle_factors,
+    clamp_vertex,
     edge_valid,
     material_curvature,
+    previous_edge,
     vertex_twist,
     vertex_valid,
 )
@@ -49,15 +51,22 @@ def vertex_needed(free: wp.array(dtype=wp.int32), j: int) -> bool:
 
 
 @wp.func
-def vertex_strains(x: wp.array(dtype=wp.vec3d), m1: wp.array(dtype=wp.vec3d), j: int):
+def has_vertex(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d), j: int) -> bool:
+    """Vertex j bends: an interior node, or a coil's first node clamped with its tangent."""
+    return vertex_valid(has_next, j) or clamp_vertex(clamp_tangent, j)
+
+
+@wp.func
+def vertex_strains(x: wp.array(dtype=wp.vec3d), m1: wp.array(dtype=wp.vec3d),
+                   clamp_tangent: wp.array(dtype=wp.vec3d), clamp_director: wp.array(dtype=wp.vec3d), j: int):
     """Material curvatures (in the frames of edges j-1 and j) and twist at vertex j."""
-    t0 = wp.normalize(x[j] - x[j - 1])
+    t0, len0, a0 = previous_edge(x, m1, clamp_tangent, clamp_director, j)
     t1 = wp.normalize(x[j + 1] - x[j])
     w = wp.cross(t0, t1)
     phi, psi, chi = angle_factors(wp.length(w), wp.dot(t0, t1))
     kappa = psi * w
-    return (material_curvature(kappa, t0, m1[j - 1]), material_curvature(kappa, t1, m1[j]),
-            vertex_twist(t0, m1[j - 1], t1, m1[j]))
+    return (material_curvature(kappa, t0, a0), material_curvature(kappa, t1, m1[j]),
+            vertex_twist(t0, a0, t1, m1[j]))
 
 
 @wp.kernel
@@ -66,6 +75,8 @@ def vertex_gradients(
     m1: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    clamp_director: wp.array(dtype=wp.vec3d),
     k_bend: wp.array(dtype=wp.float64),
     k_twist: wp.array(dtype=wp.float64),
     rest_K0: wp.array(dtype=wp.vec2d),
@@ -76,25 +87,26 @@ def vertex_gradients(
     grad_next: wp.array(dtype=wp.vec3d),
     grad_theta: wp.array(dtype=wp.vec2d),
 ):
-    """∂(W_b + W_t)/∂(x_{j-1}, x_j, x_{j+1}) and ∂/∂(θ_{j-1}, θ_j) at vertex j."""
+    """∂(W_b + W_t)/∂(x_{j-1}, x_j, x_{j+1}) and ∂/∂(θ_{j-1}, θ_j) at vertex j
+    (at a clamp vertex the virtual edge j-1 is fixed: its gradients are zero)."""
     j = wp.tid()
     zero = wp.vec3d(F64_0, F64_0, F64_0)
+    clamped = clamp_vertex(clamp_tangent, j)
     active = vertex_valid(has_next, j)
     if active:
         active = vertex_needed(free, j)
+    if clamped:
+        active = free[j + 1] != 0
     if not active:
         grad_prev[j] = zero
         grad_mid[j] = zero
         grad_next[j] = zero
         grad_theta[j] = wp.vec2d(F64_0, F64_0)
         return
-    e0 = x[j] - x[j - 1]
+    t0, len0, a0 = previous_edge(x, m1, clamp_tangent, clamp_director, j)
     e1 = x[j + 1] - x[j]
-    len0 = wp.length(e0)
     len1 = wp.length(e1)
-    t0 = e0 / len0
     t1 = e1 / len1
-    a0 = m1[j - 1]
     a1 = m1[j]
     w = wp.cross(t0, t1)
     c = wp.dot(t0, t1)
@@ -115,6 +127,8 @@ def vertex_gradients(
     dE_de0 = project_out(dE_dt0, t0) / len0 + (wp.float64(0.5) * kt_dtau / len0) * kb_der
     dE_de1 = project_out(dE_dt1, t1) / len1 + (wp.float64(0.5) * kt_dtau / len1) * kb_der
 
+    if clamped:  # the virtual edge moves with node j: only edge j's gradient acts
+        dE_de0 = zero
     grad_prev[j] = -dE_de0
     grad_mid[j] = dE_de0 - dE_de1
     grad_next[j] = dE_de1
@@ -175,6 +189,7 @@ def gather_forces(
     x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
     k_stretch: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
     grad_prev: wp.array(dtype=wp.vec3d),
@@ -200,11 +215,11 @@ def gather_forces(
     n = x.shape[0]
     f = wp.vec3d(F64_0, F64_0, F64_0)
     tq = F64_0
-    if vertex_valid(has_next, i):
+    if has_vertex(has_next, clamp_tangent, i):
         f = f - grad_mid[i]
         tq = tq - grad_theta[i][1]
     if i >= 1:
-        if vertex_valid(has_next, i - 1):
+        if has_vertex(has_next, clamp_tangent, i - 1):
             f = f - grad_next[i - 1]
         if edge_valid(has_next, i - 1):
             f = f - stretch_force(x, k_stretch, rest_length, i - 1)
@@ -229,6 +244,8 @@ def elastic_energies(
     x: wp.array(dtype=wp.vec3d),
     m1: wp.array(dtype=wp.vec3d),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    clamp_director: wp.array(dtype=wp.vec3d),
     k_stretch: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
     k_bend: wp.array(dtype=wp.float64),
@@ -248,8 +265,8 @@ def elastic_energies(
     if edge_valid(has_next, i):
         stretch = wp.length(x[i + 1] - x[i]) - rest_length[i]
         ws = wp.float64(0.5) * k_stretch[i] * stretch * stretch
-    if vertex_valid(has_next, i):
-        K0, K1, tau = vertex_strains(x, m1, i)
+    if has_vertex(has_next, clamp_tangent, i):
+        K0, K1, tau = vertex_strains(x, m1, clamp_tangent, clamp_director, i)
         dK0 = K0 - rest_K0[i]
         dK1 = K1 - rest_K1[i]
         wb = wp.float64(0.25) * k_bend[i] * (wp.dot(dK0, dK0) + wp.dot(dK1, dK1))
@@ -265,18 +282,21 @@ def rest_strains(
     x: wp.array(dtype=wp.vec3d),
     m1: wp.array(dtype=wp.vec3d),
     has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    clamp_director: wp.array(dtype=wp.vec3d),
     rest_K0: wp.array(dtype=wp.vec2d),
     rest_K1: wp.array(dtype=wp.vec2d),
     rest_twist: wp.array(dtype=wp.float64),
 ):
-    """Rest curvature (in both edges' frames) and rest twist of the pre-shape."""
+    """Rest curvature (in both edges' frames) and rest twist of the pre-shape; zero
+    at a clamp vertex (the pre-shape leaves its clamp straight and untwisted)."""
     j = wp.tid()
     if not vertex_valid(has_next, j):
         rest_K0[j] = wp.vec2d(F64_0, F64_0)
         rest_K1[j] = wp.vec2d(F64_0, F64_0)
         rest_twist[j] = F64_0
         return
-    K0, K1, tau = vertex_strains(x, m1, j)
+    K0, K1, tau = vertex_strains(x, m1, clamp_tangent, clamp_director, j)
     rest_K0[j] = K0
     rest_K1[j] = K1
     rest_twist[j] = tau

@@ -153,6 +153,7 @@ def update_frames(
     omega_in: wp.array(dtype=wp.float64),
     torque: wp.array(dtype=wp.float64),
     free_out: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     inv_inertia: wp.array(dtype=wp.float64),
     twist_damping: wp.array(dtype=wp.float64),
@@ -163,9 +164,10 @@ def update_frames(
     omega_out: wp.array(dtype=wp.float64),
 ):
     """Carry each edge's director to its new tangent by parallel transport, then
-    turn it about the tangent by its twist rate (free edges only; edges with a
-    node in the catheter or clamped do not spin). Twist damping is linear and
-    implicit: ω' = (ω + dt T/J) / (1 + dt b/J)."""
+    turn it about the tangent by its twist rate. An edge spins when each node is
+    free or clamped and not both are clamped; edges with a node in the catheter
+    (or parked) do not. Twist damping is linear and implicit:
+    ω' = (ω + dt T/J) / (1 + dt b/J)."""
     i = wp.tid()
     if running[world_of[i]] == 0:
         m1_out[i] = m1_in[i]
@@ -179,7 +181,9 @@ def update_frames(
     t_new = wp.normalize(x_out[i + 1] - x_out[i])
     m = transport(m1_in[i], t_old, t_new)
     omega = F64_0
-    if free_out[i] != 0 and free_out[i + 1] != 0:
+    held0 = fixed[i] != 0
+    held1 = fixed[i + 1] != 0
+    if (free_out[i] != 0 or held0) and (free_out[i + 1] != 0 or held1) and not (held0 and held1):
         inv_j = inv_inertia[i]
         omega = (omega_in[i] + dt * torque[i] * inv_j) / (F64_1 + dt * twist_damping[i] * inv_j)
         m = rotate_about(m, t_new, omega * dt)
@@ -198,8 +202,8 @@ def kinetic_energies(
     unhealthy: wp.array(dtype=wp.int32),
     speed_limit: wp.float64,
 ):
-    """Kinetic energy (nJ) of free node i and of edge i's spin; flags a node
-    whose velocity is non-finite or above ``speed_limit`` (mm/s)."""
+    """Kinetic energy (nJ) of free node i and of edge i's spin (zero unless it
+    spins); flags a node whose velocity is non-finite or above ``speed_limit`` (mm/s)."""
     i = wp.tid()
     vi = v[i]
     speed_sq = wp.dot(vi, vi)
@@ -207,9 +211,9 @@ def kinetic_energies(
     if not wp.isfinite(speed_sq) or speed_sq > speed_limit * speed_limit:
         bad = 1
     unhealthy[i] = bad
-    e = F64_0
+    e = wp.float64(0.5) * omega[i] * omega[i] / inv_inertia[i]
     if free[i] != 0:
-        e = wp.float64(0.5) * speed_sq / inv_mass[i] + wp.float64(0.5) * omega[i] * omega[i] / inv_inertia[i]
+        e = e + wp.float64(0.5) * speed_sq / inv_mass[i]
     energy[i] = e
 
 

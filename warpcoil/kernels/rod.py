@@ -85,6 +85,25 @@ def edge_valid(has_next: wp.array(dtype=wp.int32), i: int) -> bool:
 
 
 @wp.func
+def clamp_vertex(clamp_tangent: wp.array(dtype=wp.vec3d), j: int) -> bool:
+    """Node j is a coil's first node clamped with its tangent: vertex j bends
+    between a virtual, fixed edge along ``clamp_tangent[j]`` and edge j."""
+    return wp.length_sq(clamp_tangent[j]) > F64_0
+
+
+@wp.func
+def previous_edge(x: wp.array(dtype=wp.vec3d), m1: wp.array(dtype=wp.vec3d),
+                  clamp_tangent: wp.array(dtype=wp.vec3d), clamp_director: wp.array(dtype=wp.vec3d), j: int):
+    """Unit tangent, length (mm) and director of vertex j's first edge: edge j-1,
+    or the clamp's virtual edge (length 1, unused: nothing moves it)."""
+    if clamp_vertex(clamp_tangent, j):
+        return clamp_tangent[j], F64_1, clamp_director[j]
+    e = x[j] - x[j - 1]
+    length = wp.length(e)
+    return e / length, length, m1[j - 1]
+
+
+@wp.func
 def vertex_valid(has_next: wp.array(dtype=wp.int32), j: int) -> bool:
     if j < 1:
         return False
