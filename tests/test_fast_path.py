@@ -45,7 +45,8 @@ def test_neighbour_skin_and_wall_anchors_change_nothing_but_the_work(wall_query)
     steps = STEPS
     full, full_solver = full_passes(wall_query)
     fast, fast_solver = run_pushed(steps, wall_query=wall_query)
-    assert full_solver.touching_chunks >= 5 and full_solver.wall_chunks > 10  # the passes had work to do
+    assert full_solver.touching_chunks >= (5 if wall_query == "bvh" else 1)  # the passes had work to do
+    assert full_solver.wall_chunks > 10
     for name in full:
         assert np.array_equal(full[name], fast[name]), name
     assert full_solver.grid_builds == steps  # every step
