@@ -31,17 +31,22 @@ def run_pushed(steps: int, **solver_options):
 STEPS = 20000  # 14 mm of coil out: the second coil presses on the first and both on the wall
 
 
-@functools.lru_cache(maxsize=1)
-def full_passes():
-    """The run with every skip off: grid rebuilt and every node searched each step."""
-    return run_pushed(STEPS, neighbour_skin_mm=0.0, wall_guard_steps=0)
+@functools.lru_cache(maxsize=2)
+def full_passes(wall_query: str = "bvh"):
+    """The run with every skip off: grid rebuilt and every node searched each step
+    (through the BVH, or the wall field where it is trusted)."""
+    return run_pushed(STEPS, neighbour_skin_mm=0.0, wall_guard_steps=0, wall_query=wall_query)
 
 
-def test_neighbour_skin_and_wall_anchors_change_nothing_but_the_work():
+@pytest.mark.parametrize("wall_query", ["bvh", "sdf"])
+def test_neighbour_skin_and_wall_anchors_change_nothing_but_the_work(wall_query):
+    """With the field, an anchored node skips a sample the field would also have
+    found out of contact (the anchor margin covers the field's error bound)."""
     steps = STEPS
-    full, full_solver = full_passes()
-    fast, fast_solver = run_pushed(steps)
-    assert full_solver.touching_chunks > 5 and full_solver.wall_chunks > 10  # the passes had work to do
+    full, full_solver = full_passes(wall_query)
+    fast, fast_solver = run_pushed(steps, wall_query=wall_query)
+    assert full_solver.touching_chunks >= (5 if wall_query == "bvh" else 1)  # the passes had work to do
+    assert full_solver.wall_chunks > 10
     for name in full:
         assert np.array_equal(full[name], fast[name]), name
     assert full_solver.grid_builds == steps  # every step
@@ -54,7 +59,7 @@ def test_neighbour_skin_and_wall_anchors_change_nothing_but_the_work():
                          ids=["wide skin", "overflowing lists"])
 def test_other_skins_and_list_sizes_give_the_same_run(options):
     full, _ = full_passes()
-    fast, solver = run_pushed(STEPS, **options)
+    fast, solver = run_pushed(STEPS, wall_query="bvh", **options)
     if "neighbour_capacity" in options:
         assert solver.overflow_chunks > 5  # the grid fallback did the work
     for name in full:

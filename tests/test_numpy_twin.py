@@ -29,7 +29,7 @@ def run_both(model, state, steps, push_speed_mm_s=0.0, active_coil=-1, coil_cont
     """``steps`` steps of the Warp Stepper (no graph, 2 steps a chunk) and of the
     twin from the same state; returns (warp state, solver, twin, largest contact
     force the twin saw, µN)."""
-    solver = wc.Solver(model, coil_contact=coil_contact)
+    solver = wc.Solver(model, coil_contact=coil_contact, wall_query="bvh")  # the twin mirrors the exact wall
     twin = NumpyTwin(model, state, solver.dt_s, push_speed_mm_s=push_speed_mm_s, active_coil=active_coil,
                      coil_contact=coil_contact)
     control = wc.Control.create(model, active_coil=active_coil, push_speed_mm_s=push_speed_mm_s)

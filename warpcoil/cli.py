@@ -217,6 +217,8 @@ def _bench(args: argparse.Namespace) -> int:
         from .bench.accuracy import main as bench_main
     elif args.kind == "peers":
         from .bench.peers import main as bench_main
+    elif args.kind == "steps":
+        from .bench.steps import main as bench_main
     else:
         from .bench.stress import main as bench_main
     repeats = args.repeats if args.repeats is not None else 3
@@ -241,10 +243,12 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(func=_validate)
 
     bench = sub.add_parser("bench", help="benchmarks: accuracy (run time against error), stress (hard cases), peers "
-                                         "(against PyElastica and the NumPy twin), ensemble (batched deployments)")
-    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble"],
+                                         "(against PyElastica and the NumPy twin), ensemble (batched deployments), "
+                                         "steps (per-step cost, change by change)")
+    bench.add_argument("kind", choices=["accuracy", "stress", "peers", "ensemble", "steps"],
                        help="accuracy: run time against error; stress: hard set-ups; peers: against PyElastica and "
-                            "the NumPy twin; ensemble: deployments per minute of batched sweeps")
+                            "the NumPy twin; ensemble: deployments per minute of batched sweeps; steps: the seed "
+                            "case's per-step cost with each cheap-step change and a per-launch profile")
     bench.add_argument("--device", help="Warp device for `ensemble` (cpu, cuda:0; default Warp's)")
     bench.add_argument("--quick", action="store_true", help="the short variant (< 3 min on 2 CPU cores)")
     bench.add_argument("-o", "--output", default="out/bench", help="folder for the report, table and plot")

@@ -117,7 +117,8 @@ class Ensemble:
     (where its step can be halved, as a single run's would be); ``on_frame``
     then sees that member's frames again from its start."""
 
-    def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None):
+    def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
+                 solver_options: dict | None = None):
         self.scenes = list(scenes)
         if not self.scenes:
             raise ValueError("an ensemble needs at least one scene")
@@ -131,8 +132,11 @@ class Ensemble:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame, integrator) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
+        contact = self.scenes[0].contact
+        self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
+                                **(solver_options or {})}  # benchmarks: other skins, ...
         self.solver = make_solver(self.model, self.integrator, steps[0][0], dt_safety=sims[0].dt_safety,
-                                  allow_unstable_dt=sims[0].allow_unstable_dt)
+                                  allow_unstable_dt=sims[0].allow_unstable_dt, **self._solver_options)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -176,7 +180,8 @@ class Ensemble:
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
         self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
         solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
-                             dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True)
+                             dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True,
+                             **self._solver_options)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -418,7 +423,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
 def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
                     ) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
-    step, contact onset, frame length, contact law, damping speed and mass scale).
+    step, contact onset, frame length, contact law and wall query, damping speed and mass scale).
     ``anatomies``: the scenes' resolved anatomies, if the caller has them."""
     anatomies = anatomies if anatomies is not None else resolve_anatomies(scenes)
     groups: dict[tuple, list[int]] = {}
@@ -426,7 +431,8 @@ def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[An
         model = finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
         c = model.contact
         key = (world_steps(model, [scene])[0], scene.simulation.allow_unstable_dt, c.p0_uN, c.c0_mm,
-               c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale)
+               c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale, scene.contact.wall_query,
+               scene.contact.wall_voxel_mm)
         groups.setdefault(key, []).append(k)
     return list(groups.values())
 
@@ -435,8 +441,8 @@ class Deployment(Ensemble):
     """One deployment of a scene. ``run()`` returns the RunResult; ``on_frame``
     (if given) is called after every recorded frame with (frame, state)."""
 
-    def __init__(self, scene: Scene, device=None):
-        super().__init__([scene], device)
+    def __init__(self, scene: Scene, device=None, solver_options: dict | None = None):
+        super().__init__([scene], device, solver_options=solver_options)
         self.scene = scene
 
     @property

@@ -21,7 +21,7 @@ and k_t = GJ/l̄_j per vertex (l̄_j the mean of its two edges, so W_b → ∫ E
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import warp as wp
@@ -48,6 +48,7 @@ class WallModel:
     volume_mm3: float
     vertices_mm: np.ndarray  # absolute, for output
     faces_np: np.ndarray
+    fields: dict = field(default_factory=dict, repr=False, compare=False)  # narrow-band SDFs built (wall_field.py)
 
     @staticmethod
     def create(vertices_mm: np.ndarray, faces: np.ndarray, volume_mm3: float, device) -> "WallModel":

@@ -185,7 +185,8 @@ _PRODUCT = {"product": _Key(_text), "size": _Key(_text)}  # a catalogue coil: wa
 _PRODUCT_COIL = {**{key: spec._replace(required=False) for key, spec in _COIL.items()}, **_PRODUCT}
 _CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "friction_wall": _Key(_nonnegative),
             "friction_coil": _Key(_nonnegative), "friction_catheter": _Key(_nonnegative),
-            "friction_speed_mm_s": _Key(_positive)}
+            "friction_speed_mm_s": _Key(_positive), "wall_query": _Key(_choice("sdf", "bvh")),
+            "wall_voxel_mm": _Key(_positive)}
 _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),

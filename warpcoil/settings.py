@@ -114,6 +114,10 @@ class ContactSettings:
     0.1·d, a few times the wall's RMS roughness); two parts of one coil that are
     closer than c0 in its pre-shape begin contact at their rest clearance, so a
     tight pitch is not pushed open (docs/FORMULATION.md, rest clearance).
+    wall_query: "bvh" (the exact BVH query, with anchors: the default) or "sdf"
+    (wall distance and normal sampled from a narrow-band signed distance field
+    of voxel ``wall_voxel_mm``, the BVH where the field cannot be trusted).
+    docs/FORMULATION.md states the field's error, BENCHMARKS.md its cost.
     """
 
     P0_uN: float = 1.0e3
@@ -126,6 +130,8 @@ class ContactSettings:
     friction_coil: float = 0.0
     friction_catheter: float = 0.0
     friction_speed_mm_s: float = 0.01
+    wall_query: str = "bvh"  # "sdf": −22 % per seed-case step, but +67 % steps to rest on C0003 (BENCHMARKS)
+    wall_voxel_mm: float = 0.04  # = wall_field.DEFAULT_VOXEL_MM
 
     @property
     def frictional(self) -> bool:

@@ -118,7 +118,8 @@ def seed_window(prepush_steps: int = SEED_PREPUSH_STEPS) -> Window:
     scene = load_scene(SEED_SCENE)
     sim = scene.simulation
     model = build_model(scene)
-    solver = Solver(model, dt_s=sim.dt_s, dt_safety=sim.dt_safety, allow_unstable_dt=sim.allow_unstable_dt)
+    solver = Solver(model, dt_s=sim.dt_s, dt_safety=sim.dt_safety, allow_unstable_dt=sim.allow_unstable_dt,
+                    wall_query="bvh")  # the twin mirrors the exact wall
     control = Control.create(model, active_coil=0, push_speed_mm_s=sim.push_speed_mm_s)
     stepper = Stepper(solver, packed_state(model, gap_mm=COIL_GAP_MM), control, chunk=1000)
     state = stepper.run_steps(prepush_steps)

@@ -251,6 +251,27 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     return from_fixed(total)
 
 
+@wp.func
+def field_sample(volume: wp.uint64, local: wp.vec3d, grad_tolerance: wp.float64):
+    """The wall's narrow-band field (warpcoil/wall_field.py) at ``local`` (wall
+    frame, mm): whether to trust it, the signed distance (mm, > 0 in the lumen)
+    and the unit inward normal, from the trilinear interpolant and its gradient.
+    Trusted: all eight corners inside the band (a corner outside is NaN, so the
+    sample is) and the gradient's length within ``grad_tolerance`` of 1 (it
+    drops below 1 where the stencil straddles a crease of the wall)."""
+    uvw = wp.volume_world_to_index(volume, wp.vec3f(wp.float32(local[0]), wp.float32(local[1]),
+                                                    wp.float32(local[2])))
+    g = wp.vec3f(wp.float32(0.0), wp.float32(0.0), wp.float32(0.0))
+    d = wp.volume_sample_grad_f(volume, uvw, wp.Volume.LINEAR, g)
+    grad = wp.volume_world_to_index_dir(volume, g)  # ∂d/∂x = (∂d/∂u) / h for a voxel of size h
+    n = wp.vec3d(wp.float64(grad[0]), wp.float64(grad[1]), wp.float64(grad[2]))
+    size = wp.length(n)
+    trusted = d == d and wp.abs(size - wp.float64(1.0)) <= grad_tolerance
+    if trusted:
+        n = n / size
+    return trusted, wp.float64(d), n
+
+
 @wp.kernel
 def wall_contact(
     x: wp.array(dtype=wp.vec3d),
@@ -269,6 +290,9 @@ def wall_contact(
     u_linear: wp.float64,
     search_mm: wp.float64,
     guard_steps: int,
+    fields: wp.array(dtype=wp.uint64),
+    grad_tolerance: wp.float64,
+    anchor_margin: wp.float64,
     inside: wp.array(dtype=wp.int32),
     anchor: wp.array(dtype=wp.vec3d),
     anchor_slack: wp.array(dtype=wp.float64),
@@ -292,10 +316,13 @@ def wall_contact(
 
     A node found in the lumen with a slack s = (distance − d/2 − c0) > 0 to the
     contact range (s ≥ ``search_mm`` when no face was within reach) is anchored
-    there: while it stays within 0.9 s − 1e-5 mm of its anchor the wall cannot be within
-    its contact range, so the force is exactly zero and it is not searched
+    there: while it stays within 0.9 s − ``anchor_margin`` of its anchor (≥ 1e-5 mm;
+    with a field, also ≥ the field's error bound, so the field cannot see contact
+    there either) the wall cannot be within its contact range, so the force is exactly zero and it is not searched
     again — except every ``guard_steps`` steps (0: always search, as for exact
-    distances). Writes the centre's signed distance (mm; for a node not
+    distances). A node not anchored takes distance and normal from its world's
+    narrow-band field (``fields``, 0: none) where the field is trusted
+    (:func:`field_sample`), from the BVH elsewhere. Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
     anchored with; +FAR in the catheter or without a wall)."""
     i = wp.tid()
@@ -308,10 +335,20 @@ def wall_contact(
         side = inside[i]
         quiet = quiet_steps[i]
         moved = wp.length(x[i] - anchor[i])
-        if side > 0 and quiet != NO_ANCHOR and quiet < guard_steps and moved < ANCHOR_SHARE * anchor_slack[i] - ANCHOR_MARGIN_MM:
+        done = False  # distance and force known without the BVH
+        if side > 0 and quiet != NO_ANCHOR and quiet < guard_steps and moved < ANCHOR_SHARE * anchor_slack[i] - anchor_margin:
             quiet_steps[i] = quiet + 1
             signed = node_radius[i] + c0 + anchor_slack[i] - moved
-        else:
+            done = True
+        elif fields[w] != wp.uint64(0):
+            trusted, sampled, normal = field_sample(fields[w], x[i] - origins[w], grad_tolerance)
+            if trusted:
+                signed = sampled
+                inside[i] = wp.where(signed > wp.float64(0.0), 1, 0)
+                quiet_steps[i] = NO_ANCHOR
+                f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * normal
+                done = True
+        if not done:  # the BVH
             if side < 0:
                 reach = FAR_MM
             face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)

@@ -24,13 +24,18 @@ def damped_speed(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
     """Root s ≥ 0 of s + a (1 − exp(−s/k)) = speed (a = dt c/m, mm/s).
 
     The left side is increasing and concave, so Newton from the linearised
-    root s0 = speed/(1 + a/k) (a lower bound) rises monotonically to the root."""
+    root s0 = speed/(1 + a/k) (a lower bound) rises monotonically to the root.
+    At most 6 iterations; it stops at the fixed point (an iterate that no longer
+    changes, typically after 2: the iterations it skips would repeat it)."""
     if a <= F64_0 or speed <= F64_0:
         return speed
     s = speed / (F64_1 + a / k)
     for _ in range(6):
         e = wp.exp(-s / k)
-        s = s - (s + a * (F64_1 - e) - speed) / (F64_1 + a / k * e)
+        s_next = s - (s + a * (F64_1 - e) - speed) / (F64_1 + a / k * e)
+        if s_next == s:
+            break
+        s = s_next
     return wp.max(s, F64_0)
 
 

@@ -1,0 +1,133 @@
+"""Cheap steps, each against its full pass: the damping solve stopped at its fixed
+point (bit-identical), the wall's narrow-band field against the BVH (within its
+error bound; creases handed to the BVH)."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import trimesh
+import warp as wp
+
+import warpcoil as wc
+from warpcoil import validation
+from warpcoil.deploy import build_model
+from warpcoil.kernels import integrate
+from warpcoil.model import WallModel
+from warpcoil.scene import load_scene
+from warpcoil.wall_field import GRAD_TOLERANCE, band_points, build_wall_field, field_error, field_error_bound_mm
+from warpcoil.kernels import wall_field as field_kernels
+
+SEED = Path(__file__).resolve().parents[1] / "scenes" / "seed_sphere.toml"
+
+
+@wp.func
+def damped_speed_six(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
+    """The damping solve as it was: always six Newton iterations."""
+    if a <= wp.float64(0.0) or speed <= wp.float64(0.0):
+        return speed
+    s = speed / (wp.float64(1.0) + a / k)
+    for _ in range(6):
+        e = wp.exp(-s / k)
+        s = s - (s + a * (wp.float64(1.0) - e) - speed) / (wp.float64(1.0) + a / k * e)
+    return wp.max(s, wp.float64(0.0))
+
+
+@wp.kernel
+def both_damped_speeds(speed: wp.array(dtype=wp.float64), a: wp.array(dtype=wp.float64), k: wp.float64,
+                       early: wp.array(dtype=wp.float64), six: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    early[i] = integrate.damped_speed(speed[i], a[i], k)
+    six[i] = damped_speed_six(speed[i], a[i], k)
+
+
+def test_damping_solve_stopped_at_its_fixed_point_is_bit_identical_and_solves_the_law():
+    rng = np.random.default_rng(1)
+    n = 20000
+    speed = 10.0 ** rng.uniform(-6, 4, n)  # mm/s: resting nodes to a whipping free end
+    a = 10.0 ** rng.uniform(-4, 3, n)  # dt c/m, mm/s
+    k = 20.0
+    early, six = wp.zeros(n, dtype=wp.float64), wp.zeros(n, dtype=wp.float64)
+    wp.launch(both_damped_speeds, n, inputs=[wp.array(speed, dtype=wp.float64), wp.array(a, dtype=wp.float64), k,
+                                             early, six])
+    s = early.numpy()
+    assert np.array_equal(s, six.numpy())
+    residual = s + a * (1.0 - np.exp(-s / k)) - speed
+    assert np.all(np.abs(residual) <= 1e-12 * (speed + a))  # converged to rounding in six iterations or fewer
+
+
+def test_wall_field_validation_cases():
+    rows = validation.wall_field_cases()
+    failed = [r for r in rows if not r.passed]
+    assert not failed, validation.format_table(failed)
+
+
+def test_a_crease_goes_to_the_bvh_and_the_rest_of_the_field_keeps_its_bound():
+    """Inside a 2 mm cube the distance has a 90° kink on the planes that bisect its
+    edges: the interpolated gradient there is ~cos 45° long, so those samples are
+    untrusted (the BVH takes them); every trusted sample keeps the bound."""
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    wall = WallModel.create(np.asarray(box.vertices), np.asarray(box.faces), float(box.volume), wp.get_device())
+    h = 0.04
+    field = build_wall_field(wall, 0.3, h)  # whole wall
+    pts = band_points(wall, (0.0, 0.25), 20000)
+    err = field_error(wall, field, pts)
+    assert err.distance_max_mm <= 1e-6  # flat faces away from the creases: trilinear is exact up to float32
+    assert err.normal_rms_deg <= 0.1
+    # the kink: points on the bisector of an edge, 0.05–0.2 mm from the wall
+    depth = np.linspace(0.05, 0.2, 50)
+    along = np.linspace(-0.8, 0.8, 50)
+    kink = np.stack([1.0 - depth, 1.0 - depth, along], axis=1)
+    n = len(kink)
+    trusted = wp.zeros(n, dtype=wp.int32)
+    wp.launch(field_kernels.sample_field, n, inputs=[field.id, wp.array(kink, dtype=wp.vec3d), GRAD_TOLERANCE,
+                                                     trusted, wp.zeros(n, dtype=wp.float64),
+                                                     wp.zeros(n, dtype=wp.vec3d)])
+    assert trusted.numpy().sum() == 0
+
+
+def test_wall_forces_from_the_field_are_the_bvh_forces_within_the_error_bound():
+    """Every node of the seed coil placed in the contact band of the seed sphere
+    (some pressed into it): the field's wall force differs from the BVH's by at
+    most the law's stiffness × the measured distance error + |F| × the normal error."""
+    model = build_model(load_scene(SEED))
+    state = wc.packed_state(model)
+    wall = model.wall
+    n = model.node_count
+    local = band_points(wall, (-0.02, 0.3), n, seed=3)
+    state.x.assign(wp.array(local + wall.origin, dtype=wp.vec3d))
+    state.free.fill_(1)
+    forces, distances = {}, {}
+    for query in ("bvh", "sdf"):
+        solver = wc.Solver(model, wall_query=query)
+        solver.compute_contacts(state)
+        forces[query], distances[query] = solver.wall_force.numpy(), solver.wall_distance.numpy()
+    bound = field_error_bound_mm(0.04)
+    c = model.contact
+    gap = distances["bvh"] - model.node_radius.numpy()
+    touching = np.linalg.norm(forces["bvh"], axis=1) > 0
+    assert touching.sum() > n // 3  # the comparison has forces to compare
+    near = gap < c.c0_mm + 0.1
+    assert np.all(np.abs(distances["sdf"] - distances["bvh"])[near] <= 0.05 * c.c0_mm)
+    assert np.all(np.abs(distances["sdf"] - distances["bvh"])[near] <= bound)
+    u = np.minimum(1.0 - (gap - 0.05 * c.c0_mm) / c.c0_mm, solver.contact_u_linear)  # the stiffest in reach
+    stiffness = c.p0_uN / ((math.e - 1.0) * c.c0_mm) * (np.exp(u) * (1.0 + u) - 1.0) * (u > 0.0)
+    allowed = stiffness * 0.05 * c.c0_mm + np.linalg.norm(forces["bvh"], axis=1) * math.radians(6.0)
+    diff = np.linalg.norm(forces["sdf"] - forces["bvh"], axis=1)
+    assert np.all(diff <= allowed + 1e-9)
+
+
+def test_the_scene_key_chooses_the_wall_query_and_names_a_bad_value():
+    from warpcoil.deploy import Deployment
+    from warpcoil.scene import SceneError
+
+    field_run = Deployment(load_scene(SEED, {"contact.wall_query": "sdf", "contact.wall_voxel_mm": 0.08}))
+    field = field_run.solver.wall_fields[0]
+    assert field is not None and field.voxel_mm == 0.08 and field.voxels > 0
+    assert Deployment(load_scene(SEED)).solver.wall_fields == [None]  # default: the exact BVH
+    try:
+        load_scene(SEED, {"contact.wall_query": "octree"})
+    except SceneError as error:
+        assert "contact.wall_query" in str(error) and "sdf" in str(error)
+    else:
+        raise AssertionError("a bad wall_query was accepted")
