@@ -423,7 +423,8 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
 def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
                     ) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
-    step, contact onset, frame length, contact law and wall query, damping speed and mass scale).
+    step, contact onset, frame length, contact law, friction and wall query, damping speed, mass
+    scale and stent strut radius).
     ``anatomies``: the scenes' resolved anatomies, if the caller has them."""
     anatomies = anatomies if anatomies is not None else resolve_anatomies(scenes)
     groups: dict[tuple, list[int]] = {}
@@ -432,7 +433,8 @@ def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[An
         c = model.contact
         key = (world_steps(model, [scene])[0], scene.simulation.allow_unstable_dt, c.p0_uN, c.c0_mm,
                c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale, scene.contact.wall_query,
-               scene.contact.wall_voxel_mm)
+               scene.contact.wall_voxel_mm, c.friction_wall, c.friction_coil, c.friction_catheter,
+               c.friction_speed_mm_s, scene.stent.strut_diameter_mm if scene.stent else 0.0)  # one per ensemble
         groups.setdefault(key, []).append(k)
     return list(groups.values())
 

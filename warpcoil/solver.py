@@ -85,8 +85,8 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes:
       8 at a free end of half mass)
     * twisting: (4 k_t + k_b |K̄|²) / J
     * contact: the contact law's slope at the design overlap (u = 3, h = −2 c0),
-      times CONTACTS_PER_NODE, / m of an interior node (when given;
-      :func:`_contact_inv_mass`)
+      times CONTACTS_PER_NODE, / m of each node, an end node of half mass too (when
+      given; :func:`_contact_inv_mass`)
 
     ``nodes``: one world's nodes (default: every world, the smallest bound).
     """
@@ -125,8 +125,8 @@ def contact_linear_onset(model: Model, dt_s: float, nodes: slice = slice(None)) 
     """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
     MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
     step dt can integrate for the lightest node pressed from CONTACTS_AT_ONSET
-    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET, m an interior node's mass:
-    :func:`_contact_inv_mass`); never below u = 2 (h = −c0).
+    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET, m the lightest node's mass, an
+    end node's: :func:`_contact_inv_mass`); never below u = 2 (h = −c0).
     Up to it the law is exact; past it the force keeps growing along the law's
     tangent, so deep overlaps in an overpacked sac stay stable instead of blowing
     up. For the default coil and step it is u ≈ 2.8 (|F| ≈ 24 P0)."""
