@@ -130,6 +130,22 @@ def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
     assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
 
 
+def test_cli_refuses_the_implicit_step_with_a_device(tmp_path):
+    """The implicit step's matrix holds no device contact stiffness: refused before stepping."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 6.0\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
+                     'length_mm = 5\n[simulation]\nintegrator = "implicit"\n'
+                     '[stent]\naxis = [[0.0, 0.0, -2.0], [0.0, 0.0, 2.0]]\n')
+    log, out = tmp_path / "log.txt", tmp_path / "o"
+    with log.open("w") as stream:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(out), "--no-usd"],
+                             stdout=stream, stderr=subprocess.STDOUT)
+    text = log.read_text()
+    assert rc == 2
+    assert "simulation.integrator" in text and 'integrator = "symplectic"' in text and str(scene) in text
+    assert not out.exists() or not any(out.iterdir())
+
+
 @pytest.mark.parametrize("device", ["balloon", "stent"])
 def test_cli_runs_an_assisted_scene_and_reports_the_device(tmp_path, device):
     """A 5 mm coil into a 4 mm sphere with the device through it, clear of the catheter path."""

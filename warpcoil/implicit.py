@@ -96,7 +96,7 @@ class ImplicitSolver(Solver):
             state_out.advance])
         if self.coil_contact:
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
-                state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
+                state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,

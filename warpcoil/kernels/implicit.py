@@ -46,6 +46,7 @@ from .contact import (
     edge_in_contact_pass,
     edge_is_obstacle,
     from_fixed,
+    rest_offset,
     segment_closest_params,
     to_fixed,
     vec3l,
@@ -147,14 +148,17 @@ def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
 
 
 @wp.func
-def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                   free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
-    stiffness k, the unit normal n from b to a)."""
+    stiffness k, the unit normal n from b to a). Two parts of one coil closer than
+    c0 in the rest shape start at their rest clearance (contact.rest_offset), as the
+    force does."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -172,6 +176,13 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), 
             delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
             dist = wp.length(delta)
             gap = dist - node_radius[a] - node_radius[b]
+            if coil_of[a] == coil_of[b]:
+                ra0 = rest_x[a]
+                rb0 = rest_x[b]
+                rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+                rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
+                    - node_radius[a] - node_radius[b]
+                gap = gap + rest_offset(rest_gap, c0)
             if gap < c0 and dist > wp.float64(1.0e-12):
                 hit = 1
                 k = contact_stiffness(gap, p0, c0, u_linear)
@@ -214,6 +225,7 @@ def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: w
 @wp.kernel
 def edge_contact_stiffness(
     x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
@@ -260,7 +272,7 @@ def edge_contact_stiffness(
         if listed != NO_LIST:
             for k in range(listed):
                 b = neighbours[a, k]
-                start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a, b,
+                start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                                  reach_a, p0, c0, u_linear, radius)
                 record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
                 d, o = to_fixed_sym(start)
@@ -274,7 +286,7 @@ def edge_contact_stiffness(
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    start, end, hit, st, kc, normal = pair_stiffness(x, free, has_next, fixed, node_radius, mid, a,
+                    start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
                                                                      b, reach_a, p0, c0, u_linear, radius)
                     record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
                     d, o = to_fixed_sym(start)
