@@ -69,3 +69,63 @@ def test_frictional_members_equal_their_single_runs():
         assert member.status == single.status == "completed"
         for a, b in zip(single.positions_mm, member.positions_mm):
             assert np.array_equal(a, b)
+
+
+def _coil_friction_changes(model, state, velocities):
+    """Coil–coil friction velocity changes (per edge start and end node, mm/s) that
+    the Solver gives ``velocities`` with the contacts of ``state``."""
+    solver = wc.Solver(model)
+    solver.compute_contacts(state)
+    out = wc.state_from_positions(model, state.x.numpy())
+    out.v.assign(velocities)
+    solver._apply_friction(state, out, wc.Control.create(model).running, solver.dt_s)
+    return solver, solver._friction_start.numpy(), solver._friction_end.numpy()
+
+
+def test_turns_touching_in_the_rest_shape_get_no_coil_friction():
+    """A tight-pitch helix (turns 10 µm apart, within c0) at rest carries no normal
+    force (rest offset) and so no friction load: sliding its turns costs nothing."""
+    from warpcoil.validation import TIGHT_HELIX
+    builder = wc.ModelBuilder(contact=wc.ContactSettings(friction_coil=0.5))
+    builder.add_coil(wc.CoilSpec(wire_diameter_mm=0.2921, shape="helix", **TIGHT_HELIX))
+    model = builder.finalize()
+    state = wc.rest_state(model)
+    velocities = np.random.default_rng(1).normal(scale=5.0, size=(model.node_count, 3))
+    solver, start, end = _coil_friction_changes(model, state, velocities)
+    assert solver.coil_friction
+    assert solver.coil_gap.numpy().min() < model.contact.c0_mm  # the turns are within contact range
+    assert np.abs(solver.contact_force.numpy()).max() == 0.0
+    assert np.abs(start).max() == 0.0 and np.abs(end).max() == 0.0
+
+
+def test_coil_friction_load_is_the_normal_force_between_the_edges():
+    """Two crossing straight coils pressed together, sliding fast (above the stick
+    range): each edge pair's friction impulse is dt μ |F_pair|, F_pair the normal
+    force that pair's contact terms put on the edge, so the total tangential
+    friction on a coil is μ × its total normal contact force."""
+    d, mu, gap = 0.2921, 0.4, 0.01
+    nodes = 9
+    s = (np.arange(nodes) - nodes // 2) * d
+    a = np.stack([s, np.zeros(nodes), np.zeros(nodes)], axis=1)  # A's middle node under the middle of a B edge
+    b = np.stack([np.zeros(nodes), s + 0.5 * d, np.full(nodes, d + gap)], axis=1)
+    builder = wc.ModelBuilder(contact=wc.ContactSettings(friction_coil=mu))
+    spec = wc.CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d, segment_length_mm=d)
+    builder.add_coil(spec, a)
+    builder.add_coil(spec, b)
+    model = builder.finalize()
+    state = wc.state_from_positions(model, np.concatenate([a, b]))
+    velocities = np.zeros((2 * nodes, 3))
+    velocities[nodes:, 0] = 200.0  # coil B slides along x over coil A
+    solver, start, end = _coil_friction_changes(model, state, velocities)
+    mass = 1.0 / model.inv_mass.numpy()
+    has_next = model.has_next.numpy()
+    change = np.zeros((2 * nodes, 3))
+    for i in range(2 * nodes - 1):
+        if has_next[i]:
+            change[i] += start[i]
+            change[i + 1] += end[i]
+    assert solver.coil_contacts.numpy().max() <= 2  # every node has at most two contacts: the exact law
+    friction_on_a = (mass[:nodes, None] * change[:nodes]).sum(axis=0) / solver.dt_s  # µN
+    normal_on_a = solver.contact_force.numpy()[:nodes].sum(axis=0)
+    assert np.linalg.norm(normal_on_a) > 0.1 * model.contact.p0_uN
+    assert friction_on_a[0] == pytest.approx(mu * np.linalg.norm(normal_on_a), rel=1e-6)

@@ -412,7 +412,7 @@ class Solver:
         c = m.contact
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=[
-                state_in.x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
+                state_in.x, m.rest_x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
                 self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,

@@ -6,7 +6,9 @@ an edge still in the catheter, which stands in for the catheter) gets a friction
 impulse along its tangential relative velocity w* at the contact points. With W
 the contact's inverse effective mass (Σ of the squared barycentric weights over
 the node masses; 0 for the wall, a device and the catheter) and N its normal
-load (the contact law's force), the regularised implicit law of one contact is
+load (its actual normal force: the wall's or device's contact force; for a coil
+edge pair the net force of the pair's node–capsule terms, contact.pair_contact,
+so rest-touching turns carry none), the regularised implicit law of one contact is
 
     w' = w* / (1 + dt c W),   c = μ N / max(|w*| − dt μ N W, v_reg)
 
@@ -32,7 +34,7 @@ member = its single run).
 
 import warp as wp
 
-from .contact import (NO_LIST, bonded, contact_force_magnitude, edge_in_contact_pass, edge_is_obstacle, from_fixed,
+from .contact import (NO_LIST, bonded, edge_in_contact_pass, edge_is_obstacle, from_fixed, pair_contact,
                       segment_closest_params, to_fixed, vec3l)
 from .rod import F64_0, F64_1
 
@@ -78,15 +80,21 @@ def share(k: int) -> wp.float64:
 
 
 @wp.func
-def pair_impulse(x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
+def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
+                 coil_of: wp.array(dtype=wp.int32), free: wp.array(dtype=wp.int32),
                  has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
                  node_radius: wp.array(dtype=wp.float64), inv_mass: wp.array(dtype=wp.float64),
                  mid: wp.array(dtype=wp.vec3d), contacts: wp.array(dtype=wp.int32),
                  wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
-                 far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64, mu_coil: wp.float64,
-                 mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
-    """Friction of edge b on edge a (the pair geometry and cutoff of contact.pair_contact):
-    the velocity changes of a's start and end node (mm/s)."""
+                 exclusion: int, far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                 mu_coil: wp.float64, mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
+    """Friction of edge b on edge a: the velocity changes of a's start and end node
+    (mm/s). The load N and normal are those of the normal force itself: the net
+    force that the node–capsule terms of contact.pair_contact joining a and b put
+    on a's nodes (½-weighted, with the joint corrections and a same-coil pair's
+    rest offset, so turns that touch in the rest shape carry no load and get no
+    friction); equal and opposite from b's side. The slip is that of the
+    segments' closest points."""
     zero = wp.vec3d(F64_0, F64_0, F64_0)
     dv_start = zero
     dv_end = zero
@@ -96,42 +104,41 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), free:
         pb0 = x[b]
         pb1 = x[b + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
-        apart = wp.length(mid[a] - mid[b])
-        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
+        f_start, f_end, gap, touching, bad = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius,
+                                                          mid, a, b, exclusion, reach_a, p0, c0, u_linear, far)
+        force = from_fixed(f_start) + from_fixed(f_end)  # the pair's normal force on edge a, µN
+        load = wp.length(force)
+        if touching != 0 and bad == 0 and load > F64_0:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
-            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
-            dist = wp.length(delta)
-            gap = dist - node_radius[a] - node_radius[b]
-            if gap < c0 and dist > wp.float64(1.0e-12):
-                s = st[0]
-                t = st[1]
-                mu = mu_catheter
-                w_b = F64_0  # the catheter does not move
-                vb = zero
-                k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
-                           node_contacts(contacts, has_next, wall_force, device_force, a + 1))
-                if free[b] != 0 or free[b + 1] != 0:
-                    mu = mu_coil
-                    vb = (F64_1 - t) * v[b] + t * v[b + 1]
-                    w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
-                    k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
-                                         node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
-                if mu > F64_0:
-                    n = delta / dist
-                    w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
-                    slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
-                    load = contact_force_magnitude(gap, p0, c0, u_linear)
-                    inv_m = w_a + w_b
-                    phi = share(k) * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
-                    impulse = (-phi / inv_m) * slip  # on a's contact point, g·mm/s
-                    dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
-                    dv_end = (s * inv_mass[a + 1]) * impulse
+            s = st[0]
+            t = st[1]
+            mu = mu_catheter
+            w_b = F64_0  # the catheter does not move
+            vb = zero
+            k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
+                       node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+            if free[b] != 0 or free[b + 1] != 0:
+                mu = mu_coil
+                vb = (F64_1 - t) * v[b] + t * v[b + 1]
+                w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
+                k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
+                                     node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+            if mu > F64_0:
+                n = force / load
+                w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+                slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
+                inv_m = w_a + w_b
+                phi = share(k) * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
+                impulse = (-phi / inv_m) * slip  # on a's contact point, g·mm/s
+                dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
+                dv_end = (s * inv_mass[a + 1]) * impulse
     return dv_start, dv_end
 
 
 @wp.kernel
 def edge_friction(
     x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
     v: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
@@ -173,8 +180,8 @@ def edge_friction(
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
-                d0, d1 = pair_impulse(x, v, free, has_next, fixed, node_radius, inv_mass, mid, contacts, wall_force,
-                                      device_force, a, neighbours[a, k], radius, p0, c0, u_linear, mu_coil,
+                d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, inv_mass, mid, contacts,
+                                      wall_force, device_force, a, neighbours[a, k], exclusion, radius, p0, c0, u_linear, mu_coil,
                                       mu_catheter, v_reg, dt)
                 sum_start = sum_start + to_fixed(d0)
                 sum_end = sum_end + to_fixed(d1)
@@ -183,8 +190,8 @@ def edge_friction(
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    d0, d1 = pair_impulse(x, v, free, has_next, fixed, node_radius, inv_mass, mid, contacts,
-                                          wall_force, device_force, a, b, radius, p0, c0, u_linear, mu_coil,
+                    d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, inv_mass, mid,
+                                          contacts, wall_force, device_force, a, b, exclusion, radius, p0, c0, u_linear, mu_coil,
                                           mu_catheter, v_reg, dt)
                     sum_start = sum_start + to_fixed(d0)
                     sum_end = sum_end + to_fixed(d1)
