@@ -11,6 +11,7 @@ import warp as wp
 
 import warpcoil as wc
 from warpcoil import validation
+from warpcoil.bench.steps import damped_speed_six  # the damping solve as it was: always six Newton iterations
 from warpcoil.deploy import build_model
 from warpcoil.kernels import integrate
 from warpcoil.model import WallModel
@@ -19,18 +20,6 @@ from warpcoil.wall_field import GRAD_TOLERANCE, band_points, build_wall_field, f
 from warpcoil.kernels import wall_field as field_kernels
 
 SEED = Path(__file__).resolve().parents[1] / "scenes" / "seed_sphere.toml"
-
-
-@wp.func
-def damped_speed_six(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
-    """The damping solve as it was: always six Newton iterations."""
-    if a <= wp.float64(0.0) or speed <= wp.float64(0.0):
-        return speed
-    s = speed / (wp.float64(1.0) + a / k)
-    for _ in range(6):
-        e = wp.exp(-s / k)
-        s = s - (s + a * (wp.float64(1.0) - e) - speed) / (wp.float64(1.0) + a / k * e)
-    return wp.max(s, wp.float64(0.0))
 
 
 @wp.kernel

@@ -228,7 +228,7 @@ def profile_state(deployment: Deployment, moment: str, host: dict, steps: int) -
 
 @wp.func
 def damped_speed_six(speed: wp.float64, a: wp.float64, k: wp.float64) -> wp.float64:
-    """The damping solve before: always six Newton iterations."""
+    """The damping solve before: always six Newton iterations (the bench and its test compare against it)."""
     if a <= wp.float64(0.0) or speed <= wp.float64(0.0):
         return speed
     s = speed / (wp.float64(1.0) + a / k)
