@@ -279,6 +279,7 @@ def wall_contact(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     meshes: wp.array(dtype=wp.uint64),
     face_first: wp.array(dtype=wp.int32),
     origins: wp.array(dtype=wp.vec3d),
@@ -301,7 +302,8 @@ def wall_contact(
     centre_distance: wp.array(dtype=wp.float64),
 ):
     """Wall force on each free node (µN; the wall of the node's ensemble member,
-    none where its mesh id is 0). In the lumen: the contact law summed over the
+    none where its mesh id is 0), times the node's ``contact_share`` (½ at a free
+    end: the law acts per node patch d·l̄, as the mass is lumped). In the lumen: the contact law summed over the
     wall's faces, edges and vertices within reach (:func:`wall_feature_sum`; on a
     flat facet the law of the gap h = distance − d/2 along the facet's normal).
     Outside the lumen: the law of h = −distance − d/2 along the closest face's
@@ -376,7 +378,7 @@ def wall_contact(
     elif free[i] == 0:
         inside[i] = -1
         quiet_steps[i] = NO_ANCHOR
-    force[i] = f
+    force[i] = contact_share[i] * f
     centre_distance[i] = signed
 
 
@@ -514,10 +516,12 @@ def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
 @wp.func
 def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
                       coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                      j: int, b: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
-    """½ the law of the gap between node sphere j and capsule b (|x_j − closest point
-    of edge b| − r_j − r_b, plus the rest offset of a same-coil pair): (force on
-    node j along x_j − closest point, µN; the closest point's parameter t on b)."""
+                      contact_share: wp.array(dtype=wp.float64), j: int, b: int, p0: wp.float64, c0: wp.float64,
+                      u_linear: wp.float64):
+    """½ s_j × the law of the gap between node sphere j and capsule b (|x_j − closest
+    point of edge b| − r_j − r_b, plus the rest offset of a same-coil pair), s_j node
+    j's contact share: (force on node j along x_j − closest point, µN; the closest
+    point's parameter t on b)."""
     p = x[j]
     pb0 = x[b]
     pb1 = x[b + 1]
@@ -535,7 +539,7 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
             rest = closest_on_segment(rest_x[j], rest_x[b], rest_x[b + 1])
             gap = gap + rest_offset(wp.length(rest_x[j] - rest) - node_radius[j] - node_radius[b], c0)
         if gap < c0:
-            f = (wp.float64(0.5) * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+            f = (wp.float64(0.5) * contact_share[j] * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
     return f, t
 
 
@@ -598,19 +602,21 @@ def owned_nodes(has_next: wp.array(dtype=wp.int32), e: int) -> int:
 def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                  free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                  fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                 mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64,
+                 contact_share: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64,
                  p0: wp.float64, c0: wp.float64, u_linear: wp.float64, far: wp.float64):
     """The forces that the terms of the coil–coil energy joining edge a's and edge
     b's nodes put on a's nodes: (fixed-point shares of a's start and end node,
     segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
 
     Energy (each coil a chain of capsules of radius d/2 around its edges, each node
-    a sphere): W = ½ Σ_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
+    a sphere): W = ½ Σ_j s_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
     the nodes j of one edge and the capsules b and joints k of the other chain,
-    φ the potential of the contact law; the joint terms remove the capsules'
-    overlap at each joint, so a node in front of a straight chain feels the law
-    of its distance to the chain once, and two parallel chains one law per node
-    (P0 per node patch d·l0). Every term is C¹ in the positions (the capsule–capsule
+    φ the potential of the contact law, s_j node j's contact share (its Voronoi
+    length over its coil's segment length: ½ at a free end, like its mass); the
+    joint terms remove the capsules' overlap at each joint, so a node in front of
+    a straight chain feels the law of its distance to the chain once, and two
+    parallel chains one law per node (P0 per node patch d·l0, P0/2 for an end
+    node's half patch). Every term is C¹ in the positions (the capsule–capsule
     closest points jump between segment ends when two segments turn parallel; a
     node's closest point on a segment does not), so the forces have no jumps.
     Evaluated when the midpoints are within ``far`` (the world's query radius:
@@ -636,11 +642,12 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
             f_end = f_start
             for m in range(owned_nodes(has_next, a)):  # a's nodes against capsule b and b's joints
                 j = a + m
-                f, t = node_segment_term(x, rest_x, coil_of, node_radius, j, b, p0, c0, u_linear)
+                f, t = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, j, b, p0, c0, u_linear)
                 joint_j = joint(free, has_next, fixed, coil_of, exclusion, j, b)
                 for q in range(owned_nodes(has_next, b)):
                     k = b + q
-                    weight = wp.float64(0.5) * (joint(free, has_next, fixed, coil_of, exclusion, k, a) + joint_j)
+                    weight = wp.float64(0.5) * (contact_share[j] * joint(free, has_next, fixed, coil_of, exclusion, k, a)
+                                                + contact_share[k] * joint_j)
                     if weight > wp.float64(0.0):
                         f = f - weight * node_node_term(x, rest_x, coil_of, node_radius, j, k, p0, c0, u_linear)
                 if m == 0:
@@ -648,7 +655,7 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                 else:
                     f_end = f_end + f
             for q in range(owned_nodes(has_next, b)):  # b's nodes against capsule a: the reaction on a's nodes
-                f, t = node_segment_term(x, rest_x, coil_of, node_radius, b + q, a, p0, c0, u_linear)
+                f, t = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b + q, a, p0, c0, u_linear)
                 f_start = f_start - (wp.float64(1.0) - t) * f
                 f_end = f_end - t * f
             if not (finite_vec(f_start) and finite_vec(f_end)):
@@ -671,6 +678,7 @@ def edge_contact(
     running: wp.array(dtype=wp.int32),
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
@@ -711,7 +719,7 @@ def edge_contact(
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
-                start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
+                start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a,
                                                            neighbours[a, k], exclusion, reach_a, p0, c0, u_linear,
                                                            radius)
                 sum_start = sum_start + start
@@ -724,7 +732,7 @@ def edge_contact(
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
+                    start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b,
                                                                exclusion, reach_a, p0, c0, u_linear, radius)
                     sum_start = sum_start + start
                     sum_end = sum_end + end
