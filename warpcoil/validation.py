@@ -504,6 +504,12 @@ def friction() -> list[CaseResult]:
     return friction_cases()
 
 
+def contact_share() -> list[CaseResult]:
+    """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
+    from .validation_contact import contact_share_cases
+    return contact_share_cases()
+
+
 # --- wall field -------------------------------------------------------------
 def wall_field_cases(diameter_mm: float = 3.5, voxels_mm: tuple[float, float] = (0.08, 0.04),
                      c0_mm: float = 0.1 * REFERENCE_D_MM, points: int = 20000) -> list[CaseResult]:
@@ -767,6 +773,7 @@ CASES = {
     "dense-pack": dense_packs,
     "energy": energy_conservation,
     "friction": friction,
+    "contact-share": contact_share,
 
 
     "wall_field": wall_field_cases,

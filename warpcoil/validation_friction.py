@@ -77,10 +77,11 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
     builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
     builder.body_acceleration(g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
     model = builder.finalize()
-    # the stiff straight rod rests level, each node pressed with the mean weight (end nodes weigh half)
-    mean_mass = float(np.mean(1.0 / model.inv_mass.numpy()))
+    # the rod rests level at its contact equilibrium: every node (an end node: half the mass, half the
+    # contact share) at the gap where the law carries an interior node's weight
+    interior_mass = float(1.0 / model.inv_mass.numpy()[nodes // 2])
     x = rest.copy()
-    x[:, 2] = 0.5 * d + _overlap_for(mean_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
+    x[:, 2] = 0.5 * d + _overlap_for(interior_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
     stepper = Stepper(Solver(model, coil_contact=False), state_from_positions(model, x), Control.create(model),
                       chunk=200)
     times, speeds = [], []
