@@ -287,6 +287,8 @@ class Solver:
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
+        self._edge_sum_start, self._edge_sum_end = zeros(contact.vec3l), zeros(contact.vec3l)  # fixed point
+        self._edge_bad = zeros(wp.int32)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -345,12 +347,16 @@ class Solver:
                 wp.capture_if(self._rebuild, on_true=self._build_grid)
             else:
                 self._build_grid()
+            sums = (self._edge_sum_start, self._edge_sum_end)
+            wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
+                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius,
-                c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
-                self._edge_force_end, self.coil_gap, self.coil_contacts])
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+            wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
+                *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
                 state.free, m.has_next, self.wall_force, self._edge_force_start, self._edge_force_end,
                 self.contact_force])
