@@ -388,9 +388,9 @@ class NumpyTwin:
         and its end at a coil's end) and capsule b, minus the joint corrections
         with b's nodes, and the reactions of b's nodes against capsule a, split by
         the closest point's parameter. Returns the per-edge (start, end) forces;
-        counts each edge's touching pairs (segment gap, from a same-coil pair's rest
-        clearance, < c0). Edges in the
-        catheter are obstacles (they take no force)."""
+        counts each edge's touching pairs (segment gap < c0; a same-coil pair's
+        counted from its rest clearance). Edges in the catheter are obstacles
+        (they take no force)."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
