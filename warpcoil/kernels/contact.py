@@ -599,6 +599,20 @@ def owned_nodes(has_next: wp.array(dtype=wp.int32), e: int) -> int:
 
 
 @wp.func
+def rest_clearance_gap(rest_x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                       gap: wp.float64, c0: wp.float64) -> wp.float64:
+    """Segment gap of same-coil edges a and b seen from a, counted from their rest
+    clearance when within c0 (the capsules' rest gap's ``rest_offset``)."""
+    if gap < c0:
+        ra0 = rest_x[a]
+        rb0 = rest_x[b]
+        rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+        return gap + rest_offset(wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (
+            rest_x[b + 1] - rb0)) - node_radius[a] - node_radius[b], c0)
+    return gap
+
+
+@wp.func
 def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                 free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                 fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
@@ -611,7 +625,10 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     ``far`` when not evaluated). Each side's forces are summed exactly as
     :func:`pair_contact` from that side sums them (node–node terms enter b's side
     negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
-    evaluating the pair twice.
+    evaluating the pair twice. The gap of two parts of one coil closer than c0 at
+    rest is counted from their rest clearance (``rest_offset`` of the capsules'
+    rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
+    pre-shape are not touching.
 
     Energy (each coil a chain of capsules of radius d/2 around its edges, each node
     a sphere): W = ½ Σ_j s_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
@@ -645,6 +662,9 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
             ts = segment_closest_params(pb0, pb1, pa0, pa1)
             gap_b = wp.length(pb0 + ts[0] * (pb1 - pb0) - pa0 - ts[1] * (pa1 - pa0)) - node_radius[b] - node_radius[a]
+            if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
+                gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
+                gap_b = rest_clearance_gap(rest_x, node_radius, b, a, gap_b, c0)
             two_a = owned_nodes(has_next, a) == 2
             two_b = owned_nodes(has_next, b) == 2
             # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
