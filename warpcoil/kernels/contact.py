@@ -621,11 +621,11 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
                 far: wp.float64):
     """The forces that the terms of the coil–coil energy joining edge a's and edge
     b's nodes put on the nodes of both edges, each term evaluated once: (a's start
-    and end node, b's start and end node, µN; segment gap seen from a, from b, or
+    and end node, b's start and end node, µN; segment gap (twice: seen from a and b), or
     ``far`` when not evaluated). Each side's forces are summed exactly as
     :func:`pair_contact` from that side sums them (node–node terms enter b's side
     negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
-    evaluating the pair twice. The gap of two parts of one coil closer than c0 at
+    evaluating the pair twice; the gap is evaluated once, for both. The gap of two parts of one coil closer than c0 at
     rest is counted from their rest clearance (``rest_offset`` of the capsules'
     rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
     pre-shape are not touching.
@@ -660,11 +660,9 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
-            ts = segment_closest_params(pb0, pb1, pa0, pa1)
-            gap_b = wp.length(pb0 + ts[0] * (pb1 - pb0) - pa0 - ts[1] * (pa1 - pa0)) - node_radius[b] - node_radius[a]
             if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
                 gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
-                gap_b = rest_clearance_gap(rest_x, node_radius, b, a, gap_b, c0)
+            gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
             two_a = owned_nodes(has_next, a) == 2
             two_b = owned_nodes(has_next, b) == 2
             # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
