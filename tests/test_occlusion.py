@@ -3,6 +3,7 @@ on a cut sphere with analytic regions (warpcoil.validation_regions)."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -118,3 +119,24 @@ def test_wire_lattices_just_above_or_below_the_threshold_get_their_class(
         assert getattr(density, name) == pytest.approx(fraction, rel=0.1), name
     grade = occlusion_grade(density.neck, density.boundary, density.core)
     assert (grade["raymond_roy_class"], grade["modified_raymond_roy_class"]) == (klass, modified)
+
+
+# --- as a user meets it -------------------------------------------------------------------
+def test_run_writes_the_grade_to_result_json_and_rejects_a_threshold_in_percent(tmp_path) -> None:
+    """``warpcoil run`` of a tiny sphere sac with a [neck]: result.json's ``occlusion``
+    is the grade of its own regional densities; a threshold of 31 (meant as %) exits 2."""
+    from test_cli_user import SPHERE, cli, scene
+
+    text = SPHERE.replace("usd = false", "usd = false\npng = true") + (
+        "\n[neck]\nplane_point_mm = [0.0, 0.0, -1.5]\nplane_normal = [0.0, 0.0, 1.0]\n")
+    code, out, err = cli(tmp_path, "run", str(scene(tmp_path, text)), "-o", "run")
+    assert code == 0, err
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    regions, grade = result["regions"], result["occlusion"]
+    assert grade == occlusion_grade(regions["neck"], regions["boundary"], regions["core"])
+    assert grade["raymond_roy_class"] in (1, 2, 3) and (tmp_path / "run" / "summary.png").is_file()
+
+    bad = scene(tmp_path, text + "\n[regions]\nocclusion_threshold = 31\n", name="bad.toml")
+    code, out, err = cli(tmp_path, "run", str(bad), "-o", "bad")
+    assert code == 2 and "bad.toml" in err and "regions.occlusion_threshold" in err and "fix:" in err
+    assert not (tmp_path / "bad").exists()
