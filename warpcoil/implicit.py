@@ -21,7 +21,7 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels import implicit as kernels
-from .kernels import integrate
+from .kernels import elastic, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
@@ -113,11 +113,17 @@ class ImplicitSolver(Solver):
             m.damping_k, dt, state_out.x, state_out.v])
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt)
-        coils = m.coil_count
-        wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
+        # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
+        # torque there, then the spins solved and the directors turned
+        wp.launch(kernels.transport_frames, n, device=dev, inputs=[
+            state_in.x, state_out.x, state_in.m1, m.has_next, m.world_of, control.running, state_out.m1])
+        wp.launch(elastic.vertex_theta_gradients, n, device=dev, inputs=[
+            state_out.x, state_out.m1, state_out.free, m.has_next, m.clamp_tangent, m.clamp_director, m.k_bend,
+            m.k_twist, m.rest_K0, m.rest_K1, m.rest_twist, self.grad_theta])
+        wp.launch(kernels.solve_spin, m.coil_count, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,
-            m.clamp_tangent, state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
-            state_in.x, state_out.x, state_in.m1, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
+            m.clamp_tangent, state_in.omega, self.grad_theta, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend,
+            m.rest_K0, m.rest_K1, state_out.x, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt

@@ -51,7 +51,7 @@ from .contact import (
     to_fixed,
     vec3l,
 )
-from .elastic import bonded_span
+from .elastic import bonded_span, edge_torque
 from .integrate import catheter_point, coil_advance, damped_speed, pushed
 from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
@@ -775,6 +775,28 @@ def spin_free(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), h
 
 
 @wp.kernel
+def transport_frames(
+    x_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    m1_in: wp.array(dtype=wp.vec3d),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    m1_out: wp.array(dtype=wp.vec3d),
+):
+    """Each edge's director carried to its new tangent by parallel transport (as
+    integrate.update_frames does before it turns it); a stopped world's and a
+    missing edge's directors unchanged."""
+    e = wp.tid()
+    if running[world_of[e]] == 0 or not edge_valid(has_next, e):
+        m1_out[e] = m1_in[e]
+        return
+    t_old = wp.normalize(x_in[e + 1] - x_in[e])
+    t_new = wp.normalize(x_out[e + 1] - x_out[e])
+    m1_out[e] = director_normal(transport(m1_in[e], t_old, t_new), t_new)
+
+
+@wp.kernel
 def solve_spin(
     coil_first: wp.array(dtype=wp.int32),
     coil_last: wp.array(dtype=wp.int32),
@@ -785,16 +807,14 @@ def solve_spin(
     has_next: wp.array(dtype=wp.int32),
     clamp_tangent: wp.array(dtype=wp.vec3d),
     omega: wp.array(dtype=wp.float64),
-    torque: wp.array(dtype=wp.float64),
+    grad_theta: wp.array(dtype=wp.vec2d),
     inv_inertia: wp.array(dtype=wp.float64),
     twist_damping: wp.array(dtype=wp.float64),
     k_twist: wp.array(dtype=wp.float64),
     k_bend: wp.array(dtype=wp.float64),
     rest_K0: wp.array(dtype=wp.vec2d),
     rest_K1: wp.array(dtype=wp.vec2d),
-    x_in: wp.array(dtype=wp.vec3d),
     x_out: wp.array(dtype=wp.vec3d),
-    m1_in: wp.array(dtype=wp.vec3d),
     dt: wp.float64,
     scratch_c: wp.array(dtype=wp.float64),
     scratch_d: wp.array(dtype=wp.float64),
@@ -804,15 +824,19 @@ def solve_spin(
     """One coil's edge spins (rad/s): (J + dt b + dt² H_θ) ω' = J ω + dt T, H_θ
     tridiagonal (twist k_t between neighbouring edges; bending ½ k_b |K̄|² on
     each edge of a vertex), by the Thomas algorithm; edges that do not spin
-    keep ω' = 0. Then, as integrate.update_frames: each edge's director is
-    carried to its new tangent by parallel transport and turned by ω' dt.
+    keep ω' = 0. The torque T is taken at the *new* positions with the directors
+    already transported to them (``m1_out``, :func:`transport_frames`; its
+    gradient ``grad_theta`` from elastic.vertex_theta_gradients): positions, then
+    twist (Gauss–Seidel), so the quasi-static twist follows the positions it
+    belongs to instead of lagging a step behind them (solved side by side, the two
+    traded a period-2 oscillation at the free end of a pre-curved coil at large
+    steps). Each spinning edge's director is then turned by ω' dt.
     A stopped world keeps its directors and spins."""
     c = wp.tid()
     first = coil_first[c]
     last = coil_last[c]
     if running[coil_world[c]] == 0:
         for e in range(first, last + 1):
-            m1_out[e] = m1_in[e]
             omega_out[e] = omega[e]
         return
     dt2 = dt * dt
@@ -840,7 +864,7 @@ def solve_spin(
                 if spin_free(free, fixed, has_next, e + 1):
                     upper = -dt2 * k_twist[e + 1]
         a = inertia + dt * twist_damping[e] + dt2 * h
-        r = inertia * omega[e] + dt * torque[e]
+        r = inertia * omega[e] + dt * edge_torque(has_next, clamp_tangent, grad_theta, e)
         denom = a - lower * prev_c
         prev_c = upper / denom
         prev_d = (r - lower * prev_d) / denom
@@ -850,17 +874,13 @@ def solve_spin(
     for k in range(last - first + 1):
         e = last - k
         if not edge_valid(has_next, e):
-            m1_out[e] = m1_in[e]
             omega_out[e] = F64_0
             following = F64_0
             continue
-        t_old = wp.normalize(x_in[e + 1] - x_in[e])
-        t_new = wp.normalize(x_out[e + 1] - x_out[e])
-        m = transport(m1_in[e], t_old, t_new)
         w = F64_0
         if spin_free(free, fixed, has_next, e):
             w = scratch_d[e] - scratch_c[e] * following
-            m = rotate_about(m, t_new, w * dt)
-        m1_out[e] = director_normal(m, t_new)
+            t_new = wp.normalize(x_out[e + 1] - x_out[e])
+            m1_out[e] = director_normal(rotate_about(m1_out[e], t_new, w * dt), t_new)
         omega_out[e] = w
         following = w
