@@ -30,7 +30,7 @@ from .state import State
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
-IMPLICIT_ADVANCE_PER_C0 = 0.2
+IMPLICIT_ADVANCE_PER_C0 = 0.8
 IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
