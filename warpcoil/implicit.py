@@ -32,6 +32,9 @@ INTEGRATORS = ("symplectic", "implicit")
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
 IMPLICIT_ADVANCE_PER_C0 = 0.8
 IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+# default step once every coil is out (no pusher to follow): the settling is an overdamped creep
+# (kinetic energy decays with τ ≈ 60 ms on the seed case), resolved by a few ms (BENCHMARKS.md)
+IMPLICIT_SETTLE_DT_S = 2.0e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -43,6 +46,11 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
     """Default implicit step (s): the pusher moves IMPLICIT_ADVANCE_PER_C0 · c0 per
     step, at most IMPLICIT_DT_MAX_S."""
     return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
+
+
+def settle_step_s(push_dt_s: float) -> float:
+    """Default implicit step (s) after the push: IMPLICIT_SETTLE_DT_S, never below the push's step."""
+    return max(IMPLICIT_SETTLE_DT_S, push_dt_s)
 
 
 class ImplicitSolver(Solver):
@@ -103,14 +111,13 @@ class ImplicitSolver(Solver):
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
-            m.inv_mass, m.k_stretch,
+            m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt)
         wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, m.damping_c,
-            m.damping_k, dt, state_out.x, state_out.v])
+            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, state_out.x, state_out.v])
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt)
         # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
