@@ -432,7 +432,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
             onset_dt = explicit_dt
             if sim.dt_s is None:
-                settle_dt = settle_step_s(dt)
+                settle_dt = settle_step_s(dt, sim.frame_interval_s)
                 coils = model.world_coils(w)
                 push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
                                   ) / sim.push_speed_mm_s

@@ -48,9 +48,10 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
     return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
 
 
-def settle_step_s(push_dt_s: float) -> float:
-    """Default implicit step (s) after the push: IMPLICIT_SETTLE_DT_S, never below the push's step."""
-    return max(IMPLICIT_SETTLE_DT_S, push_dt_s)
+def settle_step_s(push_dt_s: float, frame_interval_s: float) -> float:
+    """Default implicit step (s) after the push: IMPLICIT_SETTLE_DT_S, at most half a frame
+    (frames keep about their length), never below the push's step."""
+    return max(min(IMPLICIT_SETTLE_DT_S, 0.5 * frame_interval_s), push_dt_s)
 
 
 class ImplicitSolver(Solver):
