@@ -264,11 +264,12 @@ def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
     frame = deployment.scenes[0].simulation.frame_interval_s
     assert deployment.settle_dt_s == settle_step_s(push_dt, frame) > push_dt
     assert deployment.solver.dt_s == deployment.settle_dt_s
+    assert result.dt_s == push_dt and result.settle_dt_s == deployment.settle_dt_s  # both reported
     assert result.simulated_time_s > deployment.push_time_s == pytest.approx(
         (result.coil_length_mm + 1.0) / deployment.scenes[0].simulation.push_speed_mm_s)
     times = np.array([f.time_s for f in deployment.members[0].frames])
     assert np.allclose(np.diff(times), frame, rtol=0.25)  # about the same frames (even steps) before and after
     given = Deployment(implicit_scene(dt_s=push_dt))
     assert world_steps(given.model, given.scenes)[0][4:] == (0.0, 0.0)
-    given.run()
+    assert given.run().settle_dt_s is None
     assert given.solver.dt_s == push_dt

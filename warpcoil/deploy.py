@@ -133,6 +133,7 @@ class Ensemble:
                                 f"steps per frame, integrator, settling step, push time) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
         self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit default) step after the push
+        self._push_dt_s: float | None = None  # the push's step, once the settling step took over
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -194,6 +195,7 @@ class Ensemble:
         """Every coil is out (at the push's scheduled end, the same for every member): go on
         at the settling step (a new captured graph, the same frame length)."""
         self._steps_before += self.stepper.steps
+        self._push_dt_s = self.solver.dt_s
         self.solver.dt_s = self.settle_dt_s
         frame_s = self.members[0].scene.simulation.frame_interval_s
         self.stepper = Stepper(self.solver, self.stepper.state, self.control,
@@ -217,6 +219,8 @@ class Ensemble:
         member.steps = self._steps_before + self.stepper.steps
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
                                    snap, self.step_reductions)
+        if self._push_dt_s is not None:  # settled at a longer step: dt_s stays the push's
+            member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=self.solver.dt_s)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
