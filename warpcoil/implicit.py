@@ -3,11 +3,11 @@ symplectic Euler: the step is set by accuracy, not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's; only the update differs (kernels/implicit.py): per world,
-(M + dt² H) v* = M v + dt F is solved by a few preconditioned conjugate-gradient
-iterations (H: stretching, Gauss–Newton bending, contact along its normals,
-coil–coil pairs exactly; preconditioner: each coil's banded block factorisation),
-then the reference's exact implicit damping is applied to v*; each coil's edge
-spins solve their tridiagonal system. Twist is the fastest mode (inertia
+(M + dt B + dt² H) v' = M v + dt F is solved by a few preconditioned conjugate-gradient
+iterations (B: the damping law's secant coefficient at the old speed; H: stretching,
+Gauss–Newton bending, contact along its normals, coil–coil pairs exactly;
+preconditioner: each coil's banded block factorisation); then, at the new
+positions, each coil's edge spins solve their tridiagonal system. Twist is the fastest mode (inertia
 m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of ~100 µs the implicit
 spin update is overdamped, i.e. it relaxes the twist to its equilibrium each
 step (quasi-static twist), which is what its negligible inertia means physically.
