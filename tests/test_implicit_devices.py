@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warpcoil import validation, validation_devices
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment
 from warpcoil.implicit import ImplicitSolver
@@ -229,3 +230,20 @@ def test_implicit_stent_deployment_keeps_the_coil_off_the_struts(tmp_path: Path)
     assert result.status == "completed"
     assert worst["touching"] > 0
     assert worst["gap"] > -c0 and result.min_wall_gap_mm > -c0
+
+
+def test_validate_implicit_devices_rest_cases():
+    """`warpcoil validate implicit-devices`, its static part: the balloon and two struts
+    carry a uniform load at the law's clearance, at the implicit default step."""
+    rows = validation_devices.balloon_rest() + validation_devices.stent_rest()
+    failed = [r for r in rows if not r.passed]
+    assert not failed, validation.format_table(failed)
+
+
+def test_validate_implicit_devices_converges_to_the_reference():
+    """Shortened (two step sizes, 1 ms): the helix closing onto the balloon converges to
+    the reference as dt halves, the balloon pressed at the end."""
+    rows = validation_devices.balloon_convergence(time_s=1.0e-3, factors=(0.2, 0.1))
+    failed = [r for r in rows if not r.passed]
+    assert not failed, validation.format_table(failed)
+    assert rows[0].result > rows[1].result
