@@ -101,7 +101,7 @@ def test_strut_stiffness_is_exact_along_the_normal_and_couples_the_edge_nodes():
     height = R_NODE + 0.035 + gap
     strut = ((-height, -2.0, 0.09), (-height, 2.0, 0.09))
     model, rest = edge_model(balloon=False, strut=strut)
-    a, force, mass = system_and_forces(model, rest)
+    a, force, _ = system_and_forces(model, rest)
     bare, _, _ = system_and_forces(edge_model(balloon=False)[0], rest)
     device = (a - bare) / DT**2
     _, stiffness = law(gap)
