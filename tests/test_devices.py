@@ -131,20 +131,25 @@ def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
     assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
 
 
-def test_cli_refuses_the_implicit_step_with_a_device(tmp_path):
-    """The implicit step's matrix holds no device contact stiffness: refused before stepping."""
+def test_cli_runs_the_implicit_step_with_a_device(tmp_path):
+    """The implicit step carries the device contact stiffness (tests/test_implicit_devices.py):
+    a stented run completes from the command line at several times the explicit bound."""
+    import json
+
     scene = tmp_path / "s.toml"
-    scene.write_text('[wall]\nsphere_diameter_mm = 6.0\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
-                     'length_mm = 5\n[simulation]\nintegrator = "implicit"\n'
-                     '[stent]\naxis = [[0.0, 0.0, -2.0], [0.0, 0.0, 2.0]]\n')
+    scene.write_text('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n[[coil]]\n'
+                     'wire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 3\n[simulation]\n'
+                     'push_speed_mm_s = 100.0\nintegrator = "implicit"\n'
+                     '[stent]\naxis = [[-0.02, 0.013, -1.5], [0.02, 0.013, 1.5]]\ndiameter_mm = 4.5\n')
     log, out = tmp_path / "log.txt", tmp_path / "o"
     with log.open("w") as stream:
         rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(out), "--no-usd"],
                              stdout=stream, stderr=subprocess.STDOUT)
-    text = log.read_text()
-    assert rc == 2
-    assert "simulation.integrator" in text and 'integrator = "symplectic"' in text and str(scene) in text
-    assert not out.exists() or not any(out.iterdir())
+    assert rc == 0, log.read_text()
+    assert "completed" in log.read_text()
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "completed" and result["device"]["kind"] == "stent"
+    assert result["dt_s"] > 5.0 * result["step_bound_s"]
 
 
 @pytest.mark.parametrize("device", ["balloon", "stent"])

@@ -233,3 +233,32 @@ def test_gpu_workers_of_a_local_cluster_each_take_their_gpu():
     assert worker_device("cuda", 1, 4) == "cuda:1"
     assert worker_device("cuda:3", 1, 4) == "cuda:3" and worker_device("cpu", 1, 4) == "cpu"
     assert worker_device(None, "SLURMCluster-0-1", 4) is None and worker_device(None, 0, 0) is None
+
+
+@pytest.mark.parametrize("device", ["balloon", "stent"])
+def test_a_swept_members_usd_holds_its_device(tmp_path, device):
+    """A member's deployment.usdc shows its balloon (inflation sampled per frame,
+    deflated at the end) or its stent, as a single run's does."""
+    table = ('[balloon]\naxis = [[-1.2, 0.8, -0.3], [1.2, 0.8, -0.3]]\ndiameter_mm = 0.8\ndeflation_time_s = 0.01\n'
+             if device == "balloon" else
+             '[stent]\naxis = [[-0.02, 0.013, -1.5], [0.02, 0.013, 1.5]]\ndiameter_mm = 4.5\ncell_size_mm = 1.5\n')
+    path = tmp_path / "s.toml"
+    path.write_text('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n[[coil]]\n'
+                    'wire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 2.0\n[simulation]\n'
+                    'push_speed_mm_s = 100.0\nframe_interval_s = 0.005\nintegrator = "implicit"\n' + table)
+    (output,) = run_task(make_task([0], [load_scene(path)], usd=True, device=None))
+    usd = tmp_path / "deployment.usdc"
+    usd.write_bytes(output.files["deployment.usdc"])
+    assert validate_usd(usd) == []
+    stage = Usd.Stage.Open(str(usd))
+    prim = stage.GetPrimAtPath("/World/Balloon" if device == "balloon" else "/World/Stent")
+    assert prim.IsValid()
+    if device == "balloon":
+        widths = UsdGeom.BasisCurves(prim).GetWidthsAttr()
+        samples = widths.GetTimeSamples()
+        assert len(samples) > 2
+        assert max(widths.Get(samples[0])) == pytest.approx(0.8, rel=0.05)  # inflated (capped by the wall)
+        assert max(widths.Get(samples[-1])) < 0.01  # deflated (drawn 1 µm wide)
+    else:
+        struts = output.result["device"]["struts"]
+        assert len(UsdGeom.BasisCurves(prim).GetCurveVertexCountsAttr().Get()) == struts

@@ -153,3 +153,33 @@ def device_report(scene, anatomy, frames: list, deflate_from_s: float | None) ->
                 inflated_radius_min_mm=float(radii.min()), inflated_radius_max_mm=float(radii.max()),
                 deflation_started_s=deflate_from_s, deflation_time_s=balloon.deflation_time_s,
                 inflation_over_time=[[f.time_s, f.balloon_inflation] for f in frames])
+
+
+class ImplicitDeviceStiffness:
+    """The balloon's and the stent's contact stiffness in the implicit step's
+    matrix M + dt² H (kernels/devices.py: Gauss–Newton k n nᵀ per contact, as the
+    wall's): a balloon contact adds to its node's diagonal block, a strut contact
+    k w wᵀ ⊗ n nᵀ to the two nodes of its coil edge (within the band)."""
+
+    def __init__(self, model):
+        n, dev = model.node_count, model.device
+        self._strut_blocks = tuple(wp.zeros(n, dtype=wp.mat33d, device=dev) for _ in range(3)) \
+            if model.has_stent else None
+
+    def add(self, solver, state, running: wp.array, dt: float, diag: wp.array, diag_exact: wp.array,
+            upper1: wp.array) -> None:
+        """Add dt² × the device stiffness at ``state`` to the assembled blocks."""
+        m, dev, n, c = solver.model, solver.model.device, solver.model.node_count, solver.model.contact
+        if solver.has_balloon:
+            wp.launch(kernels.balloon_stiffness, n, device=dev, inputs=[
+                state.x, state.free, m.fixed, m.world_of, running, m.node_radius, m.balloon_stations,
+                m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm,
+                solver.contact_u_linear, dt, diag, diag_exact])
+        if solver.has_stent:
+            start, end, cross = self._strut_blocks
+            wp.launch(kernels.strut_stiffness, n, device=dev, inputs=[
+                state.x, state.free, m.has_next, m.world_of, running, m.node_radius, solver._strut_grid.id,
+                m.strut_start, m.strut_end, m.strut_radius_mm, solver._strut_query_mm, c.p0_uN, c.c0_mm,
+                solver.contact_u_linear, start, end, cross])
+            wp.launch(kernels.add_strut_stiffness, n, device=dev, inputs=[
+                m.has_next, start, end, cross, dt, diag, diag_exact, upper1])

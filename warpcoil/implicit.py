@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .devices import ImplicitDeviceStiffness
 from .kernels import implicit as kernels
 from .kernels import elastic, integrate
 from .model import Model
@@ -90,6 +91,7 @@ class ImplicitSolver(Solver):
                                                                                          device=dev)
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
+        self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
         """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
@@ -116,6 +118,8 @@ class ImplicitSolver(Solver):
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
+        if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
+            self._devices.add(self, state_in, control.running, dt, self._diag, self._diag_exact, self._upper1)
         self._solve_velocities(state_in, state_out, control, dt)
         wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
             state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, state_out.x, state_out.v])

@@ -362,12 +362,6 @@ class _Reader:
                 raise self.error(key, "unknown top-level table or key", _unknown(key, _TABLES))
         if "balloon" in document and "stent" in document:
             raise self.error("balloon / stent", "both devices are given", "keep one of [balloon] and [stent]")
-        simulation = document.get("simulation")
-        if ("balloon" in document or "stent" in document) and isinstance(simulation, dict) \
-                and simulation.get("integrator") == "implicit":
-            raise self.error("simulation.integrator", "the implicit step has no balloon or stent contact "
-                             "stiffness yet (their contact would be integrated explicitly at its large step)",
-                             'set integrator = "symplectic" for assisted coiling')
         coils = document.get("coil")
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")

@@ -125,6 +125,7 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
                     folders[k] / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
                     wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
                     member.scene.simulation.frame_interval_s)
+                usd.add_device(member.anatomy.balloon, member.anatomy.stent)
             last_time_s[k] = frame.time_s
             usd(frame, state)
 

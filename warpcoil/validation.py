@@ -498,6 +498,12 @@ def energy_conservation(steps: int = 100_000) -> list[CaseResult]:
     return [CaseResult(f"energy: undamped, {steps} steps, max |ΔE|/E", 0.0, drift, drift, 1e-2)]
 
 
+def implicit_devices() -> list[CaseResult]:
+    """The implicit step with a balloon or a stent: rest under load, convergence (validation_devices.py)."""
+    from .validation_devices import implicit_device_cases
+    return implicit_device_cases()
+
+
 def friction() -> list[CaseResult]:
     """Regularised Coulomb friction: incline, capstan, energy (validation_friction.py)."""
     from .validation_friction import friction_cases
@@ -790,6 +796,7 @@ CASES = {
     "energy3d": energy_3d_cases,
     "timestep": timestep_convergence,
     "implicit": implicit_cases,
+    "implicit-devices": implicit_devices,
 }
 
 

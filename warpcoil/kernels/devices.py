@@ -13,8 +13,9 @@ segment where it is smallest, and the force is the contact law of that gap along
 
 import warp as wp
 
-from .contact import (FAR_MM, contact_force_magnitude, edge_in_contact_pass, from_fixed, segment_closest_params,
-                      to_fixed, vec3l, wall_query)
+from .contact import (FAR_MM, contact_force_magnitude, contact_stiffness, edge_in_contact_pass, from_fixed,
+                      segment_closest_params, to_fixed, vec3l, wall_query)
+from .implicit import from_fixed_sym, to_fixed_sym
 from .rod import F64_0, F64_1
 
 
@@ -25,6 +26,26 @@ def wall_distances(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: w
     i = wp.tid()
     face, dist, inward = wall_query(mesh, vertices, faces, 0, origin, points[i], FAR_MM)
     distance[i] = dist
+
+
+@wp.func
+def balloon_gap(p: wp.vec3d, radius: wp.float64, stations: wp.array(dtype=wp.vec3d),
+                cap_radius: wp.array(dtype=wp.float64), first: int, count: int, fraction: wp.float64):
+    """(gap mm, unit normal out of the balloon) of a node of radius ``radius`` at p:
+    the axis segment where |p − a(t)| − fraction · r(t) − radius is smallest."""
+    best = FAR_MM
+    normal = wp.vec3d(F64_0, F64_0, F64_0)
+    for k in range(first, first + count - 1):
+        a = stations[k]
+        ab = stations[k + 1] - a
+        t = wp.clamp(wp.dot(p - a, ab) / wp.dot(ab, ab), F64_0, F64_1)
+        delta = p - (a + t * ab)
+        dist = wp.length(delta)
+        gap = dist - fraction * ((F64_1 - t) * cap_radius[k] + t * cap_radius[k + 1]) - radius
+        if gap < best and dist > wp.float64(1.0e-12):
+            best = gap
+            normal = delta / dist
+    return best, normal
 
 
 @wp.kernel
@@ -53,22 +74,9 @@ def balloon_contact(
     fraction = inflation[w]
     count = station_count[w]
     if free[i] != 0 and running[w] != 0 and count >= 2 and fraction > F64_0:
-        best = FAR_MM
-        normal = f
-        first = station_first[w]
-        for k in range(first, first + count - 1):
-            a = stations[k]
-            b = stations[k + 1]
-            ab = b - a
-            t = wp.clamp(wp.dot(x[i] - a, ab) / wp.dot(ab, ab), F64_0, F64_1)
-            delta = x[i] - (a + t * ab)
-            dist = wp.length(delta)
-            gap = dist - fraction * ((F64_1 - t) * cap_radius[k] + t * cap_radius[k + 1]) - node_radius[i]
-            if gap < best and dist > wp.float64(1.0e-12):
-                best = gap
-                normal = delta / dist
-        if best < c0:
-            f = contact_share[i] * contact_force_magnitude(best, p0, c0, u_linear) * normal
+        gap, normal = balloon_gap(x[i], node_radius[i], stations, cap_radius, station_first[w], count, fraction)
+        if gap < c0:
+            f = contact_share[i] * contact_force_magnitude(gap, p0, c0, u_linear) * normal
     force[i] = f
 
 
@@ -76,6 +84,21 @@ def balloon_contact(
 def add_forces(extra: wp.array(dtype=wp.vec3d), force: wp.array(dtype=wp.vec3d)):
     i = wp.tid()
     force[i] = force[i] + extra[i]
+
+
+@wp.func
+def strut_gap(pa0: wp.vec3d, pa1: wp.vec3d, s0: wp.vec3d, s1: wp.vec3d, edge_radius: wp.float64,
+              strut_radius: wp.float64):
+    """(s, gap mm, δ, |δ|) of coil edge pa0–pa1 and strut s0–s1: closest points
+    pa0 + s (pa1 − pa0) and s0 + t (s1 − s0), δ from the strut's to the edge's, gap
+    |δ| less the two radii; gap FAR_MM where they meet (no normal)."""
+    st = segment_closest_params(pa0, pa1, s0, s1)
+    delta = pa0 + st[0] * (pa1 - pa0) - s0 - st[1] * (s1 - s0)
+    dist = wp.length(delta)
+    gap = FAR_MM
+    if dist > wp.float64(1.0e-12):
+        gap = dist - edge_radius - strut_radius
+    return st[0], gap, delta, dist
 
 
 @wp.kernel
@@ -112,14 +135,12 @@ def strut_contact(
         query = wp.hash_grid_query(grid, mid, query_radius, w)
         s = int(0)
         while wp.hash_grid_query_next(query, s):
-            st = segment_closest_params(pa0, pa1, strut_start[s], strut_end[s])
-            delta = pa0 + st[0] * (pa1 - pa0) - strut_start[s] - st[1] * (strut_end[s] - strut_start[s])
-            dist = wp.length(delta)
-            gap = dist - node_radius[a] - strut_radius
-            if gap < c0 and dist > wp.float64(1.0e-12):
+            along, gap, delta, dist = strut_gap(pa0, pa1, strut_start[s], strut_end[s], node_radius[a],
+                                                strut_radius)
+            if gap < c0:
                 f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
-                sum_start = sum_start + to_fixed((F64_1 - st[0]) * f)
-                sum_end = sum_end + to_fixed(st[0] * f)
+                sum_start = sum_start + to_fixed((F64_1 - along) * f)
+                sum_end = sum_end + to_fixed(along * f)
     force_start[a] = from_fixed(sum_start)
     force_end[a] = from_fixed(sum_end)
 
@@ -138,3 +159,126 @@ def gather_edge_forces(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=
             if has_next[i - 1] != 0:
                 f = f + force_end[i - 1]
     force[i] = f
+
+
+# --- contact stiffness for the linearly implicit step (implicit.py) ------------------
+# Gauss–Newton, as the wall's: the law's stiffness k(h) = −d|F|/dh along the contact
+# normal n (the curvature term |F| ∂n/∂x, which makes the Hessian indefinite about a
+# convex obstacle, is dropped), so the system matrix stays positive definite.
+
+
+@wp.kernel
+def balloon_stiffness(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    stations: wp.array(dtype=wp.vec3d),
+    cap_radius: wp.array(dtype=wp.float64),
+    station_first: wp.array(dtype=wp.int32),
+    station_count: wp.array(dtype=wp.int32),
+    inflation: wp.array(dtype=wp.float64),
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    dt: wp.float64,
+    diag: wp.array(dtype=wp.mat33d),
+    diag_exact: wp.array(dtype=wp.mat33d),
+):
+    """Adds dt² k n nᵀ of node i's balloon contact (the gap and normal balloon_contact
+    uses) to its diagonal block of M + dt² H (g)."""
+    i = wp.tid()
+    w = world_of[i]
+    fraction = inflation[w]
+    count = station_count[w]
+    if free[i] != 0 and fixed[i] == 0 and running[w] != 0 and count >= 2 and fraction > F64_0:
+        gap, normal = balloon_gap(x[i], node_radius[i], stations, cap_radius, station_first[w], count, fraction)
+        if gap < c0:
+            block = (dt * dt * contact_stiffness(gap, p0, c0, u_linear)) * wp.outer(normal, normal)
+            diag[i] = diag[i] + block
+            diag_exact[i] = diag_exact[i] + block
+
+
+@wp.kernel
+def strut_stiffness(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    strut_start: wp.array(dtype=wp.vec3d),
+    strut_end: wp.array(dtype=wp.vec3d),
+    strut_radius: wp.float64,
+    query_radius: wp.float64,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    start: wp.array(dtype=wp.mat33d),
+    end: wp.array(dtype=wp.mat33d),
+    cross: wp.array(dtype=wp.mat33d),
+):
+    """Edge a's strut contacts (the pairs strut_contact finds): with w = (1 − s, s) the
+    weights of its two nodes, Σ k w wᵀ ⊗ n nᵀ as its blocks (start, start), (end, end)
+    and (start, end) (µN/mm); the struts are fixed, so this is all the stiffness they
+    add. Fixed-point sums: independent of the grid's order."""
+    a = wp.tid()
+    s_diag = vec3l()
+    s_off = vec3l()
+    e_diag = vec3l()
+    e_off = vec3l()
+    c_diag = vec3l()
+    c_off = vec3l()
+    w = world_of[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        query = wp.hash_grid_query(grid, wp.float64(0.5) * (pa0 + pa1), query_radius, w)
+        s = int(0)
+        while wp.hash_grid_query_next(query, s):
+            along, gap, delta, dist = strut_gap(pa0, pa1, strut_start[s], strut_end[s], node_radius[a],
+                                                strut_radius)
+            if gap < c0:
+                nn = (contact_stiffness(gap, p0, c0, u_linear) / (dist * dist)) * wp.outer(delta, delta)
+                d, o = to_fixed_sym((F64_1 - along) * (F64_1 - along) * nn)
+                s_diag = s_diag + d
+                s_off = s_off + o
+                d, o = to_fixed_sym(along * along * nn)
+                e_diag = e_diag + d
+                e_off = e_off + o
+                d, o = to_fixed_sym(along * (F64_1 - along) * nn)
+                c_diag = c_diag + d
+                c_off = c_off + o
+    start[a] = from_fixed_sym(s_diag, s_off)
+    end[a] = from_fixed_sym(e_diag, e_off)
+    cross[a] = from_fixed_sym(c_diag, c_off)
+
+
+@wp.kernel
+def add_strut_stiffness(
+    has_next: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.mat33d),
+    end: wp.array(dtype=wp.mat33d),
+    cross: wp.array(dtype=wp.mat33d),
+    dt: wp.float64,
+    diag: wp.array(dtype=wp.mat33d),
+    diag_exact: wp.array(dtype=wp.mat33d),
+    upper1: wp.array(dtype=wp.mat33d),
+):
+    """Row i of M + dt² H gains dt² × its edges' strut blocks: (i, i) from edge i
+    (start) and edge i − 1 (end), (i, i + 1) from edge i (g). Zero blocks where no
+    strut touches (strut_stiffness writes every edge)."""
+    i = wp.tid()
+    dt2 = dt * dt
+    block = wp.mat33d()
+    if has_next[i] != 0:
+        block = block + start[i]
+        upper1[i] = upper1[i] + dt2 * cross[i]
+    if i >= 1:
+        if has_next[i - 1] != 0:
+            block = block + end[i - 1]
+    diag[i] = diag[i] + dt2 * block
+    diag_exact[i] = diag_exact[i] + dt2 * block

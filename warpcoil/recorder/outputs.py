@@ -93,15 +93,25 @@ class UsdFrames:
         frames = UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
                            wall.vertices_mm if wall is not None else None,
                            wall.faces_np if wall is not None else None, frame_interval_s)
+        balloon = stent = None
         if model.has_stent:
             starts, ends, _ = model.strut_host
-            frames.recorder.add_stent(starts, ends, 2.0 * model.strut_radius_mm)
+            stent = (starts, ends, model.strut_radius_mm)
         if model.has_balloon:
             count = int(model.balloon_count.numpy()[0])
-            frames.recorder.add_balloon(model.balloon_stations.numpy()[:count],
-                                        model.balloon_cap_radius.numpy()[:count])
-            frames.balloon = True
+            balloon = (model.balloon_stations.numpy()[:count], model.balloon_cap_radius.numpy()[:count])
+        frames.add_device(balloon, stent)
         return frames
+
+    def add_device(self, balloon: tuple | None, stent: tuple | None) -> None:
+        """The assist device: ``balloon`` (axis stations mm, capped radii mm; its
+        inflation then follows the frames) or ``stent`` (strut starts, ends mm, strut
+        radius mm), as an anatomy holds them; None for none."""
+        if stent is not None and len(stent[0]) > 0:
+            self.recorder.add_stent(stent[0], stent[1], 2.0 * stent[2])
+        if balloon is not None and len(balloon[1]) >= 2:
+            self.recorder.add_balloon(balloon[0], balloon[1])
+            self.balloon = True
 
     def __call__(self, frame: Frame, state: State) -> None:
         x = state.x.numpy()
