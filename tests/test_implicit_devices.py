@@ -67,7 +67,8 @@ def test_balloon_stiffness_is_the_force_jacobian_less_its_curvature_term(gap):
     """Nodes pressed on a straight balloon (gap in c0 units 0.67, 0, −0.67): the
     matrix's device part (A − M)/dt² equals the central-difference Jacobian of −F
     plus the curvature term F/ρ (I − n nᵀ − t tᵀ) (ρ: distance to the axis) that
-    Gauss–Newton drops, and is exact along the normal."""
+    Gauss–Newton drops, and is exact along the normal; each node's law is weighted
+    by its contact share (½ at the coil's free ends, as its mass)."""
     model, rest = edge_model(balloon=True)
     x = rest + [BALLOON_R + R_NODE + gap, 0.0, 0.0]
     a, force, mass = system_and_forces(model, x)
@@ -80,15 +81,17 @@ def test_balloon_stiffness_is_the_force_jacobian_less_its_curvature_term(gap):
         y_minus.flat[k] -= eps
         fd[:, k] = -(force(y_plus) - force(y_minus)).ravel() / (2 * eps)
     magnitude, stiffness = law(gap)
-    assert force(x)[:, 0] == pytest.approx(magnitude, rel=1e-12)
+    share = model.contact_share.numpy()
+    assert share == pytest.approx([0.5, 1.0, 0.5])
+    assert force(x)[:, 0] == pytest.approx(share * magnitude, rel=1e-12)
     rho = BALLOON_R + R_NODE + gap
     curvature = magnitude / rho * np.diag([0.0, 1.0, 0.0])  # I − n nᵀ − t tᵀ with n = x̂, t = ẑ
-    expected = fd + np.kron(np.eye(model.node_count), curvature)
+    expected = fd + np.kron(np.diag(share), curvature)
     assert np.abs(hessian - expected).max() <= 2e-6 * np.abs(fd).max()
     bare, _, _ = system_and_forces(edge_model(balloon=False)[0], x)
     device = (a - bare) / DT**2
-    assert device == pytest.approx(np.kron(np.eye(model.node_count), stiffness * np.diag([1.0, 0, 0])), rel=1e-9,
-                                   abs=1e-9 * stiffness)  # k n nᵀ on each node
+    assert device == pytest.approx(np.kron(np.diag(share), stiffness * np.diag([1.0, 0, 0])), rel=1e-9,
+                                   abs=1e-9 * stiffness)  # s_i k n nᵀ on each node
 
 
 def test_strut_stiffness_is_exact_along_the_normal_and_couples_the_edge_nodes():
@@ -119,18 +122,21 @@ def test_strut_stiffness_is_exact_along_the_normal_and_couples_the_edge_nodes():
 
 def test_balloon_force_is_minus_the_gradient_of_the_law_potential():
     """Energy/force consistency: the balloon force on a node equals −dΦ/dx of the
-    law's potential Φ(g) = ∫_g^c0 |F| (central differences of Φ at the node)."""
+    law's potential Φ(g) = ∫_g^c0 |F| (central differences of Φ at the node), times
+    the node's contact share (½ at the coil's end)."""
     model, rest = edge_model(balloon=True)
     direction = np.array([0.6, 0.8, 0.0])
     x = rest + (BALLOON_R + R_NODE + 0.01) * direction
     solver = ImplicitSolver(model, dt_s=DT)
     solver.compute_forces(state_from_positions(model, x))
     f = solver.force.numpy()[0]
+    share = model.contact_share.numpy()[0]
+    assert share == pytest.approx(0.5)
 
     def potential(p):
         g = np.linalg.norm(p[:2]) - BALLOON_R - R_NODE
         grid = np.linspace(g, C0, 4001)
-        return np.trapezoid([law(h)[0] for h in grid], grid)
+        return share * np.trapezoid([law(h)[0] for h in grid], grid)
 
     eps = 1e-6
     grad = [(potential(x[0] + eps * e) - potential(x[0] - eps * e)) / (2 * eps) for e in np.eye(3)]

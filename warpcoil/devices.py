@@ -172,7 +172,7 @@ class ImplicitDeviceStiffness:
         m, dev, n, c = solver.model, solver.model.device, solver.model.node_count, solver.model.contact
         if solver.has_balloon:
             wp.launch(kernels.balloon_stiffness, n, device=dev, inputs=[
-                state.x, state.free, m.fixed, m.world_of, running, m.node_radius, m.balloon_stations,
+                state.x, state.free, m.fixed, m.world_of, running, m.node_radius, m.contact_share, m.balloon_stations,
                 m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm,
                 solver.contact_u_linear, dt, diag, diag_exact])
         if solver.has_stent:

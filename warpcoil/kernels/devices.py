@@ -175,6 +175,7 @@ def balloon_stiffness(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     stations: wp.array(dtype=wp.vec3d),
     cap_radius: wp.array(dtype=wp.float64),
     station_first: wp.array(dtype=wp.int32),
@@ -187,8 +188,8 @@ def balloon_stiffness(
     diag: wp.array(dtype=wp.mat33d),
     diag_exact: wp.array(dtype=wp.mat33d),
 ):
-    """Adds dt² k n nᵀ of node i's balloon contact (the gap and normal balloon_contact
-    uses) to its diagonal block of M + dt² H (g)."""
+    """Adds dt² s_i k n nᵀ of node i's balloon contact (the gap and normal balloon_contact
+    uses, s_i its contact share) to its diagonal block of M + dt² H (g)."""
     i = wp.tid()
     w = world_of[i]
     fraction = inflation[w]
@@ -196,7 +197,7 @@ def balloon_stiffness(
     if free[i] != 0 and fixed[i] == 0 and running[w] != 0 and count >= 2 and fraction > F64_0:
         gap, normal = balloon_gap(x[i], node_radius[i], stations, cap_radius, station_first[w], count, fraction)
         if gap < c0:
-            block = (dt * dt * contact_stiffness(gap, p0, c0, u_linear)) * wp.outer(normal, normal)
+            block = (dt * dt * contact_share[i] * contact_stiffness(gap, p0, c0, u_linear)) * wp.outer(normal, normal)
             diag[i] = diag[i] + block
             diag_exact[i] = diag_exact[i] + block
 
