@@ -217,7 +217,8 @@ def _plan(args: argparse.Namespace) -> int:
         claim = claimed_folder(out, names, overwrite=True) if args.resume else \
             claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+")
         with claim:
-            run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers, args.resume)
+            result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
+                              args.resume)
     except (PlanError, SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError,
             SetupError, OutputFolderError) as error:
         progress.close(failed=True)
@@ -229,7 +230,7 @@ def _plan(args: argparse.Namespace) -> int:
         return 1
     progress.close()
     print((out / "plan.md").read_text())
-    return 0
+    return 1 if any(r.rank == 0 for r in result.ranked) else 0  # an option none of whose runs gave a result
 
 
 def _validate(args: argparse.Namespace) -> int:

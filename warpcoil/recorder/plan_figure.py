@@ -54,8 +54,8 @@ def write_plan_png(path: Path, scene_path: Path, result) -> None:
 
     fig = Figure(figsize=(PANEL_IN * columns, PANEL_IN * max(len(rows), 1) + 0.6), dpi=DPI)
     FigureCanvasAgg(fig)
-    fig.suptitle(f"{Path(scene_path).name}: the top {len(rows)} options (rows, best first), each catheter-tip "
-                 f"perturbation (columns); coils at wire thickness", fontsize=10)
+    fig.suptitle(f"{Path(scene_path).name}: the top {len(rows)} options (rows, best first),\n"
+                 "each catheter-tip perturbation (columns); coils drawn at wire thickness", fontsize=9)
     for i, (r, scene, drawn) in enumerate(rows):
         devices = _device_lines(scene, wall) if wall is not None else []
         name = result.plan.options[r.index].name
