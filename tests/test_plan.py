@@ -221,3 +221,23 @@ def test_plan_errors_name_the_option_and_key(tmp_path):
     scene.write_text(SCENE.replace("perturbations = 2", "perturbations = 1"))
     with pytest.raises(PlanError, match=r"plan\.perturbations: must be a whole number ≥ 2"):
         read_plan(scene)
+
+
+def test_the_shipped_c0001_plan_compares_six_options_with_a_balloon():
+    plan = read_plan(ROOT / "scenes" / "plan_C0001.toml")
+    assert len(plan.options) >= 6 and plan.perturbations >= 3
+    assert {"none", "balloon"} <= {o.device for o in plan.options}
+    balloon = next(o for o in plan.options if o.device == "balloon")
+    assert balloon.keys["balloon.diameter_mm"] == 4.0 and len(balloon.keys["balloon.axis"]) == 7
+
+
+def test_vary_gives_the_product_of_options_devices_included(tmp_path):
+    scene = tmp_path / "plan.toml"
+    scene.write_text(SCENE + "\n[plan.balloon]\naxis = [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]]\ndiameter_mm = 1.0\n")
+    plan = read_plan(scene, [("catheter.depth_mm", [0.5, 1.0]), ("device", ["none", "balloon"])])
+    assert [o.name for o in plan.options] == ["catheter.depth_mm=0.5, device=none", "catheter.depth_mm=0.5, "
+                                              "device=balloon", "catheter.depth_mm=1, device=none",
+                                              "catheter.depth_mm=1, device=balloon"]
+    assert plan.options[1].keys == {"catheter.depth_mm": 0.5, "balloon.axis": [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]],
+                                    "balloon.diameter_mm": 1.0}
+    assert "balloon.axis" not in plan.options[2].keys and plan.perturbations == 2
