@@ -21,6 +21,7 @@ from .outputs import CENTERLINE_CSV, _device_lines
 PANEL_IN = 3.4  # panel width and height
 DPI = 100
 MAX_PANEL_FACES = 4000  # wall triangles drawn per panel (drawing speed)
+TITLE_IN = 0.9  # room for the figure's title above the panels' own
 
 
 def read_centerline(path: Path) -> list[np.ndarray]:
@@ -52,10 +53,11 @@ def write_plan_png(path: Path, scene_path: Path, result) -> None:
     low, high = _view_box_mm(coils, vertices)
     triangles = _wall_triangles_mm(vertices, faces, low, high, MAX_PANEL_FACES)
 
-    fig = Figure(figsize=(PANEL_IN * columns, PANEL_IN * max(len(rows), 1) + 0.6), dpi=DPI)
+    fig = Figure(figsize=(PANEL_IN * columns, PANEL_IN * max(len(rows), 1) + TITLE_IN), dpi=DPI)
     FigureCanvasAgg(fig)
     fig.suptitle(f"{Path(scene_path).name}: the top {len(rows)} options (rows, best first),\n"
-                 "each catheter-tip perturbation (columns); coils drawn at wire thickness", fontsize=9)
+                 "each catheter-tip perturbation (columns); coils drawn at wire thickness", fontsize=9,
+                 y=1.0 - 0.08 / fig.get_figheight(), va="top")
     for i, (r, scene, drawn) in enumerate(rows):
         devices = _device_lines(scene, wall) if wall is not None else []
         name = result.plan.options[r.index].name
@@ -80,7 +82,7 @@ def write_plan_png(path: Path, scene_path: Path, result) -> None:
             ax.set_title(f"rank {rank}: {name}\ntip {j + 1}: " + ", ".join(facts), fontsize=7)
             ax.set(xlabel="", ylabel="", zlabel="")
             ax.tick_params(labelsize=5)
-    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.02, top=1.0 - 0.6 / fig.get_figheight(), wspace=0.05,
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.02, top=1.0 - TITLE_IN / fig.get_figheight(), wspace=0.05,
                         hspace=0.15)
     with atomic_path(Path(path)) as tmp_path:
         fig.savefig(tmp_path, format="png")
