@@ -247,6 +247,11 @@ def _statuses(result: PlanResult, k: int) -> str:
     return ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses))
 
 
+def _chosen_keys(option: Option) -> dict:
+    """The scene keys an option sets, less its device's geometry (the same for every option)."""
+    return {k: v for k, v in option.keys.items() if k.split(".")[0] not in ("balloon", "stent")}
+
+
 def _rank_text(r: Ranked) -> str:
     if r.rank == 0:
         return "–"
@@ -267,7 +272,7 @@ def plan_csv(result: PlanResult) -> str:
     for r in result.ranked:
         option = options[r.index]
         row = {"rank": _rank_text(r), "option": option.name, "device": option.device,
-               "keys": "; ".join(f"{k}={v}" for k, v in option.keys.items() if not k.startswith(("balloon.", "stent."))),
+               "keys": "; ".join(f"{k}={v}" for k, v in _chosen_keys(option).items()),
                "runs": sum(1 for o in result.owner if o == r.index), "statuses": _statuses(result, r.index),
                "tied_with": "; ".join(options[j].name for j in r.tied_with),
                "beaten_by": options[r.beaten_by[0]].name if r.beaten_by else "",
@@ -298,8 +303,8 @@ def plan_markdown(scene_path: Path, result: PlanResult) -> str:
     lines = [f"# Treatment plan: {scene_path.name}", "",
              f"{len(options)} options × {plan.perturbations} catheter-tip perturbations (axis tilted "
              f"{plan.perturbation_deg:g}° towards {plan.perturbations} evenly spaced directions) = "
-             f"{len(result.members)} deployments, {result.wall_time_s:.0f} s wall time. Values: mean ± standard "
-             "deviation over an option's runs.", "",
+             f"{len(result.members)} deployments{_resumed(result)}, {result.wall_time_s:.0f} s wall time. Values: "
+             "mean ± standard deviation over an option's runs.", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in result.ranked:
         beaten = f"{r.beaten_by[1]} (vs {options[r.beaten_by[0]].name})" if r.beaten_by else ""
@@ -331,13 +336,17 @@ def plan_markdown(scene_path: Path, result: PlanResult) -> str:
         lines += ["", "Ties: " + "; ".join(f"rank {k}: " + ", ".join(v) for k, v in groups.items()) + "."]
     lines += ["", "## Options", ""]
     for k, option in enumerate(options):
-        keys = ", ".join(f"`{key} = {value}`" for key, value in option.keys.items()
-                         if not key.startswith(("balloon.", "stent.")))
+        keys = ", ".join(f"`{key} = {value}`" for key, value in _chosen_keys(option).items())
         lines.append(f"- **{option.name}**: device {option.device}" + (f"; {keys}" if keys else ""))
     lines += ["", f"![the top options, each tip perturbation]({'plan.png'})", "",
               "Member folders `member_NNN` hold each deployment's result.json, centerline.csv and timeseries.csv; "
               "plan.csv has each run's values."]
     return "\n".join(lines) + "\n"
+
+
+def _resumed(result: PlanResult) -> str:
+    kept = sum(m.resumed for m in result.members)
+    return f" ({kept} kept from an earlier run by --resume)" if kept else ""
 
 
 def _resolution(c) -> str:
