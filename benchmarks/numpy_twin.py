@@ -388,8 +388,9 @@ class NumpyTwin:
         and its end at a coil's end) and capsule b, minus the joint corrections
         with b's nodes, and the reactions of b's nodes against capsule a, split by
         the closest point's parameter. Returns the per-edge (start, end) forces;
-        counts each edge's touching pairs (segment gap < c0). Edges in the
-        catheter are obstacles (they take no force)."""
+        counts each edge's touching pairs (segment gap < c0; a same-coil pair's
+        counted from its rest clearance). Edges in the catheter are obstacles
+        (they take no force)."""
         force_start, force_end = np.zeros((self.n, 3)), np.zeros((self.n, 3))
         self.coil_contacts = np.zeros(self.n, np.int32)
         free_next = np.append(free[1:], 0)
@@ -398,8 +399,12 @@ class NumpyTwin:
         obstacle = in_pass | (self.has_next & ~self.fixed & ~fixed_next)  # edge_is_obstacle: also in the catheter
         a, b = self.candidate_pairs(x, np.flatnonzero(in_pass), np.flatnonzero(obstacle))
         s, t = segment_closest_params(x[a], x[a + 1], x[b], x[b + 1])
-        gap = length(x[a] + col(s) * (x[a + 1] - x[a]) - x[b] - col(t) * (x[b + 1] - x[b])) \
-            - self.node_radius[a] - self.node_radius[b]
+        r = self.node_radius[a] + self.node_radius[b]
+        gap = length(x[a] + col(s) * (x[a + 1] - x[a]) - x[b] - col(t) * (x[b + 1] - x[b])) - r
+        rx = self.rest_x
+        rs, rt = segment_closest_params(rx[a], rx[a + 1], rx[b], rx[b + 1])
+        rest_gap = length(rx[a] + col(rs) * (rx[a + 1] - rx[a]) - rx[b] - col(rt) * (rx[b + 1] - rx[b])) - r
+        gap = np.where(gap < self.c0, self.offset_gap(gap, self.coil_of[a] == self.coil_of[b], rest_gap), gap)
         np.add.at(self.coil_contacts, a, (gap < self.c0).astype(np.int32))
         last = lambda e: ~self.has_next[e + 1]  # noqa: E731  the edge also owns its coil's last node
         f_start, f_end = np.zeros((len(a), 3)), np.zeros((len(a), 3))

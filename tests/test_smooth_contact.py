@@ -2,9 +2,11 @@
 that contact leaves alone (docs/FORMULATION.md, Contact)."""
 
 import numpy as np
+import pytest
 import trimesh
 
 import warpcoil as wc
+from warpcoil.metrics import fit_helix
 from warpcoil.validation import TIGHT_HELIX
 from warpcoil.wall import WallMesh
 
@@ -116,8 +118,34 @@ def test_a_tight_pitch_helix_at_rest_feels_no_contact():
     model = builder.finalize()
     solver = wc.Solver(model)
     solver.compute_contacts(wc.rest_state(model))
-    assert solver.coil_gap.numpy().min() < model.contact.c0_mm  # the turns are within contact range
+    assert TIGHT_HELIX["pitch_mm"] - D < model.contact.c0_mm  # the turns are within contact range
     assert np.abs(solver.contact_force.numpy()).max() == 0.0
+
+
+def test_a_tight_pitch_helix_reports_contacts_only_beyond_its_rest_clearance():
+    """coil_contacts / coil_gap (result.json coil_contacts, min_coil_gap_mm) measure the
+    gap as the law sees it, from a same-coil pair's rest clearance: at rest the turns
+    (10 µm apart) are not in contact and the smallest gap is c0 exactly; the helix
+    compressed along its axis by ε is in contact, its smallest gap c0 − ε p cos α
+    (p the pitch, α the helix angle: adjacent turns move ε p along the axis)."""
+    builder = wc.ModelBuilder()
+    builder.add_coil(wc.CoilSpec(wire_diameter_mm=D, shape="helix", **TIGHT_HELIX))
+    model = builder.finalize()
+    c0, pitch = model.contact.c0_mm, TIGHT_HELIX["pitch_mm"]
+    solver = wc.Solver(model)
+    rest = wc.rest_state(model)
+    solver.compute_contacts(rest)
+    assert solver.coil_contacts.numpy().sum() == 0
+    assert abs(solver.coil_gap.numpy().min() - c0) < 1e-9
+    x = rest.x.numpy()
+    axis = fit_helix(x).axis
+    strain = 0.02
+    centre = x.mean(axis=0)
+    pressed = x - strain * np.outer((x - centre) @ axis, axis)
+    solver.compute_contacts(wc.state_from_positions(model, pressed))
+    cos_angle = np.cos(np.arctan(pitch / (np.pi * TIGHT_HELIX["loop_diameter_mm"])))
+    assert solver.coil_contacts.numpy().sum() > 0
+    assert solver.coil_gap.numpy().min() == pytest.approx(c0 - strain * pitch * cos_angle, rel=0.02)
 
 
 def settle(model, positions, steps=30_000):

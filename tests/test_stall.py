@@ -26,3 +26,23 @@ def test_self_deployment_force_is_the_straightened_helix_energy_per_length(loop_
     expected = model.EI * curvature**2 / 2.0 + model.GJ * torsion**2 / 2.0
     assert member.self_deployment_force_uN == pytest.approx(expected, rel=0.03)  # ends and discretisation
     assert member.stall_force_uN == pytest.approx(30.0 * member.self_deployment_force_uN)
+
+
+def test_stall_signals_summary_reads_the_window_mean_and_the_released_energy():
+    """benchmarks.stall_signals: pushed at 50 mm/s with frames of 0.01 s, a push force
+    rising as F0 × (pushed / 10 mm) passes 2 F0 on its trailing 0.1 s mean (10 frames:
+    mean pushed = pushed − 2.25 mm) first at 22.5 mm; an elastic energy falling by F0
+    per mm pushed releases 1.00 F0 per mm in every tenth."""
+    import numpy as np
+
+    from benchmarks.stall_signals import summary
+
+    f0, wire = 500.0, 0.3
+    rows = [dict(time_s=t, pushed_mm=50.0 * t, packing=0.5 * t, push_mean_uN=f0 * 5.0 * t, push_peak_uN=0.0,
+                 elastic_nJ=1e5 - f0 * 50.0 * t, stretch_nJ=0.0, min_coil_gap_mm=-0.03, coil_contacts=0)
+            for t in np.arange(101) * 0.01]
+    lines = summary(rows, f0, wire)
+    assert "  0.1 s mean > 2 F0: first at 22.5 mm, packing 22.5 %" in lines
+    assert "  0.1 s mean > 5 F0: never" in lines  # (the 0.1 s mean ends at 4.78 F0)
+    assert "deepest overlap 0.100 d" in lines[-2]
+    assert lines[-1].count(":1.00/") == 10

@@ -59,10 +59,10 @@ class Frame:
     twist_nJ: float
     stretch_nJ: float
     wall_contacts: int  # free nodes with wall gap < c0
-    coil_contacts: int  # edge pairs with gap < c0
+    coil_contacts: int  # edge pairs with gap < c0 (same-coil pairs: counted from their rest clearance)
     max_wall_force_uN: float
     min_wall_gap_mm: float
-    min_coil_gap_mm: float
+    min_coil_gap_mm: float  # (same-coil pairs: gap + the rest offset, so c0 at rest)
     length_outside_sac_mm: float
     balloon_inflation: float | None = None  # 1 inflated, 0 deflated; None without a balloon
 

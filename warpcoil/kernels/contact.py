@@ -603,6 +603,9 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
     """The forces that the terms of the coil–coil energy joining edge a's and edge
     b's nodes put on a's nodes: (fixed-point shares of a's start and end node,
     segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
+    The gap of two parts of one coil closer than c0 at rest is counted from their
+    rest clearance (``rest_offset`` of the capsules' rest gap, as the implicit
+    step's ``pair_stiffness``): turns that touch in the pre-shape are not touching.
 
     Energy (each coil a chain of capsules of radius d/2 around its edges, each node
     a sphere): W = ½ Σ_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
@@ -630,6 +633,12 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            if gap < c0 and coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
+                ra0 = rest_x[a]
+                rb0 = rest_x[b]
+                rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+                gap = gap + rest_offset(wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (
+                    rest_x[b + 1] - rb0)) - node_radius[a] - node_radius[b], c0)
             if gap < c0:
                 touching = 1
             f_start = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
