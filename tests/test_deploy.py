@@ -7,6 +7,7 @@ import pytest
 
 import warpcoil as wc
 from warpcoil.deploy import COMPLETED, JAMMED, Deployment
+from warpcoil.occlusion import occlusion_grade
 
 R_SAC = 1.75
 D = 0.2921
@@ -98,6 +99,7 @@ def test_a_neck_defines_the_sac_places_the_catheter_and_gives_regional_densities
     assert set(regions) >= {"neck", "boundary", "core", "total_voxel", "neck_coverage"}
     assert 0.0 <= regions["neck_coverage"] <= 1.0
     assert regions["total_voxel"] == pytest.approx(result.packing_density, rel=0.3)
+    assert result.occlusion == occlusion_grade(regions["neck"], regions["boundary"], regions["core"])
     x = result.positions_mm[0]
     above = x[:, 2] > z_neck
     assert result.length_outside_sac_mm == pytest.approx(0.2921 * np.count_nonzero(~above), abs=0.3)

@@ -226,6 +226,8 @@ ERRORS = {
     "second coil": (MINIMAL_COIL + with_coil(wire_diameter_mm='"x"'), "coil[1].wire_diameter_mm", "number"),
     "porous without wall": (MINIMAL_COIL + "[output]\nporous = true\n", "output.porous", "no [wall]"),
     "porous voxel": (MINIMAL_COIL + "[output]\nporous_voxel_mm = 0\n", "output.porous_voxel_mm", "> 0"),
+    "occlusion threshold in %": (MINIMAL_COIL + "[regions]\nocclusion_threshold = 31\n",
+                                 "regions.occlusion_threshold", "(0, 1]"),
 }
 
 
@@ -268,11 +270,11 @@ def test_neck_and_catheter_placement_keys(tmp_path):
         '[wall]\nsphere_diameter_mm = 3.0\n[neck]\ncontour = "neck.csv"\n'
         '[catheter]\nplacement = "neck"\ndepth_mm = 0.4\nangle_deg = 10.0\nazimuth_deg = 90.0\n'
         '[[coil]]\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 5.0\n'
-        '[regions]\nvoxel_mm = 0.05\n')
+        '[regions]\nvoxel_mm = 0.05\nocclusion_threshold = 0.24\n')
     scene = load_scene(scene_file)
     assert scene.neck.contour == neck_file.resolve()
     assert (scene.catheter.placement, scene.catheter.depth_mm, scene.catheter.angle_deg) == ("neck", 0.4, 10.0)
-    assert scene.regions.voxel_mm == 0.05
+    assert (scene.regions.voxel_mm, scene.regions.occlusion_threshold) == (0.05, 0.24)
 
 
 @pytest.mark.parametrize("text, key", [

@@ -179,6 +179,24 @@ def test_summary_png(tmp_path: Path, sac_volume_mm3: float | None):
     assert [p.name for p in tmp_path.iterdir()] == ["summary.png"]
 
 
+def test_summary_draws_the_occlusion_grade(tmp_path: Path):
+    """The packing panel carries the regional densities, the threshold and the class."""
+    from warpcoil.occlusion import occlusion_grade
+
+    grade = occlusion_grade(0.12, 0.33, 0.40)
+    ax = Figure().add_subplot()
+    figures._draw_occlusion(ax, grade, 2.0)
+    assert [t.get_text() for t in ax.texts] == ["in-silico Raymond–Roy class 2 (II)"]
+    markers = {line.get_label(): (line.get_xdata()[0], line.get_ydata()[0]) for line in ax.lines[1:]}
+    assert markers == {"neck 12.0 % (final)": (2.0, pytest.approx(12.0)),
+                       "boundary 33.0 % (final)": (2.0, pytest.approx(33.0)),
+                       "core 40.0 % (final)": (2.0, pytest.approx(40.0))}
+    assert ax.lines[0].get_ydata()[0] == pytest.approx(31.0)
+    path = tmp_path / "summary.png"
+    write_summary_png(path, sac_volume_mm3=100.0, occlusion=grade, **summary_inputs())
+    assert path.stat().st_size > 10_000
+
+
 def test_failed_summary_leaves_no_file(tmp_path: Path, monkeypatch):
     def half_save(self: Figure, fname, **kwargs) -> None:
         Path(fname).write_bytes(b"\x89PNG partial")

@@ -19,6 +19,7 @@ from .anatomy import Anatomy
 from .devices import device_report
 from .kernels.contact import FAR_MM
 from .model import Model
+from .occlusion import occlusion_of_regions
 from .sac import inside_sac, regional_density
 from .settings import Scene
 from .solver import Solver
@@ -97,6 +98,7 @@ class RunResult:
     final_stretch_nJ: float
     coils: list[dict] = field(default_factory=list)  # per coil: name, status, lengths, packing densities
     regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
+    occlusion: dict | None = None  # in-silico Raymond–Roy class from the regions (warpcoil.occlusion)
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
     wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
     catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
@@ -195,6 +197,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
                   cumulative_packing_density=density(volumes[: k + 1].sum()))
              for k, c in enumerate(coil_specs)]
     finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
+    regions = regional_densities(model, member, x, free)
     return RunResult(
         status=status, reason=reason, steps=member.steps, dt_s=solver.dt_s,
         step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
@@ -210,7 +213,8 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         push_force_rms_uN=_run_rms(frames),
         stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
         final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
-        regions=regional_densities(model, member, x, free), step_reductions=list(step_reductions),
+        regions=regions, occlusion=occlusion_of_regions(regions, member.scene.regions.occlusion_threshold),
+        step_reductions=list(step_reductions),
         wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
         catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
         frames=frames,

@@ -163,7 +163,8 @@ _NECK = {
     "plane_normal": _Key(_direction),
     "sac_point_mm": _Key(_vec3),
 }
-_REGIONS = {"voxel_mm": _Key(_positive), "neck_band_mm": _Key(_positive), "boundary_mm": _Key(_positive)}
+_REGIONS = {"voxel_mm": _Key(_positive), "neck_band_mm": _Key(_positive), "boundary_mm": _Key(_positive),
+            "occlusion_threshold": _Key(_fraction)}
 _COIL = {
     "name": _Key(_text),
     "shape": _Key(_choice(*SHAPES)),

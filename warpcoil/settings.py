@@ -103,6 +103,7 @@ class RegionSettings:
     voxel_mm: float | None = None
     neck_band_mm: float | None = None
     boundary_mm: float | None = None
+    occlusion_threshold: float | None = None  # region density below which contrast fills it (None: cited 0.31)
 
 
 @dataclass(frozen=True)

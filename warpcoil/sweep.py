@@ -133,6 +133,7 @@ def _summary_row(member: Member) -> dict:
     row = {"member": member.name, **member.values}
     row |= {k: r.get(k) for k in ("status", "packing_density", "length_outside_sac_mm")}
     row["neck_coverage"] = regions.get("neck_coverage")
+    row["raymond_roy_class"] = (r.get("occlusion") or {}).get("raymond_roy_class")
     row |= {k: r.get(k) for k in ("min_coil_gap_mm", "min_wall_gap_mm", "push_force_peak_uN", "steps", "wall_time_s")}
     return {k: ("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                 (f"{v:.6g}" if isinstance(v, float) else v)) for k, v in row.items()}

@@ -486,6 +486,12 @@ def friction() -> list[CaseResult]:
     return friction_cases()
 
 
+def regions() -> list[CaseResult]:
+    """Regional packing densities on a cut sphere with analytic regions (validation_regions.py)."""
+    from .validation_regions import region_cases
+    return region_cases()
+
+
 # --- wall field -------------------------------------------------------------
 def wall_field_cases(diameter_mm: float = 3.5, voxels_mm: tuple[float, float] = (0.08, 0.04),
                      c0_mm: float = 0.1 * REFERENCE_D_MM, points: int = 20000) -> list[CaseResult]:
@@ -749,6 +755,7 @@ CASES = {
     "dense-pack": dense_packs,
     "energy": energy_conservation,
     "friction": friction,
+    "regions": regions,
 
 
     "wall_field": wall_field_cases,

@@ -155,6 +155,23 @@ def _draw_push_force(ax, frames: list[Frame]) -> None:
     ax.grid(alpha=0.3)
 
 
+REGION_MARKERS = (("neck_density", "v", "neck"), ("boundary_density", "s", "boundary"), ("core_density", "o", "core"))
+
+
+def _draw_occlusion(ax, occlusion: dict, t_end_s: float) -> None:
+    """The final regional densities (%) as markers at the run's end, the class threshold
+    as a dotted line and the in-silico Raymond–Roy class as a note."""
+    threshold = 100.0 * occlusion["threshold"]
+    ax.axhline(threshold, color="0.3", lw=0.8, ls=":", label=f"occlusion threshold {threshold:g} %")
+    for key, marker, name in REGION_MARKERS:
+        if occlusion.get(key) is not None:
+            value = 100.0 * occlusion[key]
+            ax.plot([t_end_s], [value], marker=marker, ls="none", color="C4", label=f"{name} {value:.1f} % (final)")
+    ax.text(0.98, 0.04, f"in-silico Raymond–Roy class {occlusion['raymond_roy_class']} "
+            f"({occlusion['modified_raymond_roy_class']})", transform=ax.transAxes, ha="right", va="bottom",
+            fontsize=9, bbox=dict(boxstyle="round", facecolor="white", alpha=0.8))
+
+
 def write_summary_png(
     path: Path,
     wall_vertices_mm: np.ndarray,
@@ -167,12 +184,14 @@ def write_summary_png(
     title: str = "",
     catheter: tuple | None = None,
     devices: list | None = None,
+    occlusion: dict | None = None,
 ) -> None:
     """Two 3D views of the final coils (at their wire thickness) in the wall with the
     catheter, push force and packing density against time, as one PNG of FIGSIZE_IN
     at DPI, written atomically. ``catheter``: (tip_mm, direction, centerline_mm or
     None), or None. Non-finite values are left out of every panel. ``devices``: an
-    assist device as (points mm, width mm, colour, label) polylines."""
+    assist device as (points mm, width mm, colour, label) polylines. ``occlusion``:
+    result.json's in-silico Raymond–Roy grade, drawn on the packing panel."""
     if len(coils_mm) != len(wire_diameters_mm):
         raise ValueError(f"{len(coils_mm)} coils but {len(wire_diameters_mm)} wire diameters")
     coils_mm = [np.reshape(c, (-1, 3))[np.isfinite(np.reshape(c, (-1, 3))).all(axis=1)] for c in coils_mm]
@@ -217,6 +236,8 @@ def write_summary_png(
         packing.plot(t, percent, color="C2", lw=1.0, ls="--", label="all deployed coil")
         packing.plot(t, in_sac, color="C2", lw=1.6, label="coil inside the sac")
         final = f" (final {percent[-1]:.1f} %)" if len(percent) else ""
+        if occlusion is not None:
+            _draw_occlusion(packing, occlusion, float(t[-1]) if len(t) else 0.0)
         packing.set(xlabel="time (s)", ylabel="packing density (%)", title=f"Packing density{final}")
         packing.legend(fontsize=7, loc="upper left")
         packing.grid(alpha=0.3)

@@ -178,7 +178,8 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
             out / SUMMARY_PNG, wall.vertices_mm if wall is not None else np.zeros((0, 3)),
             wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
             result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
-            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %",
+            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %" + (
+                f", Raymond–Roy class {result.occlusion['raymond_roy_class']}" if result.occlusion else ""),
             catheter=(result.catheter_tip_mm, result.catheter_direction, scene.catheter.centerline_mm),
-            devices=_device_lines(scene, wall))
+            devices=_device_lines(scene, wall), occlusion=result.occlusion)
     write_result_json(out / RESULT_JSON, result, extra)
