@@ -191,7 +191,13 @@ def test_plan_cli_ranks_the_options_as_plan_csv_says(tmp_path):
                 assert a["rank"] == b["rank"] == "=1" and not _beats(a, b)
     text = (out / "plan.md").read_text()
     assert text in stdout and "Tie rule" in text and "herniated length" in text
-    assert "Occlusion grade not available" in text  # no run grades the occlusion yet
+    # the occlusion grade is each run's result.json class, in plan order (said to be missing if no run has it)
+    results = [json.loads((out / f"member_{k:03d}" / "result.json").read_text()) for k in range(4)]
+    classes = [(r.get("occlusion") or {}).get("raymond_roy_class") for r in results]
+    by_option = {row["option"]: row["raymond_roy_class_values"] for row in rows}
+    for k, name in enumerate(["tip deep in the sac", "tip below the neck, tilted"]):
+        assert by_option[name] == ";".join("" if c is None else f"{c:g}" for c in classes[2 * k: 2 * k + 2])
+    assert ("Occlusion grade not available" in text) == all(c is None for c in classes)
     for row in rows:
         assert f"| {row['rank']} | {row['option']} |" in text
     # each run's catheter axis, as its result reports it, is 2° off its option's nominal axis (the neck
