@@ -213,3 +213,63 @@ def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
     residual = a @ out.v.numpy().ravel() - solver._rhs.numpy().ravel()
     assert np.abs(residual).max() <= 1e-8 * np.abs(solver._rhs.numpy()).max()
     assert np.abs(a - np.diag(np.diag(a)))[:33, 33:].max() > 0.0  # the coils are coupled
+
+
+def pushed_straight_coil_push_force(integrator: str, dt_s: float | None, push_mm_s: float = 50.0,
+                                    out_mm: float = 3.0, window_mm: float = 0.6) -> tuple[float, float]:
+    """A straight coil (straight pre-shape, 40 segments) pushed ``out_mm`` out of a
+    straight catheter into free space: the push force averaged over the next
+    ``window_mm`` (µN, compressive > 0), and the damping force the free nodes meet at
+    the push speed, Σ c_i (1 − e^{−v/k}) (µN, the mean of its values at the window's ends)."""
+    spec = CoilSpec(length_mm=40 * 0.2921, segment_length_mm=0.2921)
+    n = round(spec.length_mm / spec.l0) + 1
+    rest = np.zeros((n, 3))
+    rest[:, 2] = np.arange(n) * spec.l0
+    builder = ModelBuilder(catheter=CatheterSpec(tip_mm=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0)))
+    builder.add_coil(spec, rest)
+    model = builder.finalize()
+    solver = make_solver(model, integrator, dt_s, coil_contact=False)
+    control = Control.create(model, active_coil=0, push_speed_mm_s=push_mm_s)
+    stepper = Stepper(solver, packed_state(model), control, chunk=2)
+    c = model.damping_c.numpy() * (1.0 - np.exp(-push_mm_s / model.damping_k))
+    stepper.run_steps(2 * round(out_mm / push_mm_s / solver.dt_s / 2), check_every_chunk=False)
+    damping = c[stepper.state.free.numpy() != 0].sum()
+    solver.take_push_force()
+    stepper.run_steps(2 * round(window_mm / push_mm_s / solver.dt_s / 2), check_every_chunk=False)
+    damping = 0.5 * (damping + c[stepper.state.free.numpy() != 0].sum())
+    return float(solver.take_push_force().mean_uN[0]), float(damping)
+
+
+def test_push_force_of_a_steady_push_is_the_damping_the_free_part_meets_at_any_step():
+    """Pushed straight out, the free part moves with the pusher: the push force balances
+    its damping. The implicit step gives that at large steps as the reference does
+    (damping applied after the solve gave a spurious compression growing as dt²)."""
+    push, damping = pushed_straight_coil_push_force("symplectic", None)
+    assert push == pytest.approx(damping, rel=0.05)
+    for dt in (1.0e-4, 5.0e-4, 2.0e-3):
+        push, damping = pushed_straight_coil_push_force("implicit", dt)
+        assert push == pytest.approx(damping, rel=0.05), dt
+
+
+def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
+    """Once every coil is out (the scheduled push end) the default implicit step goes on
+    at the settling step, the frame length kept; a step the scene gives is kept to the end."""
+    from warpcoil.deploy import world_steps
+    from warpcoil.implicit import settle_step_s
+
+    deployment = Deployment(implicit_scene())
+    push_dt = deployment.solver.dt_s
+    result = deployment.run()
+    assert result.status == "completed"
+    frame = deployment.scenes[0].simulation.frame_interval_s
+    assert deployment.settle_dt_s == settle_step_s(push_dt, frame) > push_dt
+    assert deployment.solver.dt_s == deployment.settle_dt_s
+    assert result.dt_s == push_dt and result.settle_dt_s == deployment.settle_dt_s  # both reported
+    assert result.simulated_time_s > deployment.push_time_s == pytest.approx(
+        (result.coil_length_mm + 1.0) / deployment.scenes[0].simulation.push_speed_mm_s)
+    times = np.array([f.time_s for f in deployment.members[0].frames])
+    assert np.allclose(np.diff(times), frame, rtol=0.25)  # about the same frames (even steps) before and after
+    given = Deployment(implicit_scene(dt_s=push_dt))
+    assert world_steps(given.model, given.scenes)[0][4:] == (0.0, 0.0)
+    assert given.run().settle_dt_s is None
+    assert given.solver.dt_s == push_dt

@@ -23,7 +23,7 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import implicit_step_s, make_solver
+from .implicit import implicit_step_s, make_solver, settle_step_s
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -130,8 +130,10 @@ class Ensemble:
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
-                                f"steps per frame, integrator) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+                                f"steps per frame, integrator, settling step, push time) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
+        self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit default) step after the push
+        self._push_dt_s: float | None = None  # the push's step, once the settling step took over
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -189,6 +191,16 @@ class Ensemble:
         self.solver = solver
         self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
 
+    def _settle_step(self) -> None:
+        """Every coil is out (at the push's scheduled end, the same for every member): go on
+        at the settling step (a new captured graph, the same frame length)."""
+        self._steps_before += self.stepper.steps
+        self._push_dt_s = self.solver.dt_s
+        self.solver.dt_s = self.settle_dt_s
+        frame_s = self.members[0].scene.simulation.frame_interval_s
+        self.stepper = Stepper(self.solver, self.stepper.state, self.control,
+                               chunk=max(2, 2 * round(frame_s / self.settle_dt_s / 2)))
+
     def _restore(self, member: Member, snapshot: State) -> None:
         """Put a stopped member's nodes back to the frame's start (finite values)."""
         state, sl, coils = self.stepper.state, member.nodes, slice(member.coils.start, member.coils.stop)
@@ -207,6 +219,8 @@ class Ensemble:
         member.steps = self._steps_before + self.stepper.steps
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
                                    snap, self.step_reductions)
+        if self._push_dt_s is not None:  # settled at a longer step: dt_s stays the push's
+            member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=self.solver.dt_s)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
@@ -357,6 +371,10 @@ class Ensemble:
                 self._advance_member(member, frame, started, snap)
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
+            pushing = [m for m in self.members if m.result is None and m not in rerun and m.active >= 0]
+            if (self.settle_dt_s and self.solver.dt_s < self.settle_dt_s and not self.step_reductions
+                    and not pushing and self.stepper.state.time_s >= self.push_time_s):
+                self._settle_step()
         if interrupted[0] and rerun:
             self._interrupt(rerun, started)  # (restored to their last healthy frame)
             rerun = []
@@ -398,25 +416,35 @@ def world_bounds(model: Model) -> list:
 
 
 def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None
-                ) -> list[tuple[float, float, int, str]]:
-    """Per world: (dt_s, contact linear onset, steps per frame, integrator) as a
-    single run of its scene would take them (the onset is the explicit step's
-    for either integrator: both integrate the same law)."""
+                ) -> list[tuple[float, float, int, str, float, float]]:
+    """Per world: (dt_s, contact linear onset, steps per frame, integrator, settling
+    step, push time) as a single run of its scene would take them (the onset is the
+    explicit step's for either integrator: both integrate the same law). The implicit
+    step at its default goes on at the settling step (s) from the push time (s: when
+    every coil is out, Σ (length + COIL_GAP_MM) / push speed) once every coil is
+    detached; otherwise both are 0."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
+    arc = model.arc_s.numpy()
     steps = []
     for w, scene in enumerate(scenes):
         sim = scene.simulation
         explicit_dt = sim.dt_safety * bounds[w].dt_s
+        settle_dt, push_time = 0.0, 0.0
         if sim.integrator == "implicit":
             dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
             onset_dt = explicit_dt
+            if sim.dt_s is None:
+                settle_dt = settle_step_s(dt, sim.frame_interval_s)
+                coils = model.world_coils(w)
+                push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
+                                  ) / sim.push_speed_mm_s
         else:
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
         steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
-                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator))
+                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator, settle_dt, push_time))
     return steps
 
 

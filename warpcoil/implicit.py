@@ -3,11 +3,11 @@ symplectic Euler: the step is set by accuracy, not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's; only the update differs (kernels/implicit.py): per world,
-(M + dt² H) v* = M v + dt F is solved by a few preconditioned conjugate-gradient
-iterations (H: stretching, Gauss–Newton bending, contact along its normals,
-coil–coil pairs exactly; preconditioner: each coil's banded block factorisation),
-then the reference's exact implicit damping is applied to v*; each coil's edge
-spins solve their tridiagonal system. Twist is the fastest mode (inertia
+(M + dt B + dt² H) v' = M v + dt F is solved by a few preconditioned conjugate-gradient
+iterations (B: the damping law's secant coefficient at the old speed; H: stretching,
+Gauss–Newton bending, contact along its normals, coil–coil pairs exactly;
+preconditioner: each coil's banded block factorisation); then, at the new
+positions, each coil's edge spins solve their tridiagonal system. Twist is the fastest mode (inertia
 m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of ~100 µs the implicit
 spin update is overdamped, i.e. it relaxes the twist to its equilibrium each
 step (quasi-static twist), which is what its negligible inertia means physically.
@@ -21,7 +21,7 @@ from __future__ import annotations
 import warp as wp
 
 from .kernels import implicit as kernels
-from .kernels import integrate
+from .kernels import elastic, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
@@ -30,8 +30,11 @@ from .state import State
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
-IMPLICIT_ADVANCE_PER_C0 = 0.2
+IMPLICIT_ADVANCE_PER_C0 = 0.8
 IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+# default step once every coil is out (no pusher to follow): the settling is an overdamped creep
+# (kinetic energy decays with τ ≈ 60 ms on the seed case), resolved by a few ms (BENCHMARKS.md)
+IMPLICIT_SETTLE_DT_S = 2.0e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -43,6 +46,12 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
     """Default implicit step (s): the pusher moves IMPLICIT_ADVANCE_PER_C0 · c0 per
     step, at most IMPLICIT_DT_MAX_S."""
     return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
+
+
+def settle_step_s(push_dt_s: float, frame_interval_s: float) -> float:
+    """Default implicit step (s) after the push: IMPLICIT_SETTLE_DT_S, at most half a frame
+    (frames keep about their length), never below the push's step."""
+    return max(min(IMPLICIT_SETTLE_DT_S, 0.5 * frame_interval_s), push_dt_s)
 
 
 class ImplicitSolver(Solver):
@@ -103,21 +112,26 @@ class ImplicitSolver(Solver):
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
-            m.inv_mass, m.k_stretch,
+            m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt)
         wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, m.damping_c,
-            m.damping_k, dt, state_out.x, state_out.v])
+            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, state_out.x, state_out.v])
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt)
-        coils = m.coil_count
-        wp.launch(kernels.solve_spin, coils, device=dev, inputs=[
+        # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
+        # torque there, then the spins solved and the directors turned
+        wp.launch(kernels.transport_frames, n, device=dev, inputs=[
+            state_in.x, state_out.x, state_in.m1, m.has_next, m.world_of, control.running, state_out.m1])
+        wp.launch(elastic.vertex_theta_gradients, n, device=dev, inputs=[
+            state_out.x, state_out.m1, state_out.free, m.has_next, m.clamp_tangent, m.clamp_director, m.k_bend,
+            m.k_twist, m.rest_K0, m.rest_K1, m.rest_twist, self.grad_theta])
+        wp.launch(kernels.solve_spin, m.coil_count, device=dev, inputs=[
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,
-            m.clamp_tangent, state_in.omega, self.torque, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend, m.rest_K0, m.rest_K1,
-            state_in.x, state_out.x, state_in.m1, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
+            m.clamp_tangent, state_in.omega, self.grad_theta, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend,
+            m.rest_K0, m.rest_K1, state_out.x, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt

@@ -207,6 +207,9 @@ class Solver:
     ``wall_search_mm`` (at most WALL_SEARCH_MM), within the largest loop diameter + FIELD_REGION_MM of the
     catheter tip, falling back to the BVH where the field is untrusted or absent;
     "bvh" (default) queries the BVH only (exact).
+    ``wall_sided_skip``: a node in wall contact that cannot have left the lumen
+    since its last search skips the signed BVH query (kernels/contact.wall_contact;
+    bit-identical to the full search, which False forces).
     """
 
     integrator = "symplectic"
@@ -216,12 +219,13 @@ class Solver:
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
                  wall_guard_steps: int = WALL_GUARD_STEPS, neighbour_capacity: int = NEIGHBOUR_CAPACITY,
-                 wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM):
+                 wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM, wall_sided_skip: bool = True):
         if wall_query not in WALL_QUERIES:
             raise ValueError(f"wall_query must be one of {WALL_QUERIES}, got {wall_query!r}")
         self.model = model
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
+        self.wall_sided_skip = bool(wall_sided_skip)
         self.neighbour_skin_mm = float(neighbour_skin_mm)
         self.wall_guard_steps = int(wall_guard_steps)
         self.has_wall = any(w is not None for w in model.world_walls)
@@ -277,6 +281,7 @@ class Solver:
         self.wall_distance.fill_(float(contact.FAR_MM))
         self._wall_side, self._wall_anchor, self._wall_quiet = zeros(wp.int32), zeros(wp.vec3d), zeros(wp.int32)
         self._wall_slack = zeros(wp.float64)
+        self._wall_seen_x, self._wall_seen_mm = zeros(wp.vec3d), zeros(wp.float64)  # last full search in the lumen
         self._wall_side.fill_(-1)
         self._wall_quiet.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
@@ -336,8 +341,8 @@ class Solver:
                 self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
                 self._field_ids if wall_search_mm is None else self._no_fields, GRAD_TOLERANCE, self._anchor_margin,
-                self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self.wall_force,
-                self.wall_distance])
+                int(self.wall_sided_skip), self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet,
+                self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance])
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:

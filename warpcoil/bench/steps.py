@@ -3,7 +3,8 @@ where the time of a step goes.
 
 1. The seed case (scenes/seed_sphere.toml) run to the end once per setting, in
    one process, the cheap-step changes added one by one: neighbour skin
-   0.05 → 0.2 mm, wall query BVH → narrow-band field. Steps, wall time and µs
+   0.05 → 0.2 mm, the signed wall query skipped for nodes in contact that cannot
+   have left the lumen, wall query BVH → narrow-band field. Steps, wall time and µs
    per step (the run's wall time over its steps: frames and checks included;
    the field's build time reported apart, it is part of the run's time); and,
    less noisy, the graph-replayed step cost of each setting from the same
@@ -39,8 +40,9 @@ from .ensemble import SEED_SCENE, STATE_ARRAYS
 from .report import markdown_table, write_report
 
 SETTINGS = (  # cumulative: each row adds one change to the one before
-    ("before: skin 0.05 mm, wall BVH", dict(neighbour_skin_mm=0.05, wall_query="bvh")),
-    ("+ neighbour skin 0.2 mm", dict(neighbour_skin_mm=0.2, wall_query="bvh")),
+    ("before: skin 0.05 mm, wall BVH", dict(neighbour_skin_mm=0.05, wall_query="bvh", wall_sided_skip=False)),
+    ("+ neighbour skin 0.2 mm", dict(neighbour_skin_mm=0.2, wall_query="bvh", wall_sided_skip=False)),
+    ("+ signed wall query skipped in the lumen", dict(neighbour_skin_mm=0.2, wall_query="bvh")),
     ("+ wall field (opt-in)", dict(neighbour_skin_mm=0.2, wall_query="sdf")),
 )
 WINDOW_MM = 15.0  # the profile's first and last stretch of the push

@@ -213,7 +213,7 @@ def feature_force(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.flo
 @wp.func
 def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
                      owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
-                     p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.vec3d:
+                     p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
     """Wall force (µN) on a node sphere at ``p`` (relative to the mesh origin) in the
     lumen: Σ_faces F(d_f) − Σ_edges F(d_e) + Σ_vertices F(d_v), each the law of the
     distance from p to that closed face, edge or vertex, along p − its closest point.
@@ -222,20 +222,25 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     closest-point force; in a groove between facets both faces push. Every term
     is continuous in p with a continuous gradient, so is the sum: the force of a
     potential with no jumps at facet edges (the closest-face normal of
-    :func:`wall_query` jumps there). Fixed-point sum: order-independent."""
+    :func:`wall_query` jumps there). Fixed-point sum: order-independent.
+    Also returns the distance (mm, float64) from p to the closest face within
+    reach (FAR_MM if none): exact whenever it is below ``radius + c0``."""
     reach = radius + c0 + BOX_MARGIN_MM
     lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
     upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
     query = wp.mesh_query_aabb(mesh, lower, upper)
     f = int(0)
     total = vec3l()
+    nearest = FAR_MM
     while wp.mesh_query_aabb_next(query, f):
         k = face_first + f
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]
         c = vertices[faces[3 * k + 2]]
         own = owners[k]
-        total = total + feature_force(p, closest_on_triangle(p, a, b, c), radius, p0, c0, u_linear)
+        closest = closest_on_triangle(p, a, b, c)
+        nearest = wp.min(nearest, wp.length(p - closest))
+        total = total + feature_force(p, closest, radius, p0, c0, u_linear)
         if own & OWN_EDGE_AB:
             total = total - feature_force(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
         if own & OWN_EDGE_BC:
@@ -248,7 +253,7 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
             total = total + feature_force(p, b, radius, p0, c0, u_linear)
         if own & OWN_VERTEX_C:
             total = total + feature_force(p, c, radius, p0, c0, u_linear)
-    return from_fixed(total)
+    return from_fixed(total), nearest
 
 
 @wp.func
@@ -293,10 +298,13 @@ def wall_contact(
     fields: wp.array(dtype=wp.uint64),
     grad_tolerance: wp.float64,
     anchor_margin: wp.float64,
+    sided_skip: int,
     inside: wp.array(dtype=wp.int32),
     anchor: wp.array(dtype=wp.vec3d),
     anchor_slack: wp.array(dtype=wp.float64),
     quiet_steps: wp.array(dtype=wp.int32),
+    seen_x: wp.array(dtype=wp.vec3d),
+    seen_distance: wp.array(dtype=wp.float64),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
 ):
@@ -322,7 +330,17 @@ def wall_contact(
     again — except every ``guard_steps`` steps (0: always search, as for exact
     distances). A node not anchored takes distance and normal from its world's
     narrow-band field (``fields``, 0: none) where the field is trusted
-    (:func:`field_sample`), from the BVH elsewhere. Writes the centre's signed distance (mm; for a node not
+    (:func:`field_sample`), from the BVH elsewhere.
+
+    In the lumen within the contact range, the distance is the exact (float64)
+    distance to the closest face, from the feature sum's faces. A node that was
+    last searched in the lumen at centre distance s (``seen_x``,
+    ``seen_distance``) and has since moved less than s − ``anchor_margin`` is still
+    in the lumen (the distance is 1-Lipschitz), so with ``sided_skip`` its signed
+    BVH query is skipped: the feature sum alone gives force and distance, and
+    only if it finds no face within the contact range is the node searched in
+    full. The result is bit-identical to the full search (tested).
+    Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
     anchored with; +FAR in the catheter or without a wall)."""
     i = wp.tid()
@@ -348,6 +366,15 @@ def wall_contact(
                 quiet_steps[i] = NO_ANCHOR
                 f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * normal
                 done = True
+        contact_range = node_radius[i] + c0
+        if not done and sided_skip != 0 and side > 0 and quiet == NO_ANCHOR:
+            if wp.length(x[i] - seen_x[i]) < seen_distance[i] - anchor_margin:  # still in the lumen
+                summed, nearest = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], x[i] - origins[w],
+                                                   node_radius[i], p0, c0, u_linear)
+                if nearest < contact_range:
+                    f = summed
+                    signed = nearest
+                    done = True
         if not done:  # the BVH
             if side < 0:
                 reach = FAR_MM
@@ -360,19 +387,24 @@ def wall_contact(
                 inside[i] = 1
             else:
                 inside[i] = 0
-            slack = signed - node_radius[i] - c0
+            if face != NO_FACE and signed > wp.float64(0.0):
+                if signed < contact_range + anchor_margin:
+                    summed, nearest = wall_feature_sum(mesh, vertices, faces, owners, face_first[w],
+                                                       x[i] - origins[w], node_radius[i], p0, c0, u_linear)
+                    if nearest < contact_range:
+                        f = summed
+                        signed = nearest
+            elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
+                f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
+            slack = signed - contact_range
             if inside[i] == 1 and slack > wp.float64(0.0):
                 anchor[i] = x[i]
                 anchor_slack[i] = slack
                 quiet_steps[i] = 0
             else:
                 quiet_steps[i] = NO_ANCHOR
-            if face != NO_FACE and signed > wp.float64(0.0):
-                if signed < node_radius[i] + c0:
-                    f = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], x[i] - origins[w],
-                                         node_radius[i], p0, c0, u_linear)
-            elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
-                f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
+            seen_x[i] = x[i]
+            seen_distance[i] = wp.where(inside[i] == 1, signed, wp.float64(0.0))
     elif free[i] == 0:
         inside[i] = -1
         quiet_steps[i] = NO_ANCHOR

@@ -138,6 +138,56 @@ def vertex_gradients(
     )
 
 
+@wp.kernel
+def vertex_theta_gradients(
+    x: wp.array(dtype=wp.vec3d),
+    m1: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    clamp_tangent: wp.array(dtype=wp.vec3d),
+    clamp_director: wp.array(dtype=wp.vec3d),
+    k_bend: wp.array(dtype=wp.float64),
+    k_twist: wp.array(dtype=wp.float64),
+    rest_K0: wp.array(dtype=wp.vec2d),
+    rest_K1: wp.array(dtype=wp.vec2d),
+    rest_twist: wp.array(dtype=wp.float64),
+    grad_theta: wp.array(dtype=wp.vec2d),
+):
+    """∂(W_b + W_t)/∂(θ_{j-1}, θ_j) at vertex j alone (µN·mm), as
+    :func:`vertex_gradients` has it, for a twist update at new positions."""
+    j = wp.tid()
+    active = vertex_valid(has_next, j)
+    if active:
+        active = vertex_needed(free, j)
+    if clamp_vertex(clamp_tangent, j):
+        active = free[j + 1] != 0
+    if not active:
+        grad_theta[j] = wp.vec2d(F64_0, F64_0)
+        return
+    K0, K1, tau = vertex_strains(x, m1, clamp_tangent, clamp_director, j)
+    dK0 = K0 - rest_K0[j]
+    dK1 = K1 - rest_K1[j]
+    half_kb = wp.float64(0.5) * k_bend[j]
+    kt_dtau = k_twist[j] * (tau - rest_twist[j])
+    grad_theta[j] = wp.vec2d(
+        half_kb * (dK0[0] * K0[1] - dK0[1] * K0[0]) - kt_dtau,
+        half_kb * (dK1[0] * K1[1] - dK1[1] * K1[0]) + kt_dtau,
+    )
+
+
+@wp.func
+def edge_torque(has_next: wp.array(dtype=wp.int32), clamp_tangent: wp.array(dtype=wp.vec3d),
+                grad_theta: wp.array(dtype=wp.vec2d), i: int) -> wp.float64:
+    """Twisting torque on edge i (µN·mm): −∂W/∂θ_i from its two vertices."""
+    tq = F64_0
+    if has_vertex(has_next, clamp_tangent, i):
+        tq = tq - grad_theta[i][1]
+    if i + 1 < has_next.shape[0]:
+        if vertex_valid(has_next, i + 1):
+            tq = tq - grad_theta[i + 1][0]
+    return tq
+
+
 @wp.func
 def stretch_force(x: wp.array(dtype=wp.vec3d), k_stretch: wp.array(dtype=wp.float64),
                   rest_length: wp.array(dtype=wp.float64), i: int) -> wp.vec3d:
@@ -214,10 +264,8 @@ def gather_forces(
     i = wp.tid()
     n = x.shape[0]
     f = wp.vec3d(F64_0, F64_0, F64_0)
-    tq = F64_0
     if has_vertex(has_next, clamp_tangent, i):
         f = f - grad_mid[i]
-        tq = tq - grad_theta[i][1]
     if i >= 1:
         if has_vertex(has_next, clamp_tangent, i - 1):
             f = f - grad_next[i - 1]
@@ -226,7 +274,6 @@ def gather_forces(
     if i + 1 < n:
         if vertex_valid(has_next, i + 1):
             f = f - grad_prev[i + 1]
-            tq = tq - grad_theta[i + 1][0]
         if edge_valid(has_next, i):
             f = f + stretch_force(x, k_stretch, rest_length, i)
     share = F64_0
@@ -236,7 +283,7 @@ def gather_forces(
         fold = fold_force(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     push_share[i] = share
     force[i] = f + external[i] + contact[i] + fold
-    torque[i] = tq
+    torque[i] = edge_torque(has_next, clamp_tangent, grad_theta, i)
 
 
 @wp.kernel
