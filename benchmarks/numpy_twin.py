@@ -233,6 +233,7 @@ class NumpyTwin:
             raise NotImplementedError("the numpy twin has no clamp vertex (ModelBuilder.clamp with tangent): "
                                       "compare it on models without one")
         self.inv_mass = model.inv_mass.numpy()
+        self.contact_share = model.contact_share.numpy()
         self.damping_c = model.damping_c.numpy()
         self.damping_k = float(model.damping_k)
         self.external = model.external.numpy()
@@ -307,7 +308,7 @@ class NumpyTwin:
         force[nodes[near]] = self.wall.feature_sum(x[nodes[near]], radius[near], self.p0, self.c0, self.u_linear)
         self.wall_side[nodes] = np.where(found, (signed > 0.0).astype(np.int32), side)
         self.wall_distance[nodes] = np.where(found, signed, np.where(side == 0, -reach, reach))
-        return force
+        return col(self.contact_share) * force
 
     def candidate_pairs(self, x: np.ndarray, edges: np.ndarray, others: np.ndarray):
         """Every ordered pair (a, b), a from ``edges`` and b from ``others``, that are
@@ -353,8 +354,8 @@ class NumpyTwin:
         return gap + np.where(same, np.clip(self.c0 - rest_gap, 0.0, self.c0), 0.0)
 
     def node_segment(self, x: np.ndarray, j: np.ndarray, b: np.ndarray):
-        """contact.py ``node_segment_term``: ½ the law between node j and capsule b
-        (force on j) and the parameter t of the closest point on b."""
+        """contact.py ``node_segment_term``: ½ s_j × the law between node j and capsule b
+        (force on j; s_j its contact share) and the parameter t of the closest point on b."""
         def closest(points, p0, p1):
             e = p1 - p0
             t = np.clip(dot(points - p0, e) / np.maximum(dot(e, e), 1e-300), 0.0, 1.0)
@@ -366,7 +367,7 @@ class NumpyTwin:
         rest_cp, _ = closest(self.rest_x[j], self.rest_x[b], self.rest_x[b + 1])
         gap = self.offset_gap(dist - r, self.coil_of[j] == self.coil_of[b], length(self.rest_x[j] - rest_cp) - r)
         on = (gap < self.c0) & (dist > 1.0e-12)
-        f = col(np.where(on, 0.5 * contact_force_magnitude(gap, self.p0, self.c0, self.u_linear)
+        f = col(np.where(on, 0.5 * self.contact_share[j] * contact_force_magnitude(gap, self.p0, self.c0, self.u_linear)
                          / np.where(on, dist, 1.0), 0.0)) * delta
         return f, t
 
@@ -415,7 +416,8 @@ class NumpyTwin:
             joint_j = self.joint(free, j, b)
             for q in (0, 1):
                 k = b + q
-                weight = 0.5 * (self.joint(free, k, a) + joint_j)
+                k_in = np.minimum(k, self.n - 1)
+                weight = 0.5 * (self.contact_share[j] * self.joint(free, k, a) + self.contact_share[k_in] * joint_j)
                 if q == 1:
                     weight = np.where(last(b), weight, 0.0)
                 f = f - col(weight) * self.node_node(x, j, np.minimum(k, self.n - 1))
@@ -528,7 +530,8 @@ class NumpyTwin:
 
     def fold_forces(self, x: np.ndarray, free: np.ndarray) -> np.ndarray:
         """elastic.py ``fold_force``: free node i against nodes i ± 2·span of its coil
-        (joined by 2·span edges), the contact law of |x_i − x_j| − d."""
+        (joined by 2·span edges), the contact law of |x_i − x_j| − d times the
+        smaller contact share of the two."""
         span = 2 * self.fold_span
         f = np.zeros_like(x)
         i = np.arange(self.n - span)
@@ -540,7 +543,9 @@ class NumpyTwin:
         delta = x[i] - x[j]
         dist = length(delta)
         gap = dist - self.node_radius[i] - self.node_radius[j]
-        pair = col(contact_force_magnitude(gap, self.p0, self.c0, self.u_linear) / np.maximum(dist, 1e-300)) * delta
+        weight = np.minimum(self.contact_share[i], self.contact_share[j])
+        pair = col(weight * contact_force_magnitude(gap, self.p0, self.c0, self.u_linear) / np.maximum(dist, 1e-300)) \
+            * delta
         np.add.at(f, i, pair)
         np.add.at(f, j, -pair)
         return np.where(col(free != 0), f, 0.0)

@@ -52,7 +52,8 @@ def test_balloon_contact_is_the_law_along_the_radius_and_vanishes_deflated():
         out = wp.zeros(4, dtype=wp.vec3d)
         wp.launch(kernels.balloon_contact, 4, inputs=[
             wp.array(x, dtype=wp.vec3d), wp.ones(4, dtype=wp.int32), wp.zeros(4, dtype=wp.int32),
-            wp.ones(1, dtype=wp.int32), wp.full(4, r_node, dtype=wp.float64), wp.array(stations, dtype=wp.vec3d),
+            wp.ones(1, dtype=wp.int32), wp.full(4, r_node, dtype=wp.float64), wp.ones(4, dtype=wp.float64),
+            wp.array(stations, dtype=wp.vec3d),
             wp.full(2, 1.0, dtype=wp.float64), wp.zeros(1, dtype=wp.int32), wp.full(1, 2, dtype=wp.int32),
             wp.full(1, inflation, dtype=wp.float64), p0, c0, 7.0, out])
         return out.numpy()

@@ -17,7 +17,7 @@ def test_incline_sticks_below_the_friction_angle_creeping_below_v_reg(ratio):
     _, _, creep, top_speed = vf.incline_motion(0.3, ratio, steps=6000)
     v_reg = wc.ContactSettings().friction_speed_mm_s
     assert creep == pytest.approx(ratio * v_reg, rel=1e-2)  # creep v_reg F_t/(μN) < v_reg
-    assert top_speed < 1.01 * v_reg  # the start transient (end nodes weigh half) overshoots by < 1 %
+    assert top_speed < 1.01 * v_reg  # the start (level, at contact equilibrium) overshoots by < 1 %
 
 
 def test_stick_converges_to_rest_as_the_regularisation_velocity_shrinks():

@@ -44,7 +44,7 @@ def test_nonlinear_damping_follows_the_vector_law(direction):
 
 def test_step_above_the_bound_is_refused_with_the_limiting_term():
     model, _ = helix_model()
-    bound = wc.Solver(model).bound  # with the contact term (an end node of half mass meets the full law)
+    bound = wc.Solver(model).bound  # with the contact term (each node's law weighted by its share, as its mass)
     with pytest.raises(UnstableStepError, match="stable bound") as info:
         wc.Solver(model, dt_s=1.5 * bound.dt_s)
     assert bound.limiting_term.split(" ")[0] in str(info.value)

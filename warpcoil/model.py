@@ -12,7 +12,9 @@ advances them all, and nothing couples one world to another.
 
 Masses are lumped on each node's share of the coil (its Voronoi length, half of
 each adjacent rest edge): ``ρ (l̄_i−1 + l̄_i)/2 · mass_scale``, so an end node
-carries half a segment; the node damping follows the same length. Per edge:
+carries half a segment; the node damping follows the same length, and so does
+each node's contact (``contact_share`` = l̄_i / the coil's segment length: the
+contact law acts per node patch d·l̄_i, ½ P0 at an end node's half patch). Per edge:
 twist inertia ``ρ l̄_i r² · mass_scale`` (r the winding radius (d − d_w)/2) and
 its damping. Stiffnesses follow the coil: k_s = EA/l̄_i per edge, k_b = EI/l̄_j
 and k_t = GJ/l̄_j per vertex (l̄_j the mean of its two edges, so W_b → ∫ EI κ²/2 ds).
@@ -142,6 +144,7 @@ class Model:
     clamp_director: wp.array  # vec3d per node: the clamp's material director (normal to clamp_tangent), else 0
     inv_mass: wp.array  # 1/g
     damping_c: wp.array  # µN (high-speed limit of the damping force per node)
+    contact_share: wp.array  # per node: weight of its contact law, l̄_i / its coil's segment length (½ at a free end)
     damping_k: float  # mm/s
     external: wp.array  # µN, constant applied forces
     # per edge
@@ -378,6 +381,8 @@ class ModelBuilder:
         spin_len = np.where(has_next == 1, edge_len, edge_prev)  # per edge; a coil's last index repeats its edge
         inertia = rho * spin_len * s.mass_scale * winding_r**2
         damping_c = s.damping_uN_per_mm * node_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
+        segment = np.repeat([edge_len[f:l].mean() for f, l in zip(first, last)], counts)  # the coil's l0
+        contact_share = node_len / segment  # its contact per unit mass is every node's of its coil
         twist_damping = s.damping_uN_per_mm * spin_len * s.mass_scale / s.damping_speed_mm_s * winding_r**2
         vertex_len = np.zeros(n)
         interior = np.zeros(n, bool)
@@ -411,7 +416,8 @@ class ModelBuilder:
             friction_speed_mm_s=float(self.contact.friction_speed_mm_s))
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
-            coil_of=coil_of, arc_s=arc_s, fixed=fixed, clamp_tangent=clamp_tangent, mass=mass, damping_c=damping_c, external=external,
+            coil_of=coil_of, arc_s=arc_s, fixed=fixed, clamp_tangent=clamp_tangent, mass=mass, damping_c=damping_c,
+            contact_share=contact_share, external=external,
             edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
             twist_damping=twist_damping, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
@@ -474,7 +480,8 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         has_next=arr(cat("has_next"), wp.int32), coil_of=arr(coil_of, wp.int32), arc_s=arr(cat("arc_s"), wp.float64),
         fixed=arr(cat("fixed"), wp.int32), clamp_tangent=arr(cat("clamp_tangent"), wp.vec3d),
         clamp_director=arr(np.zeros((n, 3)), wp.vec3d), inv_mass=arr(1.0 / cat("mass"), wp.float64),
-        damping_c=arr(cat("damping_c"), wp.float64), damping_k=damping_k, external=arr(cat("external"), wp.vec3d),
+        damping_c=arr(cat("damping_c"), wp.float64), contact_share=arr(cat("contact_share"), wp.float64),
+        damping_k=damping_k, external=arr(cat("external"), wp.vec3d),
         rest_length=arr(cat("edge_len"), wp.float64), k_stretch=arr(cat("k_stretch"), wp.float64),
         inv_inertia=arr(1.0 / cat("inertia"), wp.float64), twist_damping=arr(cat("twist_damping"), wp.float64),
         k_bend=arr(cat("k_bend"), wp.float64), k_twist=arr(cat("k_twist"), wp.float64),

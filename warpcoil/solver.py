@@ -67,10 +67,11 @@ class StepBound:
 
 
 def _contact_inv_mass(model: Model, nodes: slice) -> np.ndarray:
-    """1/g per node for the contact terms: every node, an end node of half mass too,
-    meets the full contact law (the wall law per node; coil–coil as node–segment
-    terms), so its own mass sets its contact frequency."""
-    return model.inv_mass.numpy()[nodes]
+    """Contact share per gram (1/g) of each node: its contact law (wall, device, its
+    node–capsule terms) is weighted by its share of the coil, as its mass is, so an
+    end node of half mass meets half the law and has an interior node's contact
+    frequency."""
+    return model.contact_share.numpy()[nodes] * model.inv_mass.numpy()[nodes]
 
 
 def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
@@ -85,8 +86,8 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes:
       8 at a free end of half mass)
     * twisting: (4 k_t + k_b |K̄|²) / J
     * contact: the contact law's slope at the design overlap (u = 3, h = −2 c0),
-      times CONTACTS_PER_NODE, / m of each node, an end node of half mass too (when
-      given; :func:`_contact_inv_mass`)
+      times CONTACTS_PER_NODE and each node's contact share, / its mass (when given;
+      :func:`_contact_inv_mass`: the same for every node of a coil, its end nodes too)
 
     ``nodes``: one world's nodes (default: every world, the smallest bound).
     """
@@ -125,8 +126,8 @@ def contact_linear_onset(model: Model, dt_s: float, nodes: slice = slice(None)) 
     """Overlap u (= 1 − h/c0) where the contact law turns linear for this step:
     MODEL.md's 7, or earlier, where the law's stiffness reaches what an explicit
     step dt can integrate for the lightest node pressed from CONTACTS_AT_ONSET
-    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET, m the lightest node's mass, an
-    end node's: :func:`_contact_inv_mass`); never below u = 2 (h = −c0).
+    sides (k_max = m (2/dt)² / CONTACTS_AT_ONSET, m the lightest node's mass per
+    unit of contact share: :func:`_contact_inv_mass`); never below u = 2 (h = −c0).
     Up to it the law is exact; past it the force keeps growing along the law's
     tangent, so deep overlaps in an overpacked sac stay stable instead of blowing
     up. For the default coil and step it is u ≈ 2.8 (|F| ≈ 24 P0)."""
@@ -291,6 +292,8 @@ class Solver:
         self._rebuild = wp.ones(1, dtype=wp.int32, device=dev)
         self.grid_builds = 0  # neighbour-grid builds launched outside a captured graph (for tests)
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
+        self._edge_sum_start, self._edge_sum_end = zeros(contact.vec3l), zeros(contact.vec3l)  # fixed point
+        self._edge_bad = zeros(wp.int32)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -336,7 +339,7 @@ class Solver:
         running = self._running_all if running is None else running
         if self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
-                state.x, state.free, m.world_of, running, m.node_radius, m.wall_mesh, m.wall_face_first,
+                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh, m.wall_face_first,
                 m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
@@ -349,12 +352,16 @@ class Solver:
                 wp.capture_if(self._rebuild, on_true=self._build_grid)
             else:
                 self._build_grid()
+            sums = (self._edge_sum_start, self._edge_sum_end)
+            wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
+                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius,
-                c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, self._edge_force_start,
-                self._edge_force_end, self.coil_gap, self.coil_contacts])
+                m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+            wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
+                *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
                 state.free, m.has_next, self.wall_force, self._edge_force_start, self._edge_force_end,
                 self.contact_force])
@@ -370,7 +377,7 @@ class Solver:
             wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
         if self.has_balloon:
             wp.launch(devices.balloon_contact, n, device=dev, inputs=[
-                state.x, state.free, m.world_of, running, m.node_radius, m.balloon_stations, m.balloon_cap_radius,
+                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.balloon_stations, m.balloon_cap_radius,
                 m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.device_force])
             if self.coil_contact or self.has_wall:
@@ -387,7 +394,7 @@ class Solver:
             m.rest_twist, self.grad_prev, self.grad_mid, self.grad_next, self.grad_theta])
         wp.launch(elastic.gather_forces, n, device=dev, inputs=[
             state.x, state.free, m.has_next, m.clamp_tangent, m.k_stretch, m.rest_length, self.grad_prev, self.grad_mid,
-            self.grad_next, self.grad_theta, m.external, self.contact_force, m.node_radius, m.contact.fold_span,
+            self.grad_next, self.grad_theta, m.external, self.contact_force, m.node_radius, m.contact_share, m.contact.fold_span,
             m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, m.world_of, m.catheter_axis_of,
             self.force, self.torque, self.push_share])
 
@@ -418,7 +425,8 @@ class Solver:
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
+                m.node_radius, m.contact_share, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force,
+                self._grid.id,
                 self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
                 c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])

@@ -356,17 +356,22 @@ def _settle(stepper: Stepper, max_steps: int) -> np.ndarray:
 
 
 def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, coil_contact: bool,
-               damping_uN_per_mm: float = 5.0, integrator: str = "symplectic") -> np.ndarray:
-    """Rest positions of a helical coil started straight, free ends, damped to rest."""
+               damping_uN_per_mm: float = 5.0, integrator: str = "symplectic",
+               stretch: float | None = None) -> np.ndarray:
+    """Rest positions of a helical coil released with free ends and damped to rest:
+    started straight, or (``stretch``) from its pre-shape stretched along its axis
+    to ``stretch`` × its pitch (same loop diameter, arc length and segments)."""
     spec = _helix_spec(segment_length_mm, helix)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=damping_uN_per_mm))
     builder.add_coil(spec)
     model = builder.finalize()
-    n = model.node_count
-    straight = np.zeros((n, 3))
-    straight[:, 0] = model.arc_s.numpy()
+    if stretch is None:
+        start = np.zeros((model.node_count, 3))
+        start[:, 0] = model.arc_s.numpy()
+    else:
+        start = preshape.helix(spec.loop_diameter_mm, stretch * spec.helix_pitch_mm, spec.length_mm, spec.l0)
     stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact),
-                      state_from_positions(model, straight), Control.create(model), chunk=1000)
+                      state_from_positions(model, start), Control.create(model), chunk=1000)
     return _settle(stepper, max_steps=4_000_000)
 
 
@@ -409,18 +414,31 @@ def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_S
                                         integrator=integrator))
 
 
-def tight_pitch() -> list[CaseResult]:
+TIGHT_STRETCH = 2.0  # the tight helix is released from twice its pitch: turns 0.31 mm apart, in order
+
+
+def tight_pitch(length_mm: float = TIGHT_HELIX["length_mm"]) -> list[CaseResult]:
     """A helix whose turns are 10 µm apart (pitch d + 10 µm, below the default
     contact onset c0 = 0.1 d = 29 µm), with coil contact on: pushed into free space,
-    and released from straight. Both must come to rest in the pre-shape (loop
-    diameter and pitch within 1 %): neighbouring turns of the rest shape do not
-    repel each other at rest (docs/FORMULATION.md, rest clearance). Default damping
-    (10 µN/mm): at half of it the straight start whips its turns over each other."""
+    and released from its pre-shape stretched to twice its pitch (its turns close
+    in order onto their rest clearance). Both must come to rest in the pre-shape
+    (loop diameter and pitch within 1 %): neighbouring turns of the rest shape do
+    not repel each other at rest (docs/FORMULATION.md, rest clearance).
+
+    Not from straight: a straight start forms every turn at once in a whip of
+    1.6e4 nJ, and a close-wound helix so formed comes to rest tangled, its turns
+    stacked out of order and held by contact — at every step tried (0.3–0.9 of
+    the bound: 72–118 nJ left), also with c0 = 5 µm below the turn gap (no rest
+    offset involved), while no segment passes through another and the total
+    energy (kinetic + elastic + contact) never rises: a physical trapped state,
+    not a numerical one (docs/FORMULATION.md, "Tight pitch from straight")."""
     damping = SimulationSettings().damping_uN_per_mm
-    push = _released(100.0, DEFAULT_DT_SAFETY, None, 1.0, TIGHT_HELIX, damping)
-    recovery = _recovered(None, DEFAULT_DT_SAFETY, TIGHT_HELIX, True, damping)
-    return (_helix_rows("tight pitch, pushed out (contact)", push, TIGHT_HELIX, 1e-2)
-            + _helix_rows("tight pitch, recovery from straight (contact)", recovery, TIGHT_HELIX, 1e-2))
+    helix = dict(TIGHT_HELIX, length_mm=length_mm)
+    push = _released(100.0, DEFAULT_DT_SAFETY, None, 1.0, helix, damping)
+    recovery = _recovered(None, DEFAULT_DT_SAFETY, helix, True, damping, stretch=TIGHT_STRETCH)
+    return (_helix_rows("tight pitch, pushed out (contact)", push, helix, 1e-2)
+            + _helix_rows(f"tight pitch, released from {TIGHT_STRETCH:g}x its pitch (contact)", recovery, helix,
+                          1e-2))
 
 
 # --- dense packs come to rest ------------------------------------------------------
@@ -484,6 +502,12 @@ def friction() -> list[CaseResult]:
     """Regularised Coulomb friction: incline, capstan, energy (validation_friction.py)."""
     from .validation_friction import friction_cases
     return friction_cases()
+
+
+def contact_share() -> list[CaseResult]:
+    """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
+    from .validation_contact import contact_share_cases
+    return contact_share_cases()
 
 
 def regions() -> list[CaseResult]:
@@ -757,6 +781,7 @@ CASES = {
     "dense-pack": dense_packs,
     "energy": energy_conservation,
     "friction": friction,
+    "contact-share": contact_share,
     "regions": regions,
 
 

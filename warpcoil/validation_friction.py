@@ -77,10 +77,11 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
     builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
     builder.body_acceleration(g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
     model = builder.finalize()
-    # the stiff straight rod rests level, each node pressed with the mean weight (end nodes weigh half)
-    mean_mass = float(np.mean(1.0 / model.inv_mass.numpy()))
+    # the rod rests level at its contact equilibrium: every node (an end node: half the mass, half the
+    # contact share) at the gap where the law carries an interior node's weight
+    interior_mass = float(1.0 / model.inv_mass.numpy()[nodes // 2])
     x = rest.copy()
-    x[:, 2] = 0.5 * d + _overlap_for(mean_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
+    x[:, 2] = 0.5 * d + _overlap_for(interior_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
     stepper = Stepper(Solver(model, coil_contact=False), state_from_positions(model, x), Control.create(model),
                       chunk=200)
     times, speeds = [], []
@@ -200,11 +201,12 @@ def frictional_energy(mu: float = 0.3, steps: int = 5000, g_mm_s2: float = 2.0e4
         state.v.assign(v)
         stepper = Stepper(solver, state, Control.create(model), chunk=100)
         masses = 1.0 / model.inv_mass.numpy()
+        share = model.contact_share.numpy()
         energy = []
         for _ in range(steps // stepper.chunk):
             state = stepper.run_chunk()
             x = state.x.numpy()
-            contact_nJ = _law_energy_nJ(x[:, 2] - 0.5 * d, c0).sum() + _pair_energy_nJ(x, nodes, d, c0)
+            contact_nJ = (share * _law_energy_nJ(x[:, 2] - 0.5 * d, c0)).sum() + _pair_energy_nJ(x, nodes, d, c0)
             energy.append(sum(solver.energies(state).values()) + contact_nJ - float(np.sum(masses * (x @ g))))
         energy = np.array(energy)
         totals.append(energy)
@@ -215,10 +217,11 @@ def frictional_energy(mu: float = 0.3, steps: int = 5000, g_mm_s2: float = 2.0e4
 
 def _pair_energy_nJ(x: np.ndarray, nodes: int, d: float, c0: float) -> float:
     """Coil–coil contact energy of the two straight coils, the potential of
-    contact.py's coil–coil force (docs/FORMULATION.md): ½ the law between every node
-    and every capsule of the other coil, both ways, minus the joint corrections
-    w_jk = ½ (j interior + k interior) of the law between node spheres j and k
-    (a straight coil never touches itself)."""
+    contact.py's coil–coil force (docs/FORMULATION.md): ½ s_j × the law between every
+    node j and every capsule of the other coil, both ways (s_j the node's contact
+    share: ½ at an end, else 1), minus the joint corrections
+    w_jk = ½ (s_j [k interior] + s_k [j interior]) of the law between node spheres j
+    and k (a straight coil never touches itself)."""
     a, b = x[:nodes], x[nodes:]
 
     def node_capsule(points: np.ndarray, chain: np.ndarray) -> np.ndarray:
@@ -228,10 +231,11 @@ def _pair_energy_nJ(x: np.ndarray, nodes: int, d: float, c0: float) -> float:
 
     interior = np.ones(nodes)
     interior[[0, -1]] = 0.0
-    weight = 0.5 * (interior[:, None] + interior[None, :])
+    share = 0.5 + 0.5 * interior  # uniform segments: ½ at an end
+    weight = 0.5 * (share[:, None] * interior[None, :] + interior[:, None] * share[None, :])
     node_node = np.linalg.norm(a[:, None] - b[None], axis=2)
-    return float(0.5 * _law_energy_nJ(node_capsule(a, b) - d, c0).sum()
-                 + 0.5 * _law_energy_nJ(node_capsule(b, a) - d, c0).sum()
+    return float(0.5 * (share[:, None] * _law_energy_nJ(node_capsule(a, b) - d, c0)).sum()
+                 + 0.5 * (share[:, None] * _law_energy_nJ(node_capsule(b, a) - d, c0)).sum()
                  - (weight * _law_energy_nJ(node_node - d, c0)).sum())
 
 

@@ -284,6 +284,7 @@ def wall_contact(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     meshes: wp.array(dtype=wp.uint64),
     face_first: wp.array(dtype=wp.int32),
     origins: wp.array(dtype=wp.vec3d),
@@ -309,7 +310,8 @@ def wall_contact(
     centre_distance: wp.array(dtype=wp.float64),
 ):
     """Wall force on each free node (µN; the wall of the node's ensemble member,
-    none where its mesh id is 0). In the lumen: the contact law summed over the
+    none where its mesh id is 0), times the node's ``contact_share`` (½ at a free
+    end: the law acts per node patch d·l̄, as the mass is lumped). In the lumen: the contact law summed over the
     wall's faces, edges and vertices within reach (:func:`wall_feature_sum`; on a
     flat facet the law of the gap h = distance − d/2 along the facet's normal).
     Outside the lumen: the law of h = −distance − d/2 along the closest face's
@@ -408,7 +410,7 @@ def wall_contact(
     elif free[i] == 0:
         inside[i] = -1
         quiet_steps[i] = NO_ANCHOR
-    force[i] = f
+    force[i] = contact_share[i] * f
     centre_distance[i] = signed
 
 
@@ -546,10 +548,12 @@ def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
 @wp.func
 def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
                       coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                      j: int, b: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
-    """½ the law of the gap between node sphere j and capsule b (|x_j − closest point
-    of edge b| − r_j − r_b, plus the rest offset of a same-coil pair): (force on
-    node j along x_j − closest point, µN; the closest point's parameter t on b)."""
+                      contact_share: wp.array(dtype=wp.float64), j: int, b: int, p0: wp.float64, c0: wp.float64,
+                      u_linear: wp.float64):
+    """½ s_j × the law of the gap between node sphere j and capsule b (|x_j − closest
+    point of edge b| − r_j − r_b, plus the rest offset of a same-coil pair), s_j node
+    j's contact share: (force on node j along x_j − closest point, µN; the closest
+    point's parameter t on b)."""
     p = x[j]
     pb0 = x[b]
     pb1 = x[b + 1]
@@ -567,7 +571,7 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
             rest = closest_on_segment(rest_x[j], rest_x[b], rest_x[b + 1])
             gap = gap + rest_offset(wp.length(rest_x[j] - rest) - node_radius[j] - node_radius[b], c0)
         if gap < c0:
-            f = (wp.float64(0.5) * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+            f = (wp.float64(0.5) * contact_share[j] * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
     return f, t
 
 
@@ -627,34 +631,57 @@ def owned_nodes(has_next: wp.array(dtype=wp.int32), e: int) -> int:
 
 
 @wp.func
-def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
-                 free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
-                 fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                 mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64,
-                 p0: wp.float64, c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+def rest_clearance_gap(rest_x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                       gap: wp.float64, c0: wp.float64) -> wp.float64:
+    """Segment gap of same-coil edges a and b seen from a, counted from their rest
+    clearance when within c0 (the capsules' rest gap's ``rest_offset``)."""
+    if gap < c0:
+        ra0 = rest_x[a]
+        rb0 = rest_x[b]
+        rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+        return gap + rest_offset(wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (
+            rest_x[b + 1] - rb0)) - node_radius[a] - node_radius[b], c0)
+    return gap
+
+
+@wp.func
+def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                contact_share: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), a: int, b: int,
+                exclusion: int, reach_a: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                far: wp.float64):
     """The forces that the terms of the coil–coil energy joining edge a's and edge
-    b's nodes put on a's nodes: (fixed-point shares of a's start and end node,
-    segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite).
-    The gap of two parts of one coil closer than c0 at rest is counted from their
-    rest clearance (``rest_offset`` of the capsules' rest gap, as the implicit
-    step's ``pair_stiffness``): turns that touch in the pre-shape are not touching.
+    b's nodes put on the nodes of both edges, each term evaluated once: (a's start
+    and end node, b's start and end node, µN; segment gap (twice: seen from a and b), or
+    ``far`` when not evaluated). Each side's forces are summed exactly as
+    :func:`pair_contact` from that side sums them (node–node terms enter b's side
+    negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
+    evaluating the pair twice; the gap is evaluated once, for both. The gap of two parts of one coil closer than c0 at
+    rest is counted from their rest clearance (``rest_offset`` of the capsules'
+    rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
+    pre-shape are not touching.
 
     Energy (each coil a chain of capsules of radius d/2 around its edges, each node
-    a sphere): W = ½ Σ_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
+    a sphere): W = ½ Σ_j s_j [Σ_b φ(node j, capsule b) − Σ_k φ(node j, joint k)] over
     the nodes j of one edge and the capsules b and joints k of the other chain,
-    φ the potential of the contact law; the joint terms remove the capsules'
-    overlap at each joint, so a node in front of a straight chain feels the law
-    of its distance to the chain once, and two parallel chains one law per node
-    (P0 per node patch d·l0). Every term is C¹ in the positions (the capsule–capsule
+    φ the potential of the contact law, s_j node j's contact share (its Voronoi
+    length over its coil's segment length: ½ at a free end, like its mass); the
+    joint terms remove the capsules' overlap at each joint, so a node in front of
+    a straight chain feels the law of its distance to the chain once, and two
+    parallel chains one law per node (P0 per node patch d·l0, P0/2 for an end
+    node's half patch). Every term is C¹ in the positions (the capsule–capsule
     closest points jump between segment ends when two segments turn parallel; a
     node's closest point on a segment does not), so the forces have no jumps.
     Evaluated when the midpoints are within ``far`` (the world's query radius:
     the same cutoff whichever way b was found) and the bounding spheres meet."""
-    start = vec3l()
-    end = vec3l()
-    gap = far
-    touching = int(0)
-    bad = int(0)
+    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    fa_start = zero
+    fa_end = zero
+    fb_start = zero
+    fb_end = zero
+    gap_a = far
+    gap_b = far
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
@@ -664,41 +691,160 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
         apart = wp.length(mid[a] - mid[b])
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
-            gap = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
-            if gap < c0 and coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
-                ra0 = rest_x[a]
-                rb0 = rest_x[b]
-                rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
-                gap = gap + rest_offset(wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (
-                    rest_x[b + 1] - rb0)) - node_radius[a] - node_radius[b], c0)
-            if gap < c0:
-                touching = 1
-            f_start = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-            f_end = f_start
-            for m in range(owned_nodes(has_next, a)):  # a's nodes against capsule b and b's joints
-                j = a + m
-                f, t = node_segment_term(x, rest_x, coil_of, node_radius, j, b, p0, c0, u_linear)
-                joint_j = joint(free, has_next, fixed, coil_of, exclusion, j, b)
-                for q in range(owned_nodes(has_next, b)):
-                    k = b + q
-                    weight = wp.float64(0.5) * (joint(free, has_next, fixed, coil_of, exclusion, k, a) + joint_j)
-                    if weight > wp.float64(0.0):
-                        f = f - weight * node_node_term(x, rest_x, coil_of, node_radius, j, k, p0, c0, u_linear)
-                if m == 0:
-                    f_start = f_start + f
-                else:
-                    f_end = f_end + f
-            for q in range(owned_nodes(has_next, b)):  # b's nodes against capsule a: the reaction on a's nodes
-                f, t = node_segment_term(x, rest_x, coil_of, node_radius, b + q, a, p0, c0, u_linear)
-                f_start = f_start - (wp.float64(1.0) - t) * f
-                f_end = f_end - t * f
-            if not (finite_vec(f_start) and finite_vec(f_end)):
-                bad = 1
-            start = to_fixed(f_start)
-            end = to_fixed(f_end)
-            if not (gap == gap):
-                bad = 1
-    return start, end, gap, touching, bad
+            gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
+                gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
+            gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
+            two_a = owned_nodes(has_next, a) == 2
+            two_b = owned_nodes(has_next, b) == 2
+            # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
+            ta0, sa0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a, b, p0, c0, u_linear)
+            ta1 = zero
+            sa1 = wp.float64(0.0)
+            if two_a:
+                ta1, sa1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a + 1, b, p0, c0, u_linear)
+            tb0, sb0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b, a, p0, c0, u_linear)
+            tb1 = zero
+            sb1 = wp.float64(0.0)
+            if two_b:
+                tb1, sb1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b + 1, a, p0, c0, u_linear)
+            # joint corrections w_mq φ(a + m, b + q) (force on a + m)
+            ja0 = joint(free, has_next, fixed, coil_of, exclusion, a, b)
+            ja1 = joint(free, has_next, fixed, coil_of, exclusion, a + 1, b)
+            jb0 = joint(free, has_next, fixed, coil_of, exclusion, b, a)
+            jb1 = joint(free, has_next, fixed, coil_of, exclusion, b + 1, a)
+            w00 = wp.float64(0.5) * (contact_share[a] * jb0 + contact_share[b] * ja0)
+            w01 = wp.float64(0.0)
+            w10 = wp.float64(0.0)
+            w11 = wp.float64(0.0)
+            if two_b:
+                w01 = wp.float64(0.5) * (contact_share[a] * jb1 + contact_share[b + 1] * ja0)
+            if two_a:
+                w10 = wp.float64(0.5) * (contact_share[a + 1] * jb0 + contact_share[b] * ja1)
+            if two_a and two_b:
+                w11 = wp.float64(0.5) * (contact_share[a + 1] * jb1 + contact_share[b + 1] * ja1)
+            n00 = zero
+            n01 = zero
+            n10 = zero
+            n11 = zero
+            if w00 > wp.float64(0.0):
+                n00 = node_node_term(x, rest_x, coil_of, node_radius, a, b, p0, c0, u_linear)
+            if w01 > wp.float64(0.0):
+                n01 = node_node_term(x, rest_x, coil_of, node_radius, a, b + 1, p0, c0, u_linear)
+            if w10 > wp.float64(0.0):
+                n10 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b, p0, c0, u_linear)
+            if w11 > wp.float64(0.0):
+                n11 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b + 1, p0, c0, u_linear)
+            # a's side: its nodes' terms with their joint corrections, then the reactions of b's nodes
+            f = ta0
+            if w00 > wp.float64(0.0):
+                f = f - w00 * n00
+            if w01 > wp.float64(0.0):
+                f = f - w01 * n01
+            fa_start = fa_start + f
+            if two_a:
+                f = ta1
+                if w10 > wp.float64(0.0):
+                    f = f - w10 * n10
+                if w11 > wp.float64(0.0):
+                    f = f - w11 * n11
+                fa_end = fa_end + f
+            fa_start = fa_start - (wp.float64(1.0) - sb0) * tb0
+            fa_end = fa_end - sb0 * tb0
+            if two_b:
+                fa_start = fa_start - (wp.float64(1.0) - sb1) * tb1
+                fa_end = fa_end - sb1 * tb1
+            # b's side, as b's own evaluation sums it (φ(b + q, a + m) = −n_mq)
+            f = tb0
+            if w00 > wp.float64(0.0):
+                f = f - w00 * (-n00)
+            if w10 > wp.float64(0.0):
+                f = f - w10 * (-n10)
+            fb_start = fb_start + f
+            if two_b:
+                f = tb1
+                if w01 > wp.float64(0.0):
+                    f = f - w01 * (-n01)
+                if w11 > wp.float64(0.0):
+                    f = f - w11 * (-n11)
+                fb_end = fb_end + f
+            fb_start = fb_start - (wp.float64(1.0) - sa0) * ta0
+            fb_end = fb_end - sa0 * ta0
+            if two_a:
+                fb_start = fb_start - (wp.float64(1.0) - sa1) * ta1
+                fb_end = fb_end - sa1 * ta1
+    return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b
+
+
+@wp.func
+def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                 free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                 fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                 contact_share: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), a: int, b: int,
+                 exclusion: int, reach_a: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                 far: wp.float64):
+    """Edge a's side of :func:`pair_forces`: (fixed-point forces on a's start and end
+    node, segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite)."""
+    f_start, f_end, fb_start, fb_end, gap, gap_b = pair_forces(
+        x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a, p0, c0,
+        u_linear, far)
+    bad = int(0)
+    if not (finite_vec(f_start) and finite_vec(f_end) and gap == gap):
+        bad = 1
+    touching = int(0)
+    if gap < c0:
+        touching = 1
+    return to_fixed(f_start), to_fixed(f_end), gap, touching, bad
+
+
+@wp.func
+def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp.float64,
+             sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
+             contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
+    """Adds one side of a pair to edge e's fixed-point sums (integer addition:
+    the result does not depend on the order), smallest gap and touching count."""
+    wp.atomic_add(sum_start, e, to_fixed(f_start))
+    wp.atomic_add(sum_end, e, to_fixed(f_end))
+    wp.atomic_min(min_gap, e, gap)
+    if gap < c0:
+        wp.atomic_add(contacts, e, 1)
+    if not (finite_vec(f_start) and finite_vec(f_end) and gap == gap):
+        wp.atomic_max(bad, e, 1)
+
+
+@wp.func
+def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+               free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+               node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
+               mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64, p0: wp.float64,
+               c0: wp.float64, u_linear: wp.float64, far: wp.float64, sum_start: wp.array(dtype=vec3l),
+               sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
+               contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
+    """Pair (a, b) found by edge a: evaluated here when a < b or b takes no force
+    (an edge in the catheter: it runs no pass of its own), once for both sides."""
+    b_runs = edge_in_contact_pass(free, has_next, b)
+    if b > a or not b_runs:
+        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b = pair_forces(
+            x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
+            p0, c0, u_linear, far)
+        add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
+        if b_runs:
+            add_side(b, fb_start, fb_end, gap_b, c0, sum_start, sum_end, min_gap, contacts, bad)
+
+
+@wp.kernel
+def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(dtype=wp.float64),
+                    sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l),
+                    min_gap: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
+                    bad: wp.array(dtype=wp.int32)):
+    """Empty coil–coil sums before :func:`edge_contact` adds the pairs (smallest gap:
+    the world's query radius, reported where no pair was evaluated)."""
+    e = wp.tid()
+    sum_start[e] = vec3l()
+    sum_end[e] = vec3l()
+    min_gap[e] = query_radius[world_of[e]]
+    contacts[e] = 0
+    bad[e] = 0
 
 
 @wp.kernel
@@ -712,6 +858,7 @@ def edge_contact(
     running: wp.array(dtype=wp.int32),
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
@@ -722,67 +869,62 @@ def edge_contact(
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
-    force_start: wp.array(dtype=wp.vec3d),
-    force_end: wp.array(dtype=wp.vec3d),
+    sum_start: wp.array(dtype=vec3l),
+    sum_end: wp.array(dtype=vec3l),
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
+    bad: wp.array(dtype=wp.int32),
 ):
-    """Coil–coil contact on edge a's nodes: the node–capsule terms (:func:`pair_contact`)
-    joining a and every other edge b of the same ensemble member near it; reports
-    the smallest capsule–capsule gap and the pairs closer than c0. Candidates: a's neighbour list from the last
+    """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
+    and every other edge b of the same ensemble member near it, each pair evaluated
+    once (:func:`visit_pair`) and added to both edges' fixed-point sums, smallest
+    capsule–capsule gaps and touching counts (cleared by :func:`clear_edge_sums`;
+    integer sums commute, so the forces are bit-identical in any order, and to
+    evaluating each pair from both sides). Candidates: a's neighbour list from the last
     build (every edge whose midpoint was within query radius + skin then, so
     every edge whose midpoint is now within its world's ``query_radius`` while no midpoint
     has moved half the skin), or, when the list overflowed, the grid of that
     build searched ``grid_radius`` (= query radius + half the skin) around a's
     current midpoint. Bonded neighbours (same coil, closer than ``exclusion``
-    edges) are skipped. Each pair is evaluated from both sides, so every edge
-    writes only its own entries; the sums are fixed-point (order-independent).
-    Edges in the catheter stand in for the catheter: free edges are pushed off
-    them."""
+    edges) are skipped. Edges in the catheter stand in for the catheter: free
+    edges are pushed off them."""
     a = wp.tid()
-    sum_start = vec3l()
-    sum_end = vec3l()
-    bad = int(0)  # a non-finite contribution
     w = world_of[a]
     radius = query_radius[w]
-    gap_min = radius
-    touching = int(0)
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         listed = neighbour_count[a]
         if listed != NO_LIST:
             for k in range(listed):
-                start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
-                                                           neighbours[a, k], exclusion, reach_a, p0, c0, u_linear,
-                                                           radius)
-                sum_start = sum_start + start
-                sum_end = sum_end + end
-                gap_min = wp.min(gap_min, gap)
-                touching += hit
-                bad = wp.max(bad, wrong)
+                visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a,
+                           neighbours[a, k], exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end,
+                           min_gap, contacts, bad)
         else:
             query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
             b = int(0)
             while wp.hash_grid_query_next(query, b):
                 if not bonded(coil_of, exclusion, a, b):
-                    start, end, gap, hit, wrong = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                               exclusion, reach_a, p0, c0, u_linear, radius)
-                    sum_start = sum_start + start
-                    sum_end = sum_end + end
-                    gap_min = wp.min(gap_min, gap)
-                    touching += hit
-                    bad = wp.max(bad, wrong)
-    f_start = from_fixed(sum_start)
-    f_end = from_fixed(sum_end)
-    if bad != 0:
+                    visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b,
+                               exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts,
+                               bad)
+
+
+@wp.kernel
+def finish_edge_contact(sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l),
+                        bad: wp.array(dtype=wp.int32), force_start: wp.array(dtype=wp.vec3d),
+                        force_end: wp.array(dtype=wp.vec3d), min_gap: wp.array(dtype=wp.float64)):
+    """Edge e's coil–coil forces (µN) from its fixed-point sums; NaN (forces and
+    gap) when a contribution was non-finite."""
+    e = wp.tid()
+    f_start = from_fixed(sum_start[e])
+    f_end = from_fixed(sum_end[e])
+    if bad[e] != 0:
         nan = wp.float64(wp.nan)
         f_start = wp.vec3d(nan, nan, nan)
         f_end = f_start
-        gap_min = nan
-    force_start[a] = f_start
-    force_end[a] = f_end
-    min_gap[a] = gap_min
-    contacts[a] = touching
+        min_gap[e] = nan
+    force_start[e] = f_start
+    force_end[e] = f_end
 
 
 @wp.kernel

@@ -34,6 +34,7 @@ def balloon_contact(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     stations: wp.array(dtype=wp.vec3d),
     cap_radius: wp.array(dtype=wp.float64),
     station_first: wp.array(dtype=wp.int32),
@@ -44,7 +45,8 @@ def balloon_contact(
     u_linear: wp.float64,
     force: wp.array(dtype=wp.vec3d),
 ):
-    """Balloon force on each free node (µN; zero without a balloon or when deflated)."""
+    """Balloon force on each free node (µN; zero without a balloon or when deflated),
+    times its contact share (½ at a free end, as the wall's)."""
     i = wp.tid()
     f = wp.vec3d(F64_0, F64_0, F64_0)
     w = world_of[i]
@@ -66,7 +68,7 @@ def balloon_contact(
                 best = gap
                 normal = delta / dist
         if best < c0:
-            f = contact_force_magnitude(best, p0, c0, u_linear) * normal
+            f = contact_share[i] * contact_force_magnitude(best, p0, c0, u_linear) * normal
     force[i] = f
 
 

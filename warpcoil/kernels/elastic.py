@@ -211,10 +211,11 @@ def bonded_span(has_next: wp.array(dtype=wp.int32), i: int, span: int) -> bool:
 
 @wp.func
 def fold_force(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
-               node_radius: wp.array(dtype=wp.float64), i: int, span: int, p0: wp.float64, c0: wp.float64,
-               u_linear: wp.float64) -> wp.vec3d:
+               node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64), i: int, span: int,
+               p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.vec3d:
     """Neighbouring windings: node i against nodes i ± 2·span along its coil with
-    the contact law of the gap |x_i − x_j| − d. At rest they are about 2d apart
+    the contact law of the gap |x_i − x_j| − d, weighted by the smaller contact
+    share of the two (½ when one is a free end: its half patch). At rest they are about 2d apart
     (no force); the force appears only when the coil folds sharply (over ~113° at
     l0 = d), so a vertex cannot fold back onto itself, where the curvature of the
     angle form is singular. Bonded neighbours are otherwise out of contact."""
@@ -230,7 +231,8 @@ def fold_force(x: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
             dist = wp.length(delta)
             if dist > wp.float64(1.0e-12):
                 gap = dist - node_radius[i] - node_radius[j]
-                f = f + (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+                weight = wp.min(contact_share[i], contact_share[j])
+                f = f + (weight * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
     return f
 
 
@@ -249,6 +251,7 @@ def gather_forces(
     external: wp.array(dtype=wp.vec3d),
     contact: wp.array(dtype=wp.vec3d),
     node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
     fold_span: int,
     p0: wp.float64,
     c0: wp.float64,
@@ -280,7 +283,7 @@ def gather_forces(
     fold = wp.vec3d(F64_0, F64_0, F64_0)
     if free[i] != 0:
         share = wp.dot(f, push_axis[world_of[i]])
-        fold = fold_force(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
+        fold = fold_force(x, has_next, node_radius, contact_share, i, fold_span, p0, c0, u_linear)
     push_share[i] = share
     force[i] = f + external[i] + contact[i] + fold
     torque[i] = edge_torque(has_next, clamp_tangent, grad_theta, i)
