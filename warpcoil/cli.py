@@ -1,5 +1,5 @@
-"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil validate``, ``warpcoil bench``,
-``warpcoil coils``.
+"""Command line: ``warpcoil run SCENE.toml``, ``warpcoil sweep``, ``warpcoil plan``, ``warpcoil validate``,
+``warpcoil bench``, ``warpcoil coils``.
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
@@ -192,6 +192,48 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if 1 in codes else max(codes)
 
 
+def _plan(args: argparse.Namespace) -> int:
+    from .model import EnsembleError
+    from .plan import PLAN_OUTPUTS, PlanError, read_plan, run_plan
+    from .preflight import SetupError
+    from .preshape import PreshapeError
+    from .recorder import outputs
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
+    from .scene import SceneError
+    from .solver import UnstableStepError
+    from .sweep import SweepError, SweepIncomplete, SweepProgress, parse_vary
+    from .wall import WallError
+
+    out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_plan"
+    progress = SweepProgress(quiet=args.quiet)
+    try:
+        if args.workers is not None and (args.workers < 1 or args.scheduler):
+            raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler")
+        check_output_path(out)
+        if not args.scheduler:
+            _device(args.device)
+        plan = read_plan(Path(args.scene), [parse_vary(v) for v in args.vary or []])
+        progress.start(len(plan.options) * plan.perturbations)
+        names = PLAN_OUTPUTS + SWEEP_OUTPUTS
+        claim = claimed_folder(out, names, overwrite=True) if args.resume else \
+            claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+")
+        with claim:
+            result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
+                              args.resume)
+    except (PlanError, SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError,
+            SetupError, OutputFolderError) as error:
+        progress.close(failed=True)
+        print(f"warpcoil plan: {error}", file=sys.stderr)
+        return 2
+    except SweepIncomplete as error:
+        progress.close(failed=True)
+        print(f"warpcoil plan: {error}", file=sys.stderr)
+        return 1
+    progress.close()
+    print((out / "plan.md").read_text())
+    return 1 if any(r.rank == 0 for r in result.ranked) else 0  # an option none of whose runs gave a result
+
+
 def _validate(args: argparse.Namespace) -> int:
     from . import validation
 
@@ -278,6 +320,22 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("-q", "--quiet", action="store_true",
                        help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
+    plan = sub.add_parser("plan", help="deploy treatment options (the scene's [plan] or --vary), each with "
+                                       "perturbed catheter tips, and rank them: plan.md, plan.csv, plan.png")
+    plan.add_argument("scene", help="scene TOML file (with a [plan] table, docs/PLAN.md)")
+    plan.add_argument("--vary", action="append", metavar="KEY=A,B,C",
+                      help="options instead of [[plan.option]]: a scene key or device=none,balloon,stent (repeat "
+                           "for a product)")
+    plan.add_argument("-o", "--output", help="output folder (default out/<scene name>_plan)")
+    plan.add_argument("--device", help="Warp device, e.g. cpu or cuda:0 (default Warp's)")
+    plan.add_argument("--workers", type=int, metavar="N",
+                      help="processes of the embedded Dask cluster (default: one per core, or one per GPU)")
+    plan.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (docs/SWEEPS.md)")
+    plan.add_argument("--resume", action="store_true", help="keep deployments already complete; run the others")
+    plan.add_argument("--overwrite", action="store_true",
+                      help="replace the outputs of an earlier plan or sweep in the output folder (default: refuse)")
+    plan.add_argument("-q", "--quiet", action="store_true", help="no progress")
+    plan.set_defaults(func=_plan)
     coils = sub.add_parser("coils", help="list the coil catalogue (families, shapes, sizes, sources) for product = ...")
     coils.add_argument("--family", help="only the families whose name contains this text (case-insensitive)")
     coils.set_defaults(func=_coils)

@@ -212,7 +212,8 @@ _BALLOON = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _K
             "deflate_at_s": _Key(_positive), "deflation_time_s": _Key(_positive)}
 _STENT = {"axis": _Key(_polyline, "axis_mm", required=True), "diameter_mm": _Key(_positive),
           "cell_size_mm": _Key(_positive), "strut_diameter_mm": _Key(_positive)}
-_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon", "stent")
+_TABLES = ("wall", "neck", "catheter", "coil", "contact", "simulation", "output", "regions", "balloon", "stent",
+           "plan")  # [plan]: options of `warpcoil plan`, read by warpcoil.plan (ignored by a run)
 
 
 def _unknown(key: str, known: Sequence[str]) -> str:

@@ -86,6 +86,7 @@ class Member:
     values: dict  # the varied keys and their values
     result: dict | None = None  # its result.json
     resumed: bool = False  # found complete in the output folder (--resume)
+    label: str | None = None  # how progress names its values (default: key=value for each)
 
     @property
     def name(self) -> str:
@@ -140,7 +141,8 @@ def _summary_row(member: Member) -> dict:
 
 def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     rows = [_summary_row(m) for m in all_members]
-    columns = list(rows[0])
+    columns = list(dict.fromkeys(key for row in rows for key in row))  # members may vary different keys (a plan)
+    rows = [{c: row.get(c, "") for c in columns} for row in rows]
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
@@ -154,7 +156,8 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
 def member_line(member: Member) -> str:
     """One line on a finished member: its values, status, packing and time."""
     r = member.result
-    values = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in member.values.items())
+    values = member.label if member.label is not None else \
+        " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in member.values.items())
     packing = r.get("packing_density")
     facts = [r["status"], f"packing {100 * packing:.1f} %" if packing is not None else "no sac",
              f"{r.get('steps')} steps", f"{r.get('wall_time_s', 0.0):.1f} s"]
@@ -251,8 +254,17 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
               progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
               workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2
               ) -> list[Member]:
-    """Deploy every member on Dask; write their folders as they come back, then
-    the summary. ``progress(member)`` after each finished (or resumed) member.
+    """Deploy every member of the Cartesian product of ``varies`` (:func:`run_members`)."""
+    return run_members(scene_path, members(varies), out, device, progress, scheduler, workers, usd, resume, retries)
+
+
+def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | None = None,
+                progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
+                workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
+                title: str = "Sweep") -> list[Member]:
+    """Deploy every member (``todo``: indices 0…n−1, each with the scene keys it sets) on
+    Dask; write their folders as they come back, then the summary (headed ``title`` of
+    the scene). ``progress(member)`` after each finished (or resumed) member.
 
     Members that can share an ensemble are grouped (deploy.ensemble_groups) and
     each group is split into one task per worker thread (a CPU launch runs on one
@@ -262,7 +274,6 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     a complete result (:func:`complete_result`) are not rerun. Raises
     SweepIncomplete (after writing every member that finished) when a task still
     fails."""
-    todo = members(varies)
     scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
     folders = [out / m.name for m in todo]
     if resume:
@@ -318,10 +329,11 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
     statuses = [m.result["status"] for m in todo]
     resumed = sum(m.resumed for m in todo)
     rate = f" ({60.0 * len(pending) / elapsed:.3g} deployments/min)" if pending else ""
-    write_summary(out, todo, f"# Sweep of {scene_path.name}\n\n{len(todo)} members ({resumed} resumed) in "
+    write_summary(out, todo, f"# {title} of {scene_path.name}\n\n{len(todo)} members ({resumed} resumed) in "
                   f"{len(batches)} ensemble task(s) on {slots} Dask worker thread(s), {elapsed:.1f} s wall time"
                   f"{rate}; " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
     return todo
 
 
-__all__ = ["SweepError", "SweepIncomplete", "SweepProgress", "complete_result", "parse_vary", "run_sweep"]
+__all__ = ["Member", "SweepError", "SweepIncomplete", "SweepProgress", "complete_result", "parse_vary", "run_members",
+           "run_sweep"]
