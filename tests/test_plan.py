@@ -191,9 +191,9 @@ def test_plan_cli_ranks_the_options_as_plan_csv_says(tmp_path):
                 assert a["rank"] == b["rank"] == "=1" and not _beats(a, b)
     text = (out / "plan.md").read_text()
     assert text in stdout and "Tie rule" in text and "herniated length" in text
-    # the occlusion grade is each run's result.json class, in plan order (said to be missing if no run has it)
+    # the occlusion grade is each run's result.json modified class (IIIb after IIIa), in plan order (said to be missing if no run has it)
     results = [json.loads((out / f"member_{k:03d}" / "result.json").read_text()) for k in range(4)]
-    classes = [(r.get("occlusion") or {}).get("raymond_roy_class") for r in results]
+    classes = [raymond_roy_number((r.get("occlusion") or {}).get("modified_raymond_roy_class")) for r in results]
     by_option = {row["option"]: row["raymond_roy_class_values"] for row in rows}
     for k, name in enumerate(["tip deep in the sac", "tip below the neck, tilted"]):
         assert by_option[name] == ";".join("" if c is None else f"{c:g}" for c in classes[2 * k: 2 * k + 2])

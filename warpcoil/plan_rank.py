@@ -6,7 +6,8 @@ standard deviation over the option's runs). Criteria, in order of priority:
 
 1. herniated length (mm, lower is better): coil outside the sac (in the parent vessel);
 2. occlusion grade (Raymond–Roy class I = 1, II = 2, III / IIIa = 3, IIIb = 4; lower is
-   better), from ``result.json["occlusion"]["raymond_roy_class"]`` where the run gives it;
+   better), from ``result.json["occlusion"]["modified_raymond_roy_class"]`` (else
+   ``raymond_roy_class``) where the run gives it;
 3. neck coverage (% of the ostium, higher is better);
 4. packing density of the coil inside the sac (%, higher is better);
 5. peak push force (mN, lower is better): the largest frame-mean push force
@@ -44,8 +45,11 @@ def raymond_roy_number(value) -> float | None:
 
 
 def _occlusion(result: dict) -> float | None:
+    """The modified class (IIIa before IIIb) where the run gives it, else the class."""
     occlusion = result.get("occlusion")
-    return raymond_roy_number(occlusion.get("raymond_roy_class")) if isinstance(occlusion, dict) else None
+    if not isinstance(occlusion, dict):
+        return None
+    return raymond_roy_number(occlusion.get("modified_raymond_roy_class", occlusion.get("raymond_roy_class")))
 
 
 def _neck_coverage(result: dict) -> float | None:
@@ -88,7 +92,7 @@ class Criterion:
 
 CRITERIA = (
     Criterion("herniated_length_mm", "herniated length", "mm", True, 0.5, _herniated),
-    Criterion("raymond_roy_class", "occlusion (Raymond–Roy class)", "", True, 0.5, _occlusion),
+    Criterion("raymond_roy_class", "occlusion (Raymond–Roy: 1 = I, 2 = II, 3 = IIIa, 4 = IIIb)", "", True, 0.5, _occlusion),
     Criterion("neck_coverage_percent", "neck coverage", "%", False, 2.0, _neck_coverage),
     Criterion("packing_density_percent", "packing density in the sac", "%", False, 1.0, _packing),
     Criterion("peak_push_force_mN", "peak push force (largest frame mean)", "mN", True, 0.0, _push_force,
