@@ -255,3 +255,21 @@ def test_spec_without_mesh_or_sphere_is_refused() -> None:
 def test_sphere_wall_refuses_non_positive_diameter(diameter_mm: float) -> None:
     with pytest.raises(WallError, match="> 0"):
         sphere_wall(diameter_mm)
+
+
+def test_medial_axis_of_a_tube_is_inside() -> None:
+    """Points on a straight tube's axis are equidistant from opposite facets; Warp's
+    pseudo-normal sign sums their normals (ties within 1e-3 edge lengths) and called
+    most of them outside by ~1 mm (C0091 frame readings). The wall query's distance
+    is the facet apothem r cos(π/n) inside, and stays negative outside."""
+    from warpcoil.devices import wall_distances_mm
+
+    sections, radius = 48, 1.0
+    tube = trimesh.creation.cylinder(radius=radius, height=8.0, sections=sections)
+    wall = WallMesh(vertices_mm=np.asarray(tube.vertices), faces=np.asarray(tube.faces, np.int32),
+                    volume_mm3=float(tube.volume), notes=(), source=None)
+    z = np.linspace(-3.0, 3.0, 61)
+    axis = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+    np.testing.assert_allclose(wall_distances_mm(wall, axis), radius * math.cos(math.pi / sections), rtol=1e-9)
+    outside = axis + np.array([1.5 * radius, 0.0, 0.0])
+    np.testing.assert_allclose(wall_distances_mm(wall, outside), -0.5 * radius, atol=1e-9)

@@ -59,7 +59,8 @@ class WallModel:
         origin = 0.5 * (vertices_mm.min(axis=0) + vertices_mm.max(axis=0))
         local = vertices_mm - origin
         mesh = wp.Mesh(points=wp.array(local.astype(np.float32), dtype=wp.vec3, device=device),
-                       indices=wp.array(faces.ravel(), dtype=wp.int32, device=device))
+                       indices=wp.array(faces.ravel(), dtype=wp.int32, device=device),
+                       support_winding_number=True)  # contact.wall_query confirms "outside" by it
         return WallModel(mesh=mesh, vertices=wp.array(local, dtype=wp.vec3d, device=device),
                          faces=wp.array(faces.ravel(), dtype=wp.int32, device=device),
                          owners=feature_owners(faces), origin=origin,
