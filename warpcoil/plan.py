@@ -26,6 +26,7 @@ import numpy as np
 
 from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder.atomic import write_text_atomic
+from .sac import neck_frame
 from .scene import SceneError, load_scene
 from .sweep import Member, run_members
 
@@ -168,12 +169,8 @@ def _option(source: Path, document: dict, devices: dict, raw: dict, where: str, 
 
 def tilted(direction: np.ndarray, angle_deg: float, toward_deg: float) -> np.ndarray:
     """``direction`` (unit) tilted by ``angle_deg`` towards the azimuth ``toward_deg`` about it
-    (measured from the axis least aligned with it, projected normal to it)."""
-    d = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
-    reference = np.eye(3)[int(np.argmin(np.abs(d)))]
-    u = reference - (reference @ d) * d
-    u /= np.linalg.norm(u)
-    v = np.cross(d, u)
+    (measured from e1 of its :func:`~warpcoil.sac.neck_frame`)."""
+    u, v, d = neck_frame(direction)
     a, t = math.radians(angle_deg), math.radians(toward_deg)
     return math.cos(a) * d + math.sin(a) * (math.cos(t) * u + math.sin(t) * v)
 
