@@ -113,9 +113,9 @@ def test_a_frame_that_goes_unstable_is_redone_with_half_the_step(monkeypatch):
     real = Solver.world_health
     calls = {"n": 0}
 
-    def flaky(self, state, energy_budget_nJ=None):
+    def flaky(self, state, energy_budget_nJ=None, wall_distance_mm=None):
         calls["n"] += 1
-        energies, problems = real(self, state, energy_budget_nJ)
+        energies, problems = real(self, state, energy_budget_nJ, wall_distance_mm)
         if calls["n"] == 2:  # the first frame after the start
             problems = ["forced for the test at t = 0"]
         return energies, problems

@@ -57,9 +57,9 @@ def test_a_member_that_goes_unstable_is_rerun_alone(monkeypatch):
     real = Solver.world_health
     calls = {"n": 0, "alone": 0}
 
-    def flaky(self, state, energy_budget_nJ=None):
+    def flaky(self, state, energy_budget_nJ=None, wall_distance_mm=None):
         calls["n"] += 1
-        energies, problems = real(self, state, energy_budget_nJ)
+        energies, problems = real(self, state, energy_budget_nJ, wall_distance_mm)
         calls["alone"] += len(problems) == 1
         if calls["n"] == 3 and len(problems) == 2:
             problems = [problems[0], "forced for the test at t = 0"]

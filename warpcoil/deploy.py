@@ -348,7 +348,7 @@ class Ensemble:
             for m in running:
                 budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
                                                       push.mean_uN[m.world])
-            energies, problems = self.solver.world_health(state, budgets)
+            energies, problems = self.solver.world_health(state, budgets, snap.wall_distance)
             unstable = [m for m in running if problems[m.world] is not None]
             if unstable and single:
                 member = unstable[0]

@@ -512,15 +512,21 @@ class Solver:
         steps = np.maximum(acc[:, 3], 1.0)
         return PushForce(acc[:, 0] / steps, acc[:, 1], np.sqrt(acc[:, 2] / steps))
 
-    def world_health(self, state: State, energy_budget_nJ: np.ndarray | None = None
-                     ) -> tuple[dict[str, np.ndarray], list[str | None]]:
+    def world_health(self, state: State, energy_budget_nJ: np.ndarray | None = None,
+                     wall_distance_mm: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], list[str | None]]:
         """Per-world energies (as :meth:`world_energies`) and, per world, None or why
-        it is unstable: NaN, a runaway speed, or (with ``energy_budget_nJ``: the
+        it is unstable: NaN, a runaway speed, (with ``energy_budget_nJ``: the
         energy put in so far, by packing and pushing) kinetic + elastic energy
         above twice that budget — damping only removes energy, so more than was
-        put in means the integration is unstable."""
+        put in means the integration is unstable — or (with ``wall_distance_mm``:
+        every node's exact signed centre distance to its wall, > 0 in the lumen, as
+        ``take_snapshot`` measures it) a free node's centre past the wall: the
+        contact law stops every node at a gap above −d/2 long before, so a centre
+        outside means a step moved the node through the contact range c0 without
+        feeling it (a step too long for its speed)."""
         energies, bad = self.world_energies(state)
         total = sum(energies.values())
+        escaped = self._escaped_nodes(state, wall_distance_mm)
         problems: list[str | None] = []
         for w in range(self.model.world_count):
             problem = None
@@ -529,8 +535,26 @@ class Solver:
             elif energy_budget_nJ is not None and total[w] > 2.0 * energy_budget_nJ[w]:
                 problem = (f"energy blow-up: kinetic + elastic {total[w]:.4g} nJ > twice the energy put in "
                            f"({energy_budget_nJ[w]:.4g} nJ)")
+            elif escaped[w] is not None:
+                count, deepest = escaped[w]
+                problem = (f"{count} free node centre(s) past the wall (deepest {deepest:.3g} mm outside the "
+                           f"lumen): a step carried them through the contact range c0 = "
+                           f"{self.model.contact.c0_mm:.3g} mm unseen")
             problems.append(None if problem is None else self.unstable_reason(problem, state.time_s))
         return energies, problems
+
+    def _escaped_nodes(self, state: State, wall_distance_mm: np.ndarray | None) -> list[tuple[int, float] | None]:
+        """Per world: (count, deepest mm) of its free nodes whose centre lies past the wall, or None."""
+        m = self.model
+        if wall_distance_mm is None or not self.has_wall:
+            return [None] * m.world_count
+        outside = (state.free.numpy() == 1) & (wall_distance_mm < 0.0)
+        escaped: list[tuple[int, float] | None] = []
+        for w in range(m.world_count):
+            sl = m.world_nodes(w)
+            count = int(outside[sl].sum())
+            escaped.append((count, float(-wall_distance_mm[sl][outside[sl]].min())) if count else None)
+        return escaped
 
     def unstable_reason(self, problem: str, time_s: float) -> str:
         return (f"{problem} at t = {time_s:.6f} s (dt = {self.dt_s:.3e} s, bound {self.bound.dt_s:.3e} s set "
