@@ -80,6 +80,7 @@ class ImplicitSolver(Solver):
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
+        self._wall_stiffness = mats()  # per node: the wall's contact stiffness (µN/mm)
         self._rhs, self._y, self._v, self._r, self._z, self._p, self._q = (vecs() for _ in range(7))
         self._rz = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         self._pair_count = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -112,10 +113,15 @@ class ImplicitSolver(Solver):
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
+        if self.has_wall:
+            wp.launch(kernels.wall_stiffness, n, device=dev, inputs=[
+                state_in.x, state_in.free, m.world_of, control.running, m.node_radius, self.wall_force,
+                self.wall_distance, m.wall_mesh, m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces,
+                m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear, self._wall_stiffness])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
-            m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
+            m.rest_length, m.k_bend, self._wall_stiffness, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)

@@ -57,6 +57,7 @@ from .contact import (
     segment_closest_params,
     to_fixed,
     vec3l,
+    wall_feature_stiffness,
 )
 from .elastic import bonded_span, edge_torque
 from .integrate import catheter_point, coil_advance, pushed
@@ -317,6 +318,44 @@ def damping_rate(speed: wp.float64, c: wp.float64, k: wp.float64) -> wp.float64:
 
 
 @wp.kernel
+def wall_stiffness(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    wall_force: wp.array(dtype=wp.vec3d),
+    wall_distance: wp.array(dtype=wp.float64),
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    owners: wp.array(dtype=wp.int32),
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    stiffness: wp.array(dtype=wp.mat33d),
+):
+    """The wall's contact stiffness on each free node pressed by it (µN/mm, the law's
+    full k: an upper bound at a half-share end node): in the lumen the feature sum's
+    Σ ± k n nᵀ (every face that pushes, in its own direction:
+    contact.wall_feature_stiffness); outside it, k n nᵀ along the force."""
+    i = wp.tid()
+    k = wp.mat33d()
+    w = world_of[i]
+    fw = wall_force[i]
+    magnitude = wp.length(fw)
+    if free[i] != 0 and running[w] != 0 and magnitude > F64_0:
+        if wall_distance[i] > F64_0 and meshes[w] != wp.uint64(0):
+            k = wall_feature_stiffness(meshes[w], vertices, faces, owners, face_first[w], x[i] - origins[w],
+                                       node_radius[i], p0, c0, u_linear)
+        else:
+            k = sym_outer(fw / magnitude, contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear))
+    stiffness[i] = k
+
+
+@wp.kernel
 def assemble_blocks(
     x: wp.array(dtype=wp.vec3d),
     v: wp.array(dtype=wp.vec3d),
@@ -331,8 +370,7 @@ def assemble_blocks(
     k_stretch: wp.array(dtype=wp.float64),
     rest_length: wp.array(dtype=wp.float64),
     k_bend: wp.array(dtype=wp.float64),
-    wall_force: wp.array(dtype=wp.vec3d),
-    wall_distance: wp.array(dtype=wp.float64),
+    wall_stiffness: wp.array(dtype=wp.mat33d),
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
     coil_contact: int,
@@ -389,11 +427,7 @@ def assemble_blocks(
     u1 = u1 + kb_mid * (mid_i * g0) - kb_next * (g0 * (g0 + g1))
     u2 = u2 + kb_next * (g0 * g1)
     if free[i] != 0:
-        fw = wall_force[i]
-        magnitude = wp.length(fw)
-        if magnitude > F64_0:
-            k = contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear)
-            h = h + sym_outer(fw / magnitude, k)
+        h = h + wall_stiffness[i]
         h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     dt2 = dt * dt
     mass = mass + dt * damping_rate(wp.length(v[i]), damping_c[i], damping_k)  # damping linearised at v
