@@ -504,6 +504,12 @@ def implicit_devices() -> list[CaseResult]:
     return implicit_device_cases()
 
 
+def implicit_wall() -> list[CaseResult]:
+    """The implicit step's wall stiffness: the force's Jacobian, rest in a groove (validation_implicit_wall.py)."""
+    from .validation_implicit_wall import implicit_wall_cases
+    return implicit_wall_cases()
+
+
 def friction() -> list[CaseResult]:
     """Regularised Coulomb friction: incline, capstan, energy (validation_friction.py)."""
     from .validation_friction import friction_cases
@@ -797,6 +803,7 @@ CASES = {
     "timestep": timestep_convergence,
     "implicit": implicit_cases,
     "implicit-devices": implicit_devices,
+    "implicit-wall": implicit_wall,
 }
 
 
