@@ -27,6 +27,7 @@ from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
 from .state import State
+from .wall_field import GRAD_TOLERANCE
 
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
@@ -117,7 +118,8 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.wall_stiffness, n, device=dev, inputs=[
                 state_in.x, state_in.free, m.world_of, control.running, m.node_radius, self.wall_force,
                 self.wall_distance, m.wall_mesh, m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces,
-                m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear, self._wall_stiffness])
+                m.wall_owners, self._field_ids, GRAD_TOLERANCE, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                self._wall_stiffness])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

@@ -52,6 +52,7 @@ from .contact import (
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
+    field_sample,
     from_fixed,
     rest_offset,
     segment_closest_params,
@@ -332,13 +333,17 @@ def wall_stiffness(
     vertices: wp.array(dtype=wp.vec3d),
     faces: wp.array(dtype=wp.int32),
     owners: wp.array(dtype=wp.int32),
+    fields: wp.array(dtype=wp.uint64),
+    grad_tolerance: wp.float64,
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
     stiffness: wp.array(dtype=wp.mat33d),
 ):
     """The wall's contact stiffness on each free node pressed by it (µN/mm, the law's
-    full k: an upper bound at a half-share end node): in the lumen the feature sum's
+    full k: an upper bound at a half-share end node), as the wall pass took its force
+    (contact.wall_contact): where the wall field is trusted (no crease in its stencil),
+    the law's k n nᵀ along the field's normal; elsewhere in the lumen the feature sum's
     Σ ± k n nᵀ (every face that pushes, in its own direction:
     contact.wall_feature_stiffness); outside it, k n nᵀ along the force."""
     i = wp.tid()
@@ -347,7 +352,11 @@ def wall_stiffness(
     fw = wall_force[i]
     magnitude = wp.length(fw)
     if free[i] != 0 and running[w] != 0 and magnitude > F64_0:
-        if wall_distance[i] > F64_0 and meshes[w] != wp.uint64(0):
+        summed = wall_distance[i] > F64_0 and meshes[w] != wp.uint64(0)
+        if summed and fields[w] != wp.uint64(0):
+            trusted, sampled, normal = field_sample(fields[w], x[i] - origins[w], grad_tolerance)
+            summed = not trusted
+        if summed:
             k = wall_feature_stiffness(meshes[w], vertices, faces, owners, face_first[w], x[i] - origins[w],
                                        node_radius[i], p0, c0, u_linear)
         else:
