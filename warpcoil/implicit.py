@@ -39,8 +39,8 @@ from .state import State
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
-IMPLICIT_ADVANCE_PER_C0 = 0.8
-IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
+IMPLICIT_ADVANCE_PER_C0 = 1.6
+IMPLICIT_DT_MAX_S = 1.0e-3  # and never more than this (a released coil's damping time ~1.3 ms)
 # default step once every coil is out (no pusher to follow): the settling is an overdamped creep
 # (kinetic energy decays with τ ≈ 60 ms on the seed case), resolved by a few ms (BENCHMARKS.md)
 IMPLICIT_SETTLE_DT_S = 2.0e-3
