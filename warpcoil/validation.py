@@ -510,6 +510,13 @@ def friction() -> list[CaseResult]:
     return friction_cases()
 
 
+def push_force() -> list[CaseResult]:
+    """The push force where it is known: a straight coil into free space (damping) and
+    at rest on a wall (the wall's reaction), both integrators (validation_push.py)."""
+    from .validation_push import push_force_cases
+    return push_force_cases()
+
+
 def contact_share() -> list[CaseResult]:
     """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
     from .validation_contact import contact_share_cases
@@ -799,6 +806,7 @@ CASES = {
     "timestep": timestep_convergence,
     "implicit": implicit_cases,
     "implicit-devices": implicit_devices,
+    "push-force": push_force,
 }
 
 
