@@ -26,6 +26,8 @@ step), so both integrators integrate the same forces.
 
 from __future__ import annotations
 
+import math
+
 import warp as wp
 
 from .devices import ImplicitDeviceStiffness
@@ -39,19 +41,21 @@ from .state import State
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
-IMPLICIT_ADVANCE_PER_C0 = 1.6
-IMPLICIT_DT_MAX_S = 1.0e-3  # and never more than this (a released coil's damping time ~1.3 ms)
+IMPLICIT_ADVANCE_PER_C0 = 0.8
+IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
 # default step once every coil is out (no pusher to follow): the settling is an overdamped creep
 # (kinetic energy decays with τ ≈ 60 ms on the seed case), resolved by a few ms (BENCHMARKS.md)
 IMPLICIT_SETTLE_DT_S = 2.0e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler). Its numerical damping of the slow
-# modes scales with θ − ½, its decay of the stiff ones (ω dt ≫ 1) is (1 − θ)/θ per step (0.43 at 0.7:
-# a stiff-mode disturbance below 1 % in 6 steps); chosen with the push step on the run-time/error
-# front (docs/FORMULATION.md "Implicit step", bench accuracy)
-IMPLICIT_THETA = 0.7
+# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). θ = 0.7 (numerical
+# damping of the slow modes ∝ θ − ½; stiff modes decay by (1 − θ)/θ = 0.43 per step) gets the push
+# force right (0.07–0.14 F0 off at 0.8–1.2 c0 per step against Euler's 0.36 F0, bench accuracy) but is
+# not the default: it let a coil press into thin stent struts 4× deeper than Euler (0.058 against
+# 0.016 mm; the reference 0.006) and did not come to rest at the 2 ms settling step
+# (docs/FORMULATION.md "Implicit step: push force")
+IMPLICIT_THETA = 1.0
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
@@ -114,8 +118,9 @@ class ImplicitSolver(Solver):
         m, dev, n = self.model, self.model.device, self.model.node_count
         dt = self.dt_s if dt is None else dt
         theta = self.theta
-        dt_m = theta * dt  # the system matrix is M + θ dt B + (θ dt)² H
+        dt_m = theta * dt  # the system matrix is M + θ dt B + θ² dt² H + θ dt² K_c
         c = m.contact
+        p0_stiff = c.p0_uN / theta  # contact stiffness K_c/θ in a matrix assembled at θ dt: θ dt² K_c
         self.compute_forces(state_in, control.running)
         # catheter kinematics, releases and pusher advance as the reference has them
         wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
@@ -127,17 +132,18 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
-            int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt_m,
+            int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
-            self._devices.add(self, state_in, control.running, dt_m, self._diag, self._diag_exact, self._upper1)
+            self._devices.add(self, state_in, control.running, math.sqrt(theta) * dt, self._diag, self._diag_exact,
+                              self._upper1)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
