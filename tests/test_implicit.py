@@ -240,6 +240,16 @@ def test_push_force_on_a_wall_at_rest_is_the_wall_reaction(integrator):
     assert analytic > 1.2 * P0_UN * 0.5  # pressed past zero clearance: the law's stiff part
 
 
+def test_a_theta_method_run_settles_with_the_euler_step():
+    """θ < 1 (less numerical damping) during the push; at the settling step the linearly
+    implicit Euler step (θ = 1) brings the coil to rest."""
+    deployment = Deployment(implicit_scene(), solver_options={"theta": 0.7})
+    assert deployment.solver.theta == 0.7
+    result = deployment.run()
+    assert result.status == "completed" and deployment.solver.theta == 1.0
+    assert deployment.solver.dt_s == deployment.settle_dt_s
+
+
 def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
     """Once every coil is out (the scheduled push end) the default implicit step goes on
     at the settling step, the frame length kept; a step the scene gives is kept to the end."""

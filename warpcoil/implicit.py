@@ -51,10 +51,10 @@ IMPLICIT_SETTLE_DT_S = 2.0e-3
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 # θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). θ = 0.7 (numerical
 # damping of the slow modes ∝ θ − ½; stiff modes decay by (1 − θ)/θ = 0.43 per step) gets the push
-# force right (0.07–0.14 F0 off at 0.8–1.2 c0 per step against Euler's 0.36 F0, bench accuracy) but is
-# not the default: it let a coil press into thin stent struts 4× deeper than Euler (0.058 against
-# 0.016 mm; the reference 0.006) and did not come to rest at the 2 ms settling step
-# (docs/FORMULATION.md "Implicit step: push force")
+# force right (0.05–0.16 F0 off at 0.8–2.4 c0 per step against Euler's 0.36–0.46 F0, bench accuracy) but is
+# not the default: it let a coil press into thin stent struts twice as deep as Euler (0.034 against
+# 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
+# docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
