@@ -705,7 +705,8 @@ def _positions_at(model, start: np.ndarray, solver: Solver, time_s: float) -> np
     return stepper.run_chunk().x.numpy()
 
 
-def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025)) -> list[CaseResult]:
+def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025),
+                         theta: float | None = None) -> list[CaseResult]:
     """The implicit step against the reference integrator (symplectic Euler at
     0.005 × its bound) as dt shrinks: RMS node distance at ``time_s`` over the
     reference's RMS displacement, for dt = factor × the explicit bound, and the
@@ -720,16 +721,19 @@ def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0
     bound = reference.bound.dt_s
     errors = []
     for f in factors:
-        x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False), time_s)
+        options = {} if theta is None else {"theta": theta}
+        x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False, **options),
+                          time_s)
         errors.append(float(np.sqrt(((x - x_ref) ** 2).sum(axis=1).mean())) / scale)
     orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
-    rows = [CaseResult(f"implicit vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
+    label = "implicit" if theta is None else f"implicit θ {theta:g}"
+    rows = [CaseResult(f"{label} vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
             for f, e in zip(factors, errors)]
-    rows.append(_row("implicit: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
+    rows.append(_row(f"{label}: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
     # rising towards 1: no pair falls back by more than 0.01 (the two coarsest sit on a plateau, equal to
     # ~1e-4) and the finest is clearly above the coarsest
     rising = all(b > a - 0.01 for a, b in zip(orders, orders[1:])) and orders[-1] > orders[0] + 0.05
-    rows.append(CaseResult("implicit: observed order rises as dt shrinks", 1.0, float(rising),
+    rows.append(CaseResult(f"{label}: observed order rises as dt shrinks", 1.0, float(rising),
                            0.0 if rising else 1.0, 0.0))
     return rows
 
@@ -780,7 +784,7 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
 def implicit_cases() -> list[CaseResult]:
     """The implicit step: convergence to the reference, numerical damping, and the
     cantilever and helix recovery at its default step."""
-    rows = implicit_convergence() + implicit_damping() + implicit_damping(theta=0.7)
+    rows = implicit_convergence() + implicit_convergence(theta=0.7) + implicit_damping() + implicit_damping(theta=0.7)
     result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
     rows.append(_row("implicit default step: cantilever PL²/EI=5, 50 segments: δ/L", reference, result, 5e-3))
     return rows + helix_recovery(integrator="implicit")
