@@ -150,6 +150,9 @@ OWN_VERTEX_A = wp.constant(8)
 OWN_VERTEX_B = wp.constant(16)
 OWN_VERTEX_C = wp.constant(32)
 BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes
+# a face farther than the contact range by this is skipped with its edges and vertices (each at
+# least as far: they belong to the closed face); ≫ the float64 rounding of either distance
+FEATURE_SKIP_MM = wp.constant(wp.float64(1.0e-9))
 
 
 @wp.func
@@ -229,7 +232,9 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     closest-point force; in a groove between facets both faces push. Every term
     is continuous in p with a continuous gradient, so is the sum: the force of a
     potential with no jumps at facet edges (the closest-face normal of
-    :func:`wall_query` jumps there). Fixed-point sum: order-independent.
+    :func:`wall_query` jumps there). Fixed-point sum: order-independent. A face
+    beyond the contact range is skipped with its edges and vertices (none of
+    them nearer than the face: no term in range, the same sum).
     Also returns the distance (mm, float64) from p to the closest face within
     reach (FAR_MM if none): exact whenever it is below ``radius + c0``."""
     reach = radius + c0 + BOX_MARGIN_MM
@@ -244,9 +249,12 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]
         c = vertices[faces[3 * k + 2]]
-        own = owners[k]
         closest = closest_on_triangle(p, a, b, c)
-        nearest = wp.min(nearest, wp.length(p - closest))
+        dist = wp.length(p - closest)
+        nearest = wp.min(nearest, dist)
+        if dist >= radius + c0 + FEATURE_SKIP_MM:  # its edges and vertices are no nearer: no term in range
+            continue
+        own = owners[k]
         total = total + feature_force(p, closest, radius, p0, c0, u_linear)
         if own & OWN_EDGE_AB:
             total = total - feature_force(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
