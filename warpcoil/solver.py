@@ -30,6 +30,7 @@ WALL_QUERIES = ("sdf", "bvh")  # wall distance from the narrow-band field (BVH w
 FIELD_REGION_MM = 1.0  # the wall field covers the loop diameter + this around the catheter tip (BVH beyond)
 NEIGHBOUR_SKIN_MM = 0.2  # coil–coil neighbour grid rebuilt when a midpoint moved half this (seed case: 0.2 beats 0.05 by ~8 %, bit-identical)
 NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches the grid instead
+TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the implicit step searches its list)
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 
 
@@ -214,6 +215,7 @@ class Solver:
     """
 
     integrator = "symplectic"
+    record_touching = False  # note each edge's touching partners in the contact pass (the implicit step reads them)
     kernel_modules = (contact, devices, elastic, friction, integrate)  # loaded before a graph capture
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
@@ -294,6 +296,9 @@ class Solver:
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         self._edge_sum_start, self._edge_sum_end = zeros(contact.vec3l), zeros(contact.vec3l)  # fixed point
         self._edge_bad = zeros(wp.int32)
+        # per edge, its partners within a hair of touching (noted by the contact pass for the implicit step)
+        self._touch_count = zeros(wp.int32)
+        self._touch_b = wp.zeros((n, TOUCHING_PER_EDGE if self.record_touching else 1), dtype=wp.int32, device=dev)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -355,12 +360,14 @@ class Solver:
                 self._build_grid()
             sums = (self._edge_sum_start, self._edge_sum_end)
             wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
-                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad,
+                self._touch_count])
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+                *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
+                self._touch_count, self._touch_b])
             wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
                 *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

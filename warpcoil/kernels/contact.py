@@ -827,6 +827,18 @@ def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp
         wp.atomic_max(bad, e, 1)
 
 
+TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding between the two sides' gap evaluations
+
+
+@wp.func
+def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
+    """Note ``other`` among edge e's touching partners, in whatever order they come
+    (readers must not depend on it); a count above the record's width means it overflowed."""
+    slot = wp.atomic_add(touch_count, e, 1)
+    if slot < touch_b.shape[1]:
+        touch_b[e, slot] = other
+
+
 @wp.func
 def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
@@ -834,9 +846,12 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
                mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64, p0: wp.float64,
                c0: wp.float64, u_linear: wp.float64, far: wp.float64, sum_start: wp.array(dtype=vec3l),
                sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
-               contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
+               contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32), record: int,
+               touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
     """Pair (a, b) found by edge a: evaluated here when a < b or b takes no force
-    (an edge in the catheter: it runs no pass of its own), once for both sides."""
+    (an edge in the catheter: it runs no pass of its own), once for both sides;
+    with ``record``, a pair within TOUCH_MARGIN_MM of touching is noted on both
+    sides (:func:`note_touching`)."""
     b_runs = edge_in_contact_pass(free, has_next, b)
     if b > a or not b_runs:
         fa_start, fa_end, fb_start, fb_end, gap_a, gap_b = pair_forces(
@@ -845,13 +860,17 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
         if b_runs:
             add_side(b, fb_start, fb_end, gap_b, c0, sum_start, sum_end, min_gap, contacts, bad)
+        if record != 0 and gap_a < c0 + TOUCH_MARGIN_MM:
+            note_touching(a, b, touch_count, touch_b)
+            if b_runs:
+                note_touching(b, a, touch_count, touch_b)
 
 
 @wp.kernel
 def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(dtype=wp.float64),
                     sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l),
                     min_gap: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
-                    bad: wp.array(dtype=wp.int32)):
+                    bad: wp.array(dtype=wp.int32), touch_count: wp.array(dtype=wp.int32)):
     """Empty coil–coil sums before :func:`edge_contact` adds the pairs (smallest gap:
     the world's query radius, reported where no pair was evaluated)."""
     e = wp.tid()
@@ -860,6 +879,7 @@ def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(d
     min_gap[e] = query_radius[world_of[e]]
     contacts[e] = 0
     bad[e] = 0
+    touch_count[e] = 0
 
 
 @wp.kernel
@@ -889,6 +909,9 @@ def edge_contact(
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
     bad: wp.array(dtype=wp.int32),
+    record: int,
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
 ):
     """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
     and every other edge b of the same ensemble member near it, each pair evaluated
@@ -902,7 +925,9 @@ def edge_contact(
     build searched ``grid_radius`` (= query radius + half the skin) around a's
     current midpoint. Bonded neighbours (same coil, closer than ``exclusion``
     edges) are skipped. Edges in the catheter stand in for the catheter: free
-    edges are pushed off them."""
+    edges are pushed off them. With ``record``, each edge's partners within
+    TOUCH_MARGIN_MM of touching are noted (``touch_count``, ``touch_b``) for the
+    implicit step's contact stiffness."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -913,7 +938,7 @@ def edge_contact(
             for k in range(listed):
                 visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a,
                            neighbours[a, k], exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end,
-                           min_gap, contacts, bad)
+                           min_gap, contacts, bad, record, touch_count, touch_b)
         else:
             query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
             b = int(0)
@@ -921,7 +946,7 @@ def edge_contact(
                 if not bonded(coil_of, exclusion, a, b):
                     visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b,
                                exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts,
-                               bad)
+                               bad, record, touch_count, touch_b)
 
 
 @wp.kernel
