@@ -326,7 +326,9 @@ class Solver:
         wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
             self._midpoints, self._built_midpoints, self._rebuild])
         m = self.model
-        self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of)
+        # one world: no groups (its grouped queries see every point, in the same order; Warp's CPU build
+        # sorts 32- instead of 64-bit keys then)
+        self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of if m.world_count > 1 else None)
         wp.launch(contact.build_neighbours, m.node_count, device=m.device, inputs=[
             self._grid.id, self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.contact.exclusion_edges,
             self._list_radius, self._neighbours, self._neighbour_count])
