@@ -323,6 +323,7 @@ def wall_contact(
     seen_distance: wp.array(dtype=wp.float64),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
+    searches: wp.array(dtype=wp.int32),
 ):
     """Wall force on each free node (µN; the wall of the node's ensemble member,
     none where its mesh id is 0), times the node's ``contact_share`` (½ at a free
@@ -354,10 +355,12 @@ def wall_contact(
     last searched in the lumen at centre distance s (``seen_x``,
     ``seen_distance``) and has since moved less than s − ``anchor_margin`` is still
     in the lumen (the distance is 1-Lipschitz), so with ``sided_skip`` its signed
-    BVH query is skipped: the feature sum alone gives force and distance, and
-    only if it finds no face within the contact range is the node searched in
-    full. The result is bit-identical to the full search (tested).
-    Writes the centre's signed distance (mm; for a node not
+    BVH query is skipped: the feature sum alone gives force and distance (and,
+    the node being in the lumen at that exact distance, a new (``seen_x``,
+    ``seen_distance``) to go on from: a node sliding along the wall is not searched
+    in full again), and only if it finds no face within the contact range is the
+    node searched in full. The result is bit-identical to the full search (tested).
+    Counts each node's signed BVH queries (``searches``). Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
     anchored with; +FAR in the catheter or without a wall)."""
     i = wp.tid()
@@ -392,7 +395,10 @@ def wall_contact(
                     f = summed
                     signed = nearest
                     done = True
+                    seen_x[i] = x[i]  # in the lumen at that distance: a new certificate
+                    seen_distance[i] = nearest
         if not done:  # the BVH
+            searches[i] = searches[i] + 1
             if side < 0:
                 reach = FAR_MM
             face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)
