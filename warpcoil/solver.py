@@ -314,7 +314,7 @@ class Solver:
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
-        self._measure_graphs: dict = {}  # (id(state), id(running)) → (state, running, graph): measure_contacts
+        self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
 
     # --- one step ----------------------------------------------------------
     def _launch_midpoints(self, state: State) -> None:
@@ -398,24 +398,35 @@ class Solver:
 
     def measure_contacts(self, state: State, running: wp.array) -> None:
         """:meth:`compute_contacts` with exact wall distances for every node (the frame
-        measurement's pass), replayed from a graph captured once per (state, running)
-        pair (a frame's ~10 launches cost ~0.4 ms from Python on the CPU)."""
+        measurement's pass; replayed, :meth:`_replayed`)."""
         far = float(contact.FAR_MM)
-        dev = self.model.device
-        if not (dev.is_cpu or dev.is_cuda):
-            self.compute_contacts(state, wall_search_mm=far, running=running)
-            return
-        key = (id(state), id(running))
-        if key not in self._measure_graphs:  # the entry holds state and running: their ids stay theirs
+        if ("contacts", id(state), id(running)) not in self._graphs:
             self.allocate_neighbour_grid(state)  # no allocation inside the capture
+        self._replayed("contacts", state, running,
+                       lambda: self.compute_contacts(state, wall_search_mm=far, running=running))
+
+    def _replayed(self, name: str, state: State, extra, launches) -> None:
+        """Run ``launches()`` (kernel launches on ``state`` and ``extra``) from a graph
+        captured at its first call for this (name, state, extra): a frame's
+        measurements launch ~12 kernels, ~0.5 ms from Python on the CPU. The last
+        MEASURE_GRAPHS graphs are kept (each holding its state and extra, so their
+        ids stay theirs); a device that cannot capture them launches them as they are."""
+        dev = self.model.device
+        key = (name, id(state), id(extra))
+        if key not in self._graphs:
+            if not (dev.is_cpu or dev.is_cuda):
+                launches()
+                return
             try:
                 with wp.ScopedCapture(device=dev) as capture:
-                    self.compute_contacts(state, wall_search_mm=far, running=running)
-            except RuntimeError:  # a driver that cannot capture this: launch it as it is
-                self.compute_contacts(state, wall_search_mm=far, running=running)
+                    launches()
+            except RuntimeError:
+                launches()
                 return
-            self._measure_graphs[key] = (state, running, capture.graph)
-        wp.capture_launch(self._measure_graphs[key][2])
+            if len(self._graphs) >= MEASURE_GRAPHS:
+                self._graphs.pop(next(iter(self._graphs)))
+            self._graphs[key] = (state, extra, capture.graph)
+        wp.capture_launch(self._graphs[key][2])
 
     def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
@@ -490,10 +501,14 @@ class Solver:
         """Per world: kinetic (free nodes, translation + spin), stretching, bending and
         twisting energy (nJ), and the count of non-finite or runaway nodes."""
         m = self.model
-        wp.launch(integrate.kinetic_energies, m.node_count, device=m.device, inputs=[
-            state.v, state.omega, state.free, m.inv_mass, m.inv_inertia, self._kinetic, self._unhealthy,
-            SPEED_LIMIT_MM_S])
-        self._launch_elastic_energies(state)
+
+        def launches():
+            wp.launch(integrate.kinetic_energies, m.node_count, device=m.device, inputs=[
+                state.v, state.omega, state.free, m.inv_mass, m.inv_inertia, self._kinetic, self._unhealthy,
+                SPEED_LIMIT_MM_S])
+            self._launch_elastic_energies(state)
+
+        self._replayed("energies", state, None, launches)
         per_node = {"kinetic_nJ": self._kinetic.numpy(), "stretch_nJ": self._stretch_e.numpy(),
                     "bend_nJ": self._bend_e.numpy(), "twist_nJ": self._twist_e.numpy()}
         worlds = [m.world_nodes(w) for w in range(m.world_count)]
@@ -584,6 +599,7 @@ class Solver:
 # ~7 µs per graph; 8 keeps replays under 1 µs a step and a capture short (the seed case's 22-step
 # frames: 2-step graphs, first frame 128 → 13 ms)
 GRAPH_STEPS_MAX = 8
+MEASURE_GRAPHS = 8  # captured measurement graphs a solver keeps (Solver._replayed)
 
 
 def graph_steps(chunk: int) -> int:
