@@ -436,6 +436,9 @@ def wall_contact(
 
 
 # --- coil–coil -----------------------------------------------------------------
+TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of two evaluations of one gap
+
+
 @wp.func
 def segment_closest_params(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3d) -> wp.vec2d:
     """Parameters (s, t) in [0, 1]² of the closest points of segments p1q1 and p2q2
@@ -695,7 +698,10 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     closest points jump between segment ends when two segments turn parallel; a
     node's closest point on a segment does not), so the forces have no jumps.
     Evaluated when the midpoints are within ``far`` (the world's query radius:
-    the same cutoff whichever way b was found) and the bounding spheres meet."""
+    the same cutoff whichever way b was found) and the bounding spheres meet; a
+    pair whose segments are farther apart than c0 (+ TOUCH_MARGIN_MM) has no term
+    in range (each node–capsule and node–node distance is at least the segments',
+    and a rest offset only adds to a gap) and returns zero forces at once."""
     zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     fa_start = zero
     fa_end = zero
@@ -713,6 +719,8 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            if gap_a >= c0 + TOUCH_MARGIN_MM:  # no term in range: every node is at least as far, offsets add
+                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a
             if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
                 gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
             gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
@@ -831,9 +839,6 @@ def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp
         wp.atomic_add(contacts, e, 1)
     if not (finite_vec(f_start) and finite_vec(f_end) and gap == gap):
         wp.atomic_max(bad, e, 1)
-
-
-TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding between the two sides' gap evaluations
 
 
 @wp.func
