@@ -252,7 +252,8 @@ def edge_contact_stiffness(
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
-    touching: wp.array(dtype=wp.int32),
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
     pair_count: wp.array(dtype=wp.int32),
@@ -261,12 +262,14 @@ def edge_contact_stiffness(
     pair_k: wp.array2d(dtype=wp.float64),
     pair_n: wp.array2d(dtype=wp.vec3d),
 ):
-    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
-    as contact.edge_contact finds its partners, for the edges it found touching
-    (``touching``: its per-edge count of touching pairs at the same state);
-    fixed-point sums, so the result does not depend on the order the partners
-    are found in. Each touching pair is also recorded (``record_pair``) for the
-    exact product with the contact stiffness."""
+    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
+    partners that contact.edge_contact noted within a hair of touching at the same
+    state (``touch_count``, ``touch_b``; every pair this finds touching is among
+    them), or, when more than the record holds, over a's partners found as
+    contact.edge_contact finds them; fixed-point sums, so the result does not
+    depend on the order the partners come in (a partner not touching adds zero).
+    Each touching pair is also recorded (``record_pair``, sorted by partner) for
+    the exact product with the contact stiffness."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -275,10 +278,24 @@ def edge_contact_stiffness(
     e_off = vec3l()
     w = world_of[a]
     radius = query_radius[w]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and touching[a] > 0:
+    noted = touch_count[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and noted > 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         listed = neighbour_count[a]
-        if listed != NO_LIST:
+        if noted <= touch_b.shape[1]:
+            for k in range(noted):
+                b = touch_b[a, k]
+                start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed,
+                                                                 node_radius, mid, a, b, reach_a, p0, c0, u_linear,
+                                                                 radius)
+                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
+                d, o = to_fixed_sym(start)
+                s_diag = s_diag + d
+                s_off = s_off + o
+                d, o = to_fixed_sym(end)
+                e_diag = e_diag + d
+                e_off = e_off + o
+        elif listed != NO_LIST:
             for k in range(listed):
                 b = neighbours[a, k]
                 start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
@@ -799,22 +816,35 @@ def start_velocity(
 @wp.kernel
 def finish_nodes(
     x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
     v_solved: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     fixed: wp.array(dtype=wp.int32),
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     dt: wp.float64,
+    theta: wp.float64,
     x_out: wp.array(dtype=wp.vec3d),
     v_out: wp.array(dtype=wp.vec3d),
 ):
-    """Unknown node i: the solved (already damped) velocity, and x' = x + dt v'.
-    Held nodes keep what hold_nodes gave them."""
+    """Unknown node i: the solved (already damped) velocity, and
+    x' = x + dt ((1 − θ) v + θ v') (θ = 1: x + dt v'). Held nodes keep what
+    hold_nodes gave them."""
     i = wp.tid()
     if not solving(free, fixed, world_of, running, i):
         return
     v_out[i] = v_solved[i]
-    x_out[i] = x_in[i] + dt * v_solved[i]
+    x_out[i] = x_in[i] + dt * ((F64_1 - theta) * v_in[i] + theta * v_solved[i])
+
+
+@wp.kernel
+def theta_rhs(rhs: wp.array(dtype=wp.vec3d), a_v: wp.array(dtype=wp.vec3d), theta: wp.float64):
+    """The θ-method's right side from the one assembled at θ dt, M v + θ dt F, and
+    A v (A = M + θ dt B + θ² dt² H at the old velocities v):
+    (M v + θ dt F − (1 − θ) A v) / θ = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
+    (g·mm/s; only unknown rows are read)."""
+    i = wp.tid()
+    rhs[i] = (rhs[i] - (F64_1 - theta) * a_v[i]) / theta
 
 
 @wp.func
