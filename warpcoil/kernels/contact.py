@@ -273,15 +273,19 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
 
 @wp.func
 def feature_stiffness(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
-                      u_linear: wp.float64) -> wp.mat33d:
-    """−∂F/∂p of :func:`feature_force` along its normal, k(h) n nᵀ (µN/mm; the turn of n left out)."""
+                      u_linear: wp.float64):
+    """−∂F/∂p of :func:`feature_force` along its normal, k(h) n nᵀ (µN/mm; the turn of n
+    left out), fixed point: its diagonal (xx, yy, zz) and upper (xy, xz, yz) entries."""
     delta = p - closest
     dist = wp.length(delta)
-    k = wp.mat33d()
+    diagonal = vec3l()
+    upper = vec3l()
     if dist < radius + c0 and dist > wp.float64(1.0e-12):
         n = delta / dist
-        k = contact_stiffness(dist - radius, p0, c0, u_linear) * wp.outer(n, n)
-    return k
+        k = contact_stiffness(dist - radius, p0, c0, u_linear)
+        diagonal = to_fixed(k * wp.vec3d(n[0] * n[0], n[1] * n[1], n[2] * n[2]))
+        upper = to_fixed(k * wp.vec3d(n[0] * n[1], n[0] * n[2], n[1] * n[2]))
+    return diagonal, upper
 
 
 @wp.func
@@ -289,35 +293,56 @@ def wall_feature_stiffness(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), 
                            owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
                            p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.mat33d:
     """The normal part of −∂F/∂p of :func:`wall_feature_sum` (µN/mm): its faces, edges
-    and vertices' k(h) n nᵀ with the same signs. One closest face gives the single
-    law's k n nᵀ; in a groove, or where faces meet at a crease, every face that
-    pushes adds its own direction (the net force's direction alone misses them)."""
+    and vertices' k(h) n nᵀ with the same signs, summed in fixed point (order-independent,
+    as the force). One closest face gives the single law's k n nᵀ; in a groove, or where
+    faces meet at a crease, every face that pushes adds its own direction (the net
+    force's direction alone misses them)."""
     reach = radius + c0 + BOX_MARGIN_MM
     lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
     upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
     query = wp.mesh_query_aabb(mesh, lower, upper)
     f = int(0)
-    total = wp.mat33d()
+    diagonal = vec3l()
+    off = vec3l()
     while wp.mesh_query_aabb_next(query, f):
         k = face_first + f
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]
         c = vertices[faces[3 * k + 2]]
+        closest = closest_on_triangle(p, a, b, c)
+        if wp.length(p - closest) >= radius + c0 + FEATURE_SKIP_MM:  # its edges and vertices are no nearer
+            continue
         own = owners[k]
-        total = total + feature_stiffness(p, closest_on_triangle(p, a, b, c), radius, p0, c0, u_linear)
+        d, o = feature_stiffness(p, closest, radius, p0, c0, u_linear)
+        diagonal = diagonal + d
+        off = off + o
         if own & OWN_EDGE_AB:
-            total = total - feature_stiffness(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
+            d, o = feature_stiffness(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
+            diagonal = diagonal - d
+            off = off - o
         if own & OWN_EDGE_BC:
-            total = total - feature_stiffness(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear)
+            d, o = feature_stiffness(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear)
+            diagonal = diagonal - d
+            off = off - o
         if own & OWN_EDGE_CA:
-            total = total - feature_stiffness(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear)
+            d, o = feature_stiffness(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear)
+            diagonal = diagonal - d
+            off = off - o
         if own & OWN_VERTEX_A:
-            total = total + feature_stiffness(p, a, radius, p0, c0, u_linear)
+            d, o = feature_stiffness(p, a, radius, p0, c0, u_linear)
+            diagonal = diagonal + d
+            off = off + o
         if own & OWN_VERTEX_B:
-            total = total + feature_stiffness(p, b, radius, p0, c0, u_linear)
+            d, o = feature_stiffness(p, b, radius, p0, c0, u_linear)
+            diagonal = diagonal + d
+            off = off + o
         if own & OWN_VERTEX_C:
-            total = total + feature_stiffness(p, c, radius, p0, c0, u_linear)
-    return total
+            d, o = feature_stiffness(p, c, radius, p0, c0, u_linear)
+            diagonal = diagonal + d
+            off = off + o
+    dd = from_fixed(diagonal)
+    oo = from_fixed(off)
+    return wp.mat33d(dd[0], oo[0], oo[1], oo[0], dd[1], oo[2], oo[1], oo[2], dd[2])
 
 
 @wp.func
