@@ -59,7 +59,7 @@ from .contact import (
     vec3l,
 )
 from .elastic import bonded_span, edge_torque
-from .integrate import catheter_point, coil_advance, pushed
+from .integrate import hold_node
 from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
 
@@ -433,41 +433,11 @@ def hold_nodes(
     free_out: wp.array(dtype=wp.int32),
     advance_out: wp.array(dtype=wp.float64),
 ):
-    """integrate.integrate_nodes without the free nodes' update: the pusher advance,
-    the nodes behind the tip on the catheter centerline at the pusher's speed,
-    clamped nodes at rest, a stopped world unchanged; free nodes are only
-    flagged (free_out = 1), the coil solve moves them."""
-    i = wp.tid()
-    if i < advance_in.shape[0]:
-        cw = coil_world[i]
-        if running[cw] != 0:
-            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
-        else:
-            advance_out[i] = advance_in[i]
-    w = world_of[i]
-    if running[w] == 0:
-        x_out[i] = x_in[i]
-        v_out[i] = v_in[i]
-        free_out[i] = free_in[i]
-        return
-    zero = wp.vec3d(F64_0, F64_0, F64_0)
-    if fixed[i] != 0:
-        x_out[i] = x_in[i]
-        v_out[i] = zero
-        free_out[i] = 0
-        return
-    c = coil_of[i]
-    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_speed[w] * dt) - arc_s[i]
-    if sigma < F64_0:
-        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
-        x_out[i] = p
-        if pushed(active_coil, coil_world, c):
-            v_out[i] = push_speed[w] * direction
-        else:
-            v_out[i] = zero
-        free_out[i] = 0
-        return
-    free_out[i] = 1
+    """integrate.hold_node alone: the free nodes are only flagged (free_out = 1),
+    the coil solve moves them."""
+    hold_node(wp.tid(), x_in, v_in, free_in, advance_in, fixed, coil_of, world_of, coil_world, arc_s, catheter_path,
+              catheter_first, catheter_count, active_coil, push_speed, running, dt, x_out, v_out, free_out,
+              advance_out)
 
 
 @wp.func
