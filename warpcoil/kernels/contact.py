@@ -543,6 +543,33 @@ def build_neighbours(
     count[a] = found
 
 
+
+@wp.func
+def next_partner(query: wp.ref[wp.HashGridQuery[wp.float64]], k: wp.ref[int], b: wp.ref[int], a: int,
+                 neighbours: wp.array2d(dtype=wp.int32), listed: int, coil_of: wp.array(dtype=wp.int32),
+                 exclusion: int) -> bool:
+    """Advance ``b`` to edge a's next candidate partner; False when there is none.
+    The candidates: a's neighbour list (``listed`` entries, ``k`` the next one), or,
+    when it overflowed (NO_LIST), what ``query`` (the build's grid around a) finds,
+    bonded neighbours skipped. One iterator for both, so each pass writes its pair
+    body once; kernels calling it need ``enable_backward=False`` (wp.ref)."""
+    if listed != NO_LIST:
+        if k >= listed:
+            return False
+        b = neighbours[a, k]
+        k = k + 1
+        return True
+    q = query  # Warp 1.19's hash_grid_query_next advances a local, not a wp.ref: copy in and out
+    found = int(0)
+    more = bool(True)
+    while more:
+        more = wp.hash_grid_query_next(q, found)
+        if more and not bonded(coil_of, exclusion, a, found):
+            break
+    query = q
+    b = found
+    return more
+
 @wp.func
 def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
     """Shift (mm, in [0, c0]) of a same-coil clearance whose rest value ``rest_gap``
@@ -854,7 +881,7 @@ def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(d
     bad[e] = 0
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def edge_contact(
     x: wp.array(dtype=wp.vec3d),
     rest_x: wp.array(dtype=wp.vec3d),
@@ -900,20 +927,13 @@ def edge_contact(
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         listed = neighbour_count[a]
-        if listed != NO_LIST:
-            for k in range(listed):
-                visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a,
-                           neighbours[a, k], exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end,
-                           min_gap, contacts, bad)
-        else:
-            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
-            b = int(0)
-            while wp.hash_grid_query_next(query, b):
-                if not bonded(coil_of, exclusion, a, b):
-                    visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b,
-                               exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts,
-                               bad)
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
+                       reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad)
 
 
 @wp.kernel

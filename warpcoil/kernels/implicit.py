@@ -47,12 +47,11 @@ trace ≥ −1 − det).
 import warp as wp
 
 from .contact import (
-    NO_LIST,
-    bonded,
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
     from_fixed,
+    next_partner,
     rest_offset,
     segment_closest_params,
     to_fixed,
@@ -229,7 +228,7 @@ def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: w
     pair_count[a] = count + 1
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def edge_contact_stiffness(
     x: wp.array(dtype=wp.vec3d),
     rest_x: wp.array(dtype=wp.vec3d),
@@ -275,33 +274,20 @@ def edge_contact_stiffness(
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and touching[a] > 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         listed = neighbour_count[a]
-        if listed != NO_LIST:
-            for k in range(listed):
-                b = neighbours[a, k]
-                start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                                 reach_a, p0, c0, u_linear, radius)
-                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-                d, o = to_fixed_sym(start)
-                s_diag = s_diag + d
-                s_off = s_off + o
-                d, o = to_fixed_sym(end)
-                e_diag = e_diag + d
-                e_off = e_off + o
-        else:
-            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
-            b = int(0)
-            while wp.hash_grid_query_next(query, b):
-                if not bonded(coil_of, exclusion, a, b):
-                    start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
-                                                                     b, reach_a, p0, c0, u_linear, radius)
-                    record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-                    d, o = to_fixed_sym(start)
-                    s_diag = s_diag + d
-                    s_off = s_off + o
-                    d, o = to_fixed_sym(end)
-                    e_diag = e_diag + d
-                    e_off = e_off + o
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
+                                                             reach_a, p0, c0, u_linear, radius)
+            record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
+            d, o = to_fixed_sym(start)
+            s_diag = s_diag + d
+            s_off = s_off + o
+            d, o = to_fixed_sym(end)
+            e_diag = e_diag + d
+            e_off = e_off + o
     stiff_start[a] = from_fixed_sym(s_diag, s_off)
     stiff_end[a] = from_fixed_sym(e_diag, e_off)
 
