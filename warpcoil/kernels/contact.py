@@ -543,7 +543,6 @@ def build_neighbours(
     count[a] = found
 
 
-
 @wp.func
 def next_partner(query: wp.ref[wp.HashGridQuery[wp.float64]], k: wp.ref[int], b: wp.ref[int], a: int,
                  neighbours: wp.array2d(dtype=wp.int32), listed: int, coil_of: wp.array(dtype=wp.int32),
@@ -569,6 +568,7 @@ def next_partner(query: wp.ref[wp.HashGridQuery[wp.float64]], k: wp.ref[int], b:
     query = q
     b = found
     return more
+
 
 @wp.func
 def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
