@@ -1,4 +1,4 @@
-"""The linearly implicit Euler step: its system matrix, its banded solve, its
+"""The linearly implicit θ-method step: its system matrix, its banded solve, its
 stability beyond the explicit bound, and the deployment machinery around it
 (push, step halving, ensembles, the scene key)."""
 
@@ -18,6 +18,8 @@ from warpcoil.scene import SceneError, load_scene
 from warpcoil.settings import CatheterSpec, SimulationSettings
 from warpcoil.solver import Control, Solver, Stepper
 from warpcoil.state import packed_state, state_from_positions, new_state_like
+from warpcoil.validation_friction import P0_UN
+from warpcoil.validation_push import free_space_push_force, wall_push_force
 
 from test_ensemble import assert_same_run, scene as ensemble_scene
 
@@ -56,7 +58,7 @@ def test_matrix_is_the_elastic_hessian_of_a_straight_stretched_rod():
     out = new_state_like(model)
     solver.step(state, out, Control.create(model))
     mass = 1.0 / model.inv_mass.numpy()
-    hessian = (blocks_dense(solver, n) - np.kron(np.diag(mass), np.eye(3))) / dt**2
+    hessian = (blocks_dense(solver, n) - np.kron(np.diag(mass), np.eye(3))) / (solver.theta * dt)**2
     eps = 1e-6
     fd = np.zeros((3 * n, 3 * n))
     for k in range(3 * n):
@@ -124,6 +126,16 @@ def test_converges_to_the_reference_at_first_order():
     assert not failed, validation.format_table(failed)
     errors = [r.result for r in rows[:-2]]
     assert errors[0] > errors[1] > errors[2]
+
+
+@pytest.mark.parametrize("theta", [1.0, 0.7])
+def test_numerical_damping_is_the_theta_methods(theta):
+    """Undamped lowest bending mode of a cantilever at the default step: the amplitude lost
+    per period is the θ-method's linear theory, 1 − |R|^(2π/ω dt) (θ 0.7 loses less than θ 1)."""
+    rows = validation.implicit_damping(theta=theta)
+    failed = [r for r in rows if not r.passed]
+    assert not failed, validation.format_table(failed)
+    assert rows[1].result < (0.02 if theta < 1.0 else 0.04)
 
 
 def implicit_scene(**kwargs):
@@ -208,47 +220,43 @@ def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
             nn = np.outer(pn[e, k], pn[e, k])
             for i, wi in w.items():
                 for j, wj in {**w, **other}.items() if not set(w) & set(other) else []:
-                    a[3 * i:3 * i + 3, 3 * j:3 * j + 3] += dt**2 * pk[e, k] * wi * wj * nn
+                    a[3 * i:3 * i + 3, 3 * j:3 * j + 3] += (solver.theta * dt)**2 * pk[e, k] * wi * wj * nn
     assert np.allclose(a, a.T, rtol=0, atol=1e-12 * np.abs(a).max())
     residual = a @ out.v.numpy().ravel() - solver._rhs.numpy().ravel()
     assert np.abs(residual).max() <= 1e-8 * np.abs(solver._rhs.numpy()).max()
     assert np.abs(a - np.diag(np.diag(a)))[:33, 33:].max() > 0.0  # the coils are coupled
 
 
-def pushed_straight_coil_push_force(integrator: str, dt_s: float | None, push_mm_s: float = 50.0,
-                                    out_mm: float = 3.0, window_mm: float = 0.6) -> tuple[float, float]:
-    """A straight coil (straight pre-shape, 40 segments) pushed ``out_mm`` out of a
-    straight catheter into free space: the push force averaged over the next
-    ``window_mm`` (µN, compressive > 0), and the damping force the free nodes meet at
-    the push speed, Σ c_i (1 − e^{−v/k}) (µN, the mean of its values at the window's ends)."""
-    spec = CoilSpec(length_mm=40 * 0.2921, segment_length_mm=0.2921)
-    n = round(spec.length_mm / spec.l0) + 1
-    rest = np.zeros((n, 3))
-    rest[:, 2] = np.arange(n) * spec.l0
-    builder = ModelBuilder(catheter=CatheterSpec(tip_mm=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0)))
-    builder.add_coil(spec, rest)
-    model = builder.finalize()
-    solver = make_solver(model, integrator, dt_s, coil_contact=False)
-    control = Control.create(model, active_coil=0, push_speed_mm_s=push_mm_s)
-    stepper = Stepper(solver, packed_state(model), control, chunk=2)
-    c = model.damping_c.numpy() * (1.0 - np.exp(-push_mm_s / model.damping_k))
-    stepper.run_steps(2 * round(out_mm / push_mm_s / solver.dt_s / 2), check_every_chunk=False)
-    damping = c[stepper.state.free.numpy() != 0].sum()
-    solver.take_push_force()
-    stepper.run_steps(2 * round(window_mm / push_mm_s / solver.dt_s / 2), check_every_chunk=False)
-    damping = 0.5 * (damping + c[stepper.state.free.numpy() != 0].sum())
-    return float(solver.take_push_force().mean_uN[0]), float(damping)
-
-
 def test_push_force_of_a_steady_push_is_the_damping_the_free_part_meets_at_any_step():
     """Pushed straight out, the free part moves with the pusher: the push force balances
     its damping. The implicit step gives that at large steps as the reference does
     (damping applied after the solve gave a spurious compression growing as dt²)."""
-    push, damping = pushed_straight_coil_push_force("symplectic", None)
+    push, damping = free_space_push_force("symplectic")
     assert push == pytest.approx(damping, rel=0.05)
     for dt in (1.0e-4, 5.0e-4, 2.0e-3):
-        push, damping = pushed_straight_coil_push_force("implicit", dt)
+        push, damping = free_space_push_force("implicit", dt)
         assert push == pytest.approx(damping, rel=0.05), dt
+
+
+@pytest.mark.parametrize("integrator", ["symplectic", "implicit"])
+def test_push_force_on_a_wall_at_rest_is_the_wall_reaction(integrator):
+    """A straight coil pushed onto a flat wall, the pusher stopped, at rest: the push force
+    is the wall's reaction on the distal node, s0 |F|(h), with h the pusher's advance less the
+    free part's axial compression (series springs)."""
+    push, reaction, analytic = wall_push_force(integrator)
+    assert push == pytest.approx(analytic, rel=1e-3)
+    assert push == pytest.approx(reaction, rel=1e-5)
+    assert analytic > 1.2 * P0_UN * 0.5  # pressed past zero clearance: the law's stiff part
+
+
+def test_a_theta_method_run_settles_with_the_euler_step():
+    """θ < 1 (less numerical damping) during the push; at the settling step the linearly
+    implicit Euler step (θ = 1) brings the coil to rest."""
+    deployment = Deployment(implicit_scene(), solver_options={"theta": 0.7})
+    assert deployment.solver.theta == 0.7
+    result = deployment.run()
+    assert result.status == "completed" and deployment.solver.theta == 1.0
+    assert deployment.solver.dt_s == deployment.settle_dt_s
 
 
 def test_the_default_step_settles_at_the_settling_step_from_the_push_end():

@@ -42,8 +42,9 @@ def edge_model(balloon: bool, segments: int = 2, strut: tuple | None = None):
 
 
 def system_and_forces(model, x):
-    """(M + dt² H, the force at x as a function of positions, M) of one implicit step at x."""
-    solver = ImplicitSolver(model, dt_s=DT)
+    """(M + dt² H, the force at x as a function of positions, M) of one implicit step at x
+    (θ = 1: the matrix of the linearly implicit Euler step)."""
+    solver = ImplicitSolver(model, dt_s=DT, theta=1.0)
     state = state_from_positions(model, x)
     solver.allocate_neighbour_grid(state)
     solver.step(state, new_state_like(model), Control.create(model))

@@ -197,6 +197,8 @@ class Ensemble:
         self._steps_before += self.stepper.steps
         self._push_dt_s = self.solver.dt_s
         self.solver.dt_s = self.settle_dt_s
+        if getattr(self.solver, "theta", 1.0) != 1.0:  # the θ-method does not bring a coil to rest at this step
+            self.solver.theta = 1.0  # (docs/FORMULATION.md "Implicit step: push force"): Euler settles it
         frame_s = self.members[0].scene.simulation.frame_interval_s
         self.stepper = Stepper(self.solver, self.stepper.state, self.control,
                                chunk=max(2, 2 * round(frame_s / self.settle_dt_s / 2)))

@@ -1,22 +1,32 @@
-"""Linearly implicit Euler step (Baraff & Witkin 1998) beside the reference
-symplectic Euler: the step is set by accuracy, not by the stiffest spring.
+"""Linearly implicit θ-method (θ = 1: the linearly implicit Euler step of Baraff &
+Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
+not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's; only the update differs (kernels/implicit.py): per world,
-(M + dt B + dt² H) v' = M v + dt F is solved by a few preconditioned conjugate-gradient
+
+    (M + θ dt B + θ² dt² H) v' = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
+    x' = x + dt ((1 − θ) v + θ v')
+
+(the forces linearised at x + θ Δx) is solved by a few preconditioned conjugate-gradient
 iterations (B: the damping law's secant coefficient at the old speed; H: stretching,
 Gauss–Newton bending, contact along its normals, coil–coil pairs exactly;
 preconditioner: each coil's banded block factorisation); then, at the new
-positions, each coil's edge spins solve their tridiagonal system. Twist is the fastest mode (inertia
-m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of ~100 µs the implicit
-spin update is overdamped, i.e. it relaxes the twist to its equilibrium each
-step (quasi-static twist), which is what its negligible inertia means physically.
+positions, each coil's edge spins solve their tridiagonal system (backward Euler). Twist
+is the fastest mode (inertia m r_w²: ω ≈ 7×10⁵ rad/s for the seed coil); at a step of
+~100 µs the implicit spin update is overdamped, i.e. it relaxes the twist to its
+equilibrium each step (quasi-static twist), which is what its negligible inertia means
+physically. θ = 1 damps every mode it does not resolve, the slow bending modes of a coil
+forced against a wall too: a numerical viscosity ≈ dt H that made a pushed coil bear on
+the far wall and turned the push force's sign (docs/FORMULATION.md "Implicit step").
 
 The contact law keeps the reference's linear onset (computed for the explicit
 step), so both integrators integrate the same forces.
 """
 
 from __future__ import annotations
+
+import math
 
 import warp as wp
 
@@ -39,6 +49,13 @@ IMPLICIT_SETTLE_DT_S = 2.0e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
+# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). θ = 0.7 (numerical
+# damping of the slow modes ∝ θ − ½; stiff modes decay by (1 − θ)/θ = 0.43 per step) gets the push
+# force right (0.05–0.16 F0 off at 0.8–2.4 c0 per step against Euler's 0.36–0.46 F0, bench accuracy) but is
+# not the default: it let a coil press into thin stent struts twice as deep as Euler (0.034 against
+# 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
+# docs/FORMULATION.md "Implicit step: push force and the θ-method")
+IMPLICIT_THETA = 1.0
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
@@ -65,7 +82,7 @@ class ImplicitSolver(Solver):
     kernel_modules = Solver.kernel_modules + (kernels,)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
-                 cg_iterations: int = CG_ITERATIONS, **kwargs):
+                 cg_iterations: int = CG_ITERATIONS, theta: float = IMPLICIT_THETA, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -77,6 +94,9 @@ class ImplicitSolver(Solver):
         if cg_iterations < 1:
             raise ValueError(f"cg_iterations must be ≥ 1, got {cg_iterations}")
         self.cg_iterations = int(cg_iterations)
+        if not 0.5 < theta <= 1.0:
+            raise ValueError(f"theta must be in (0.5, 1] (1: linearly implicit Euler), got {theta}")
+        self.theta = float(theta)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -97,7 +117,10 @@ class ImplicitSolver(Solver):
         """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         dt = self.dt_s if dt is None else dt
+        theta = self.theta
+        dt_m = theta * dt  # the system matrix is M + θ dt B + θ² dt² H + θ dt² K_c
         c = m.contact
+        p0_stiff = c.p0_uN / theta  # contact stiffness K_c/θ in a matrix assembled at θ dt: θ dt² K_c
         self.compute_forces(state_in, control.running)
         # catheter kinematics, releases and pusher advance as the reference has them
         wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
@@ -109,22 +132,32 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
             m.rest_length, m.k_bend, self.wall_force, self.wall_distance, self._stiff_start, self._stiff_end,
-            int(self.coil_contact), m.node_radius, c.fold_span, c.p0_uN, c.c0_mm, self.contact_u_linear, dt,
+            int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
-            self._devices.add(self, state_in, control.running, dt, self._diag, self._diag_exact, self._upper1)
-        self._solve_velocities(state_in, state_out, control, dt)
+            self._devices.add(self, state_in, control.running, math.sqrt(theta) * dt, self._diag, self._diag_exact,
+                              self._upper1)
+        if theta != 1.0:  # the θ-method's right side: A v at the old velocities
+            wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
+                state_out, control, dt_m) + [self._q])
+            wp.launch(kernels.theta_rhs, n, device=dev, inputs=[self._rhs, self._q, theta])
+        self._solve_velocities(state_in, state_out, control, dt_m)
         wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-            state_in.x, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, state_out.x, state_out.v])
+            state_in.x, state_in.v, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, theta,
+            state_out.x, state_out.v])
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt)
+            if theta != 1.0:  # the positions from the θ-combination of the old and the new velocities
+                wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
+                    state_in.x, state_in.v, state_out.v, state_out.free, m.fixed, m.world_of, control.running, dt,
+                    theta, state_out.x, state_out.v])
         # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
         # torque there, then the spins solved and the directors turned
         wp.launch(kernels.transport_frames, n, device=dev, inputs=[
@@ -140,6 +173,13 @@ class ImplicitSolver(Solver):
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
 
+    def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
+        """The arguments of kernels.system_product after (x, b, residual), before out."""
+        m = self.model
+        return [state_out.free, m.fixed, m.has_next, m.world_of, control.running, self._diag_exact, self._upper1,
+                self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b, self._pair_st,
+                self._pair_k, self._pair_n, dt_m]
+
     def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
         """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
         gradients per world, started at the old velocities, preconditioned by each
@@ -151,9 +191,7 @@ class ImplicitSolver(Solver):
             self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
         wp.launch(kernels.start_velocity, n, device=dev, inputs=[
             state_in.v, state_out.v, free, m.fixed, m.world_of, running, self._v])
-        product_args = [free, m.fixed, m.has_next, m.world_of, running, self._diag_exact, self._upper1,
-                        self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
-                        self._pair_st, self._pair_k, self._pair_n, dt]
+        product_args = self._product_args(state_out, control, dt)
         precondition_args = coil_args + [self._inv_d, self._lower1, self._lower2, self._r, self._y, self._z]
         wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + product_args + [self._r])
         wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)

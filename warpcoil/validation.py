@@ -510,6 +510,13 @@ def friction() -> list[CaseResult]:
     return friction_cases()
 
 
+def push_force() -> list[CaseResult]:
+    """The push force where it is known: a straight coil into free space (damping) and
+    at rest on a wall (the wall's reaction), both integrators (validation_push.py)."""
+    from .validation_push import push_force_cases
+    return push_force_cases()
+
+
 def contact_share() -> list[CaseResult]:
     """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
     from .validation_contact import contact_share_cases
@@ -698,7 +705,8 @@ def _positions_at(model, start: np.ndarray, solver: Solver, time_s: float) -> np
     return stepper.run_chunk().x.numpy()
 
 
-def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025)) -> list[CaseResult]:
+def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025),
+                         theta: float | None = None) -> list[CaseResult]:
     """The implicit step against the reference integrator (symplectic Euler at
     0.005 × its bound) as dt shrinks: RMS node distance at ``time_s`` over the
     reference's RMS displacement, for dt = factor × the explicit bound, and the
@@ -713,26 +721,30 @@ def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0
     bound = reference.bound.dt_s
     errors = []
     for f in factors:
-        x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False), time_s)
+        options = {} if theta is None else {"theta": theta}
+        x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False, **options),
+                          time_s)
         errors.append(float(np.sqrt(((x - x_ref) ** 2).sum(axis=1).mean())) / scale)
     orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
-    rows = [CaseResult(f"implicit vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
+    label = "implicit" if theta is None else f"implicit θ {theta:g}"
+    rows = [CaseResult(f"{label} vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
             for f, e in zip(factors, errors)]
-    rows.append(_row("implicit: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
+    rows.append(_row(f"{label}: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
     # rising towards 1: no pair falls back by more than 0.01 (the two coarsest sit on a plateau, equal to
     # ~1e-4) and the finest is clearly above the coarsest
     rising = all(b > a - 0.01 for a, b in zip(orders, orders[1:])) and orders[-1] > orders[0] + 0.05
-    rows.append(CaseResult("implicit: observed order rises as dt shrinks", 1.0, float(rising),
+    rows.append(CaseResult(f"{label}: observed order rises as dt shrinks", 1.0, float(rising),
                            0.0 if rising else 1.0, 0.0))
     return rows
 
 
-def implicit_damping(periods: int = 3, samples_per_period: int = 100) -> list[CaseResult]:
+def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: float | None = None) -> list[CaseResult]:
     """Numerical damping of the implicit step at its default dt: undamped free
     vibration of a 20 mm cantilever (40 segments) in its lowest bending mode,
     amplitude lost per period (between tip maxima after the first period, when
     the higher modes the start excites have died out) against the linear theory
-    of the step, 1 − (1 + ω² dt²)^(−π/(ω dt)) (≈ π ω dt), ω measured."""
+    of the θ-method, 1 − |R|^(2π/(ω dt)) with |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²)
+    (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt), ω measured."""
     length, segments = 20.0, 40
     l0 = length / segments
     spec = CoilSpec(length_mm=length, segment_length_mm=l0)
@@ -745,7 +757,7 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100) -> list[Ca
     builder.add_coil(spec, rest)
     builder.clamp(0, node=0)
     model = builder.finalize()
-    solver = _solver(model, "implicit", coil_contact=False)
+    solver = _solver(model, "implicit", coil_contact=False, **({} if theta is None else {"theta": theta}))
     dt = solver.dt_s
     omega_ref = 3.516 * math.sqrt(spec.EI / (spec.rho * length**4))
     chunk = 2 * max(1, round(2.0 * math.pi / omega_ref / dt / samples_per_period / 2))
@@ -762,15 +774,17 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100) -> list[Ca
     cycles = len(peaks) - 1
     omega = 2.0 * math.pi * cycles / ((t1 - t0) * chunk * dt)
     loss = 1.0 - (a1 / a0) ** (1.0 / cycles)
-    theory = 1.0 - (1.0 + (omega * dt) ** 2) ** (-math.pi / (omega * dt))
-    return [_row("implicit: lowest bending mode ω (rad/s) vs 3.516 √(EI/ρL⁴)", omega_ref, omega, 5e-2),
-            _row(f"implicit: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
+    w, th = omega * dt, solver.theta
+    theory = 1.0 - ((1.0 + ((1.0 - th) * w) ** 2) / (1.0 + (th * w) ** 2)) ** (math.pi / w)
+    label = f"implicit θ {th:g}"
+    return [_row(f"{label}: lowest bending mode ω (rad/s) vs 3.516 √(EI/ρL⁴)", omega_ref, omega, 5e-2),
+            _row(f"{label}: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
 
 
 def implicit_cases() -> list[CaseResult]:
     """The implicit step: convergence to the reference, numerical damping, and the
     cantilever and helix recovery at its default step."""
-    rows = implicit_convergence() + implicit_damping()
+    rows = implicit_convergence() + implicit_convergence(theta=0.7) + implicit_damping() + implicit_damping(theta=0.7)
     result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
     rows.append(_row("implicit default step: cantilever PL²/EI=5, 50 segments: δ/L", reference, result, 5e-3))
     return rows + helix_recovery(integrator="implicit")
@@ -797,6 +811,7 @@ CASES = {
     "timestep": timestep_convergence,
     "implicit": implicit_cases,
     "implicit-devices": implicit_devices,
+    "push-force": push_force,
 }
 
 

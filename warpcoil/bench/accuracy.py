@@ -8,14 +8,17 @@ Cases and their references:
   is chaotic, so it is compared with the finest setting through well-posed
   quantities — radius of gyration, mean node distance from the sac centre,
   fraction of the sac volume within d of the coil, and the distal tip's
-  trajectory over the first loop (RMS distance / loop length). How chaotic is
+  trajectory over the first loop (RMS distance / loop length); the push force's
+  mean over the push is compared with the finest setting's in units of the coil's
+  self-deployment force F0 (a default candidate within PUSH_FORCE_TOLERANCE_F0). How chaotic is
   measured, not assumed: the finest setting rerun with the catheter turned by
   0.01° gives the spread below which errors cannot be told apart. A push is
   only a default candidate while it stays quasi-static (kinetic / elastic
   energy ≤ 0.1 while pushing, MODEL.md).
 
 Knobs: step size (dt_safety × the stable bound), the integrator (the implicit
-step at its default, half and twice that), push advance per step (push
+step at its default, its push advance per step from 0.4 to 2.4 c0, and the θ-method
+at θ = 0.7 beside its linearly implicit Euler step), push advance per step (push
 speed), segment length l0 ∈ {d/2, d, 2d} (d/2 on the validation cases, where
 it is affordable), mass scaling. The deployment reference is the finest
 setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d.
@@ -33,7 +36,7 @@ import numpy as np
 
 from .. import validation
 from ..deploy import Deployment
-from ..implicit import IMPLICIT_ADVANCE_PER_C0, IMPLICIT_DT_MAX_S, IMPLICIT_SETTLE_DT_S
+from ..implicit import IMPLICIT_ADVANCE_PER_C0, IMPLICIT_SETTLE_DT_S, IMPLICIT_THETA
 from ..scene import load_scene
 from ..recorder.atomic import write_text_atomic
 from .report import markdown_table, timed, write_report
@@ -43,6 +46,10 @@ D = validation.REFERENCE_D_MM
 L0_IS_THE_MODEL = "l0 = d defines the model (MODEL.md)"
 QUASI_STATIC_KE_RATIO = 0.1  # kinetic / elastic energy while pushing, above which a push is not quasi-static
 MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a free release: error 0.85)"
+# a deployment setting is a default candidate only while its push force's mean over the push is within this
+# many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
+PUSH_FORCE_TOLERANCE_F0 = 0.25
+THETA_LOW = 0.7  # the θ-method's setting shown beside the linearly implicit Euler step (implicit.IMPLICIT_THETA)
 
 
 @dataclass
@@ -122,6 +129,7 @@ class Shape:
     coverage: float
     tip_track: np.ndarray  # (k, 3) distal tip at fixed deployed lengths over the first loop
     push_mean_uN: float = 0.0  # push force averaged over the frames of the push (µN; not in the error)
+    self_deployment_uN: float = 0.0  # F0: the coil's stored energy per mm (µN), the push force's scale
 
 
 def _coverage(x: np.ndarray, radius_mm: float, spacing_mm: float) -> float:
@@ -140,10 +148,11 @@ def _coverage(x: np.ndarray, radius_mm: float, spacing_mm: float) -> float:
     return float(near.mean())
 
 
-def deploy_shape(scene, loop_length_mm: float, sac_radius_mm: float) -> tuple[Shape, int, float]:
+def deploy_shape(scene, loop_length_mm: float, sac_radius_mm: float,
+                 solver_options: dict | None = None) -> tuple[Shape, int, float]:
     """The deployed coil's shape measures, steps, and the largest kinetic / elastic
     energy ratio while pushing (MODEL.md's measure of quasi-static pushing)."""
-    deployment = Deployment(scene)
+    deployment = Deployment(scene, solver_options=solver_options)
     grid = np.linspace(0.5, loop_length_mm, 16)
     track_len, track_x = [], []
     ratio = [0.0]
@@ -166,7 +175,8 @@ def deploy_shape(scene, loop_length_mm: float, sac_radius_mm: float) -> tuple[Sh
     x = result.positions_mm[0]
     track = np.stack([np.interp(grid, track_len, np.asarray(track_x)[:, k]) for k in range(3)], axis=1)
     shape = Shape(float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean())), float(np.linalg.norm(x, axis=1).mean()),
-                  _coverage(x, sac_radius_mm, D / 2), track, float(np.mean(push)) if push else 0.0)
+                  _coverage(x, sac_radius_mm, D / 2), track, float(np.mean(push)) if push else 0.0,
+                  deployment.members[0].self_deployment_force_uN)
     return shape, result.steps, ratio[0]
 
 
@@ -199,7 +209,6 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
 
     sac_radius = base.wall.sphere_diameter_mm / 2.0
     c0 = base.contact.c0_mm if base.contact.c0_mm is not None else 0.1 * coil.wire_diameter_mm  # as the model has it
-    implicit_dt = min(IMPLICIT_ADVANCE_PER_C0 * c0 / base.simulation.push_speed_mm_s, IMPLICIT_DT_MAX_S)
     # the finest setting swept: the smallest step and slowest push, true inertia, l0 = d
     finest = variant(dt_safety=0.25, mass_scale=1.0, push=50.0)
     reference, _, _ = deploy_shape(finest, loop_mm, sac_radius)
@@ -211,33 +220,41 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
     rows = [Row(case, "finest, catheter turned 0.01° (the chaotic spread)", False, spread_steps, spread_t, floor,
                 spread_detail, not_default="the reference setting", floor=floor)]
     settings = {
-        "default (dt 0.9 bound, push 50 mm/s, l0 d, true inertia)": variant(),
-        "dt 0.5 bound": variant(dt_safety=0.5),
-        "push 200 mm/s": variant(push=200.0),
-        "mass scale 10": variant(mass_scale=10.0),
-        f"implicit, default step (push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
-        f"{IMPLICIT_SETTLE_DT_S * 1e3:g} ms)": variant(integrator="implicit"),
-        "implicit, 2 × default push step (kept)": variant(integrator="implicit", dt_s=2.0 * implicit_dt),
-        "implicit, ½ × default push step (kept)": variant(integrator="implicit", dt_s=0.5 * implicit_dt),
+        "default (dt 0.9 bound, push 50 mm/s, l0 d, true inertia)": (variant(), None),
+        "dt 0.5 bound": (variant(dt_safety=0.5), None),
+        "push 200 mm/s": (variant(push=200.0), None),
+        "mass scale 10": (variant(mass_scale=10.0), None),
+        f"implicit, default step (θ {IMPLICIT_THETA:g}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
+        f"{IMPLICIT_SETTLE_DT_S * 1e3:g} ms)": (variant(integrator="implicit"), None),
     }
+    # the push step on the front, kept after the push: the linearly implicit Euler step (θ 1) and the θ-method
+    # with less numerical damping (θ THETA_LOW; it does not settle at the 2 ms settling step)
+    for theta in (1.0, THETA_LOW):
+        for advance in (0.8, 1.2, 1.6, 2.4) if theta != 1.0 else (0.4, 1.2, 1.6, 2.4):
+            settings[f"implicit θ {theta:g}, push advance {advance:g} c0 (kept)"] = (
+                variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"theta": theta})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
-        settings.update({"push 100 mm/s": variant(push=100.0), "mass scale 100": variant(mass_scale=100.0),
-                         "l0 2d": variant(l0_factor=2.0)})
-    for label, scene in settings.items():
+        settings.update({"push 100 mm/s": (variant(push=100.0), None), "mass scale 100": (variant(mass_scale=100.0), None),
+                         "l0 2d": (variant(l0_factor=2.0), None)})
+    for label, (scene, options) in settings.items():
         try:
-            (shape, steps, ke_ratio), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius), repeats)
+            (shape, steps, ke_ratio), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius, options), repeats)
         except RuntimeError as failure:  # reported as a row, not a crash of the whole sweep
             rows.append(Row(case, label, label.startswith("default"), 0, math.nan, math.inf, str(failure),
                             not_default="did not complete", floor=floor))
             continue
         error, detail = shape_error(shape, reference, loop_mm)
+        push_error = abs(shape.push_mean_uN - reference.push_mean_uN) / reference.self_deployment_uN
         not_default = (L0_IS_THE_MODEL if label.startswith("l0") else
                        MASS_SCALING_CHANGES_DYNAMICS if label.startswith("mass") else
                        f"not quasi-static (kinetic/elastic {ke_ratio:.3g} > {QUASI_STATIC_KE_RATIO:g}; MODEL.md)"
-                       if ke_ratio > QUASI_STATIC_KE_RATIO else "")
+                       if ke_ratio > QUASI_STATIC_KE_RATIO else
+                       f"push force off by {push_error:.2f} F0 (> {PUSH_FORCE_TOLERANCE_F0:g} F0)"
+                       if push_error > PUSH_FORCE_TOLERANCE_F0 else "")
         rows.append(Row(case, label, label.startswith("default"), steps, t, error,
                         f"{detail}; kinetic/elastic ≤ {ke_ratio:.3g}; push mean {shape.push_mean_uN:.0f} µN "
-                        f"(finest {reference.push_mean_uN:.0f})", not_default=not_default, floor=floor))
+                        f"(finest {reference.push_mean_uN:.0f}; error {push_error:.2f} F0, F0 "
+                        f"{reference.self_deployment_uN:.0f} µN)", not_default=not_default, floor=floor))
     return rows
 
 

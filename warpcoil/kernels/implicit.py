@@ -712,22 +712,35 @@ def start_velocity(
 @wp.kernel
 def finish_nodes(
     x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
     v_solved: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     fixed: wp.array(dtype=wp.int32),
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     dt: wp.float64,
+    theta: wp.float64,
     x_out: wp.array(dtype=wp.vec3d),
     v_out: wp.array(dtype=wp.vec3d),
 ):
-    """Unknown node i: the solved (already damped) velocity, and x' = x + dt v'.
-    Held nodes keep what hold_nodes gave them."""
+    """Unknown node i: the solved (already damped) velocity, and
+    x' = x + dt ((1 − θ) v + θ v') (θ = 1: x + dt v'). Held nodes keep what
+    hold_nodes gave them."""
     i = wp.tid()
     if not solving(free, fixed, world_of, running, i):
         return
     v_out[i] = v_solved[i]
-    x_out[i] = x_in[i] + dt * v_solved[i]
+    x_out[i] = x_in[i] + dt * ((F64_1 - theta) * v_in[i] + theta * v_solved[i])
+
+
+@wp.kernel
+def theta_rhs(rhs: wp.array(dtype=wp.vec3d), a_v: wp.array(dtype=wp.vec3d), theta: wp.float64):
+    """The θ-method's right side from the one assembled at θ dt, M v + θ dt F, and
+    A v (A = M + θ dt B + θ² dt² H at the old velocities v):
+    (M v + θ dt F − (1 − θ) A v) / θ = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
+    (g·mm/s; only unknown rows are read)."""
+    i = wp.tid()
+    rhs[i] = (rhs[i] - (F64_1 - theta) * a_v[i]) / theta
 
 
 @wp.func
