@@ -79,6 +79,7 @@ class ImplicitSolver(Solver):
     reference takes at ``dt_safety`` × its explicit bound."""
 
     integrator = "implicit"
+    record_touching = True
     kernel_modules = Solver.kernel_modules + (kernels,)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
@@ -133,7 +134,7 @@ class ImplicitSolver(Solver):
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
-                self.coil_contacts, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,

@@ -17,7 +17,6 @@ import warp as wp
 
 from .anatomy import Anatomy
 from .devices import device_report
-from .kernels.contact import FAR_MM
 from .model import Model
 from .occlusion import occlusion_of_regions
 from .sac import inside_sac, regional_density
@@ -134,7 +133,7 @@ class Snapshot:
 def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
     """Host copies of what a frame's measurement reads, with exact wall distances (all worlds)."""
     s = solver
-    s.compute_contacts(state, wall_search_mm=float(FAR_MM), running=running)
+    s.measure_contacts(state, running)
     arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
     return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
 

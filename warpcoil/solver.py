@@ -30,6 +30,7 @@ WALL_QUERIES = ("sdf", "bvh")  # wall distance from the narrow-band field (BVH w
 FIELD_REGION_MM = 1.0  # the wall field covers the loop diameter + this around the catheter tip (BVH beyond)
 NEIGHBOUR_SKIN_MM = 0.2  # coil–coil neighbour grid rebuilt when a midpoint moved half this (seed case: 0.2 beats 0.05 by ~8 %, bit-identical)
 NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches the grid instead
+TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the implicit step searches its list)
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 
 
@@ -214,6 +215,7 @@ class Solver:
     """
 
     integrator = "symplectic"
+    record_touching = False  # note each edge's touching partners in the contact pass (the implicit step reads them)
     kernel_modules = (contact, devices, elastic, friction, integrate)  # loaded before a graph capture
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
@@ -284,6 +286,7 @@ class Solver:
         self._wall_slack = zeros(wp.float64)
         self._wall_seen_x, self._wall_seen_mm = zeros(wp.vec3d), zeros(wp.float64)  # last full search in the lumen
         self._wall_side.fill_(-1)
+        self.wall_searches = zeros(wp.int32)  # per node, its signed BVH queries so far (for tests and benchmarks)
         self._wall_quiet.fill_(-1)
         self.coil_gap, self.coil_contacts = zeros(wp.float64), zeros(wp.int32)
         self._midpoints, self._built_midpoints = zeros(wp.vec3d), zeros(wp.vec3d)
@@ -294,6 +297,9 @@ class Solver:
         self._edge_force_start, self._edge_force_end = zeros(wp.vec3d), zeros(wp.vec3d)
         self._edge_sum_start, self._edge_sum_end = zeros(contact.vec3l), zeros(contact.vec3l)  # fixed point
         self._edge_bad = zeros(wp.int32)
+        # per edge, its partners within a hair of touching (noted by the contact pass for the implicit step)
+        self._touch_count = zeros(wp.int32)
+        self._touch_b = wp.zeros((n, TOUCHING_PER_EDGE if self.record_touching else 1), dtype=wp.int32, device=dev)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -308,6 +314,7 @@ class Solver:
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
+        self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
 
     # --- one step ----------------------------------------------------------
     def _launch_midpoints(self, state: State) -> None:
@@ -320,7 +327,9 @@ class Solver:
         wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
             self._midpoints, self._built_midpoints, self._rebuild])
         m = self.model
-        self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of)
+        # one world: no groups (its grouped queries see every point, in the same order; Warp's CPU build
+        # sorts 32- instead of 64-bit keys then)
+        self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of if m.world_count > 1 else None)
         wp.launch(contact.build_neighbours, m.node_count, device=m.device, inputs=[
             self._grid.id, self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.contact.exclusion_edges,
             self._list_radius, self._neighbours, self._neighbour_count])
@@ -345,7 +354,7 @@ class Solver:
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
                 self._field_ids if wall_search_mm is None else self._no_fields, GRAD_TOLERANCE, self._anchor_margin,
                 int(self.wall_sided_skip), self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet,
-                self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance])
+                self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance, self.wall_searches])
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:
@@ -354,12 +363,14 @@ class Solver:
                 self._build_grid()
             sums = (self._edge_sum_start, self._edge_sum_end)
             wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
-                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+                m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad,
+                self._touch_count])
             wp.launch(contact.edge_contact, n, device=dev, inputs=[
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                *sums, self.coil_gap, self.coil_contacts, self._edge_bad])
+                *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
+                self._touch_count, self._touch_b])
             wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
                 *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[
@@ -384,6 +395,38 @@ class Solver:
                 wp.launch(devices.add_forces, n, device=dev, inputs=[self.device_force, self.contact_force])
             else:
                 wp.copy(self.contact_force, self.device_force)
+
+    def measure_contacts(self, state: State, running: wp.array) -> None:
+        """:meth:`compute_contacts` with exact wall distances for every node (the frame
+        measurement's pass; replayed, :meth:`_replayed`)."""
+        far = float(contact.FAR_MM)
+        if ("contacts", id(state), id(running)) not in self._graphs:
+            self.allocate_neighbour_grid(state)  # no allocation inside the capture
+        self._replayed("contacts", state, running,
+                       lambda: self.compute_contacts(state, wall_search_mm=far, running=running))
+
+    def _replayed(self, name: str, state: State, extra, launches) -> None:
+        """Run ``launches()`` (kernel launches on ``state`` and ``extra``) from a graph
+        captured at its first call for this (name, state, extra): a frame's
+        measurements launch ~12 kernels, ~0.5 ms from Python on the CPU. The last
+        MEASURE_GRAPHS graphs are kept (each holding its state and extra, so their
+        ids stay theirs); a device that cannot capture them launches them as they are."""
+        dev = self.model.device
+        key = (name, id(state), id(extra))
+        if key not in self._graphs:
+            if not (dev.is_cpu or dev.is_cuda):
+                launches()
+                return
+            try:
+                with wp.ScopedCapture(device=dev) as capture:
+                    launches()
+            except RuntimeError:
+                launches()
+                return
+            if len(self._graphs) >= MEASURE_GRAPHS:
+                self._graphs.pop(next(iter(self._graphs)))
+            self._graphs[key] = (state, extra, capture.graph)
+        wp.capture_launch(self._graphs[key][2])
 
     def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
@@ -458,10 +501,14 @@ class Solver:
         """Per world: kinetic (free nodes, translation + spin), stretching, bending and
         twisting energy (nJ), and the count of non-finite or runaway nodes."""
         m = self.model
-        wp.launch(integrate.kinetic_energies, m.node_count, device=m.device, inputs=[
-            state.v, state.omega, state.free, m.inv_mass, m.inv_inertia, self._kinetic, self._unhealthy,
-            SPEED_LIMIT_MM_S])
-        self._launch_elastic_energies(state)
+
+        def launches():
+            wp.launch(integrate.kinetic_energies, m.node_count, device=m.device, inputs=[
+                state.v, state.omega, state.free, m.inv_mass, m.inv_inertia, self._kinetic, self._unhealthy,
+                SPEED_LIMIT_MM_S])
+            self._launch_elastic_energies(state)
+
+        self._replayed("energies", state, None, launches)
         per_node = {"kinetic_nJ": self._kinetic.numpy(), "stretch_nJ": self._stretch_e.numpy(),
                     "bend_nJ": self._bend_e.numpy(), "twist_nJ": self._twist_e.numpy()}
         worlds = [m.world_nodes(w) for w in range(m.world_count)]
@@ -548,7 +595,11 @@ class Solver:
         return {k: float(v.sum()) for k, v in energies.items()}
 
 
-GRAPH_STEPS_MAX = 64  # steps per captured graph: capturing costs ~30 µs per launch on the CPU, replay ~0.4 µs
+# steps per captured graph: capturing one implicit step (34 launches) costs ~5 ms on the CPU, a replay
+# ~7 µs per graph; 8 keeps replays under 1 µs a step and a capture short (the seed case's 22-step
+# frames: 2-step graphs, first frame 128 → 13 ms)
+GRAPH_STEPS_MAX = 8
+MEASURE_GRAPHS = 8  # captured measurement graphs a solver keeps (Solver._replayed)
 
 
 def graph_steps(chunk: int) -> int:

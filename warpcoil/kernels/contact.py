@@ -150,6 +150,9 @@ OWN_VERTEX_A = wp.constant(8)
 OWN_VERTEX_B = wp.constant(16)
 OWN_VERTEX_C = wp.constant(32)
 BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes
+# a face farther than the contact range by this is skipped with its edges and vertices (each at
+# least as far: they belong to the closed face); ≫ the float64 rounding of either distance
+FEATURE_SKIP_MM = wp.constant(wp.float64(1.0e-9))
 
 
 @wp.func
@@ -229,7 +232,9 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     closest-point force; in a groove between facets both faces push. Every term
     is continuous in p with a continuous gradient, so is the sum: the force of a
     potential with no jumps at facet edges (the closest-face normal of
-    :func:`wall_query` jumps there). Fixed-point sum: order-independent.
+    :func:`wall_query` jumps there). Fixed-point sum: order-independent. A face
+    beyond the contact range is skipped with its edges and vertices (none of
+    them nearer than the face: no term in range, the same sum).
     Also returns the distance (mm, float64) from p to the closest face within
     reach (FAR_MM if none): exact whenever it is below ``radius + c0``."""
     reach = radius + c0 + BOX_MARGIN_MM
@@ -244,9 +249,12 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]
         c = vertices[faces[3 * k + 2]]
-        own = owners[k]
         closest = closest_on_triangle(p, a, b, c)
-        nearest = wp.min(nearest, wp.length(p - closest))
+        dist = wp.length(p - closest)
+        nearest = wp.min(nearest, dist)
+        if dist >= radius + c0 + FEATURE_SKIP_MM:  # its edges and vertices are no nearer: no term in range
+            continue
+        own = owners[k]
         total = total + feature_force(p, closest, radius, p0, c0, u_linear)
         if own & OWN_EDGE_AB:
             total = total - feature_force(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
@@ -315,6 +323,7 @@ def wall_contact(
     seen_distance: wp.array(dtype=wp.float64),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
+    searches: wp.array(dtype=wp.int32),
 ):
     """Wall force on each free node (µN; the wall of the node's ensemble member,
     none where its mesh id is 0), times the node's ``contact_share`` (½ at a free
@@ -346,10 +355,12 @@ def wall_contact(
     last searched in the lumen at centre distance s (``seen_x``,
     ``seen_distance``) and has since moved less than s − ``anchor_margin`` is still
     in the lumen (the distance is 1-Lipschitz), so with ``sided_skip`` its signed
-    BVH query is skipped: the feature sum alone gives force and distance, and
-    only if it finds no face within the contact range is the node searched in
-    full. The result is bit-identical to the full search (tested).
-    Writes the centre's signed distance (mm; for a node not
+    BVH query is skipped: the feature sum alone gives force and distance (and,
+    the node being in the lumen at that exact distance, a new (``seen_x``,
+    ``seen_distance``) to go on from: a node sliding along the wall is not searched
+    in full again), and only if it finds no face within the contact range is the
+    node searched in full. The result is bit-identical to the full search (tested).
+    Counts each node's signed BVH queries (``searches``). Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
     anchored with; +FAR in the catheter or without a wall)."""
     i = wp.tid()
@@ -384,7 +395,10 @@ def wall_contact(
                     f = summed
                     signed = nearest
                     done = True
+                    seen_x[i] = x[i]  # in the lumen at that distance: a new certificate
+                    seen_distance[i] = nearest
         if not done:  # the BVH
+            searches[i] = searches[i] + 1
             if side < 0:
                 reach = FAR_MM
             face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)
@@ -422,6 +436,9 @@ def wall_contact(
 
 
 # --- coil–coil -----------------------------------------------------------------
+TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of two evaluations of one gap
+
+
 @wp.func
 def segment_closest_params(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3d) -> wp.vec2d:
     """Parameters (s, t) in [0, 1]² of the closest points of segments p1q1 and p2q2
@@ -548,9 +565,10 @@ def next_partner(query: wp.ref[wp.HashGridQuery[wp.float64]], k: wp.ref[int], b:
                  neighbours: wp.array2d(dtype=wp.int32), listed: int, coil_of: wp.array(dtype=wp.int32),
                  exclusion: int) -> bool:
     """Advance ``b`` to edge a's next candidate partner; False when there is none.
-    The candidates: a's neighbour list (``listed`` entries, ``k`` the next one), or,
-    when it overflowed (NO_LIST), what ``query`` (the build's grid around a) finds,
-    bonded neighbours skipped. One iterator for both, so each pass writes its pair
+    The candidates: row a of a partner list (``neighbours``: the neighbour list, or
+    the implicit step's touching record; ``listed`` entries, ``k`` the next one),
+    or, when it overflowed (NO_LIST), what ``query`` (the build's grid around a)
+    finds, bonded neighbours skipped. One iterator for both, so each pass writes its pair
     body once; kernels calling it need ``enable_backward=False`` (wp.ref)."""
     if listed != NO_LIST:
         if k >= listed:
@@ -708,7 +726,10 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     closest points jump between segment ends when two segments turn parallel; a
     node's closest point on a segment does not), so the forces have no jumps.
     Evaluated when the midpoints are within ``far`` (the world's query radius:
-    the same cutoff whichever way b was found) and the bounding spheres meet."""
+    the same cutoff whichever way b was found) and the bounding spheres meet; a
+    pair whose segments are farther apart than c0 (+ TOUCH_MARGIN_MM) has no term
+    in range (each node–capsule and node–node distance is at least the segments',
+    and a rest offset only adds to a gap) and returns zero forces at once."""
     zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     fa_start = zero
     fa_end = zero
@@ -726,6 +747,8 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            if gap_a >= c0 + TOUCH_MARGIN_MM:  # no term in range: every node is at least as far, offsets add
+                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a
             if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
                 gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
             gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
@@ -847,15 +870,27 @@ def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp
 
 
 @wp.func
+def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
+    """Note ``other`` among edge e's touching partners, in whatever order they come
+    (readers must not depend on it); a count above the record's width means it overflowed."""
+    slot = wp.atomic_add(touch_count, e, 1)
+    if slot < touch_b.shape[1]:
+        touch_b[e, slot] = other
+
+
+@wp.func
 def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
                node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
                mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64, p0: wp.float64,
                c0: wp.float64, u_linear: wp.float64, far: wp.float64, sum_start: wp.array(dtype=vec3l),
                sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
-               contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
+               contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32), record: int,
+               touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
     """Pair (a, b) found by edge a: evaluated here when a < b or b takes no force
-    (an edge in the catheter: it runs no pass of its own), once for both sides."""
+    (an edge in the catheter: it runs no pass of its own), once for both sides;
+    with ``record``, a pair within TOUCH_MARGIN_MM of touching is noted on both
+    sides (:func:`note_touching`)."""
     b_runs = edge_in_contact_pass(free, has_next, b)
     if b > a or not b_runs:
         fa_start, fa_end, fb_start, fb_end, gap_a, gap_b = pair_forces(
@@ -864,13 +899,17 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
         if b_runs:
             add_side(b, fb_start, fb_end, gap_b, c0, sum_start, sum_end, min_gap, contacts, bad)
+        if record != 0 and gap_a < c0 + TOUCH_MARGIN_MM:
+            note_touching(a, b, touch_count, touch_b)
+            if b_runs:
+                note_touching(b, a, touch_count, touch_b)
 
 
 @wp.kernel
 def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(dtype=wp.float64),
                     sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l),
                     min_gap: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
-                    bad: wp.array(dtype=wp.int32)):
+                    bad: wp.array(dtype=wp.int32), touch_count: wp.array(dtype=wp.int32)):
     """Empty coil–coil sums before :func:`edge_contact` adds the pairs (smallest gap:
     the world's query radius, reported where no pair was evaluated)."""
     e = wp.tid()
@@ -879,6 +918,7 @@ def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(d
     min_gap[e] = query_radius[world_of[e]]
     contacts[e] = 0
     bad[e] = 0
+    touch_count[e] = 0
 
 
 @wp.kernel(enable_backward=False)
@@ -908,6 +948,9 @@ def edge_contact(
     min_gap: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
     bad: wp.array(dtype=wp.int32),
+    record: int,
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
 ):
     """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
     and every other edge b of the same ensemble member near it, each pair evaluated
@@ -921,7 +964,9 @@ def edge_contact(
     build searched ``grid_radius`` (= query radius + half the skin) around a's
     current midpoint. Bonded neighbours (same coil, closer than ``exclusion``
     edges) are skipped. Edges in the catheter stand in for the catheter: free
-    edges are pushed off them."""
+    edges are pushed off them. With ``record``, each edge's partners within
+    TOUCH_MARGIN_MM of touching are noted (``touch_count``, ``touch_b``) for the
+    implicit step's contact stiffness."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -933,7 +978,8 @@ def edge_contact(
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
             visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
-                       reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad)
+                       reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
+                       touch_count, touch_b)
 
 
 @wp.kernel

@@ -249,7 +249,8 @@ def edge_contact_stiffness(
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
-    touching: wp.array(dtype=wp.int32),
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
     pair_count: wp.array(dtype=wp.int32),
@@ -258,12 +259,14 @@ def edge_contact_stiffness(
     pair_k: wp.array2d(dtype=wp.float64),
     pair_n: wp.array2d(dtype=wp.vec3d),
 ):
-    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), found
-    as contact.edge_contact finds its partners, for the edges it found touching
-    (``touching``: its per-edge count of touching pairs at the same state);
-    fixed-point sums, so the result does not depend on the order the partners
-    are found in. Each touching pair is also recorded (``record_pair``) for the
-    exact product with the contact stiffness."""
+    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
+    partners that contact.edge_contact noted within a hair of touching at the same
+    state (``touch_count``, ``touch_b``; every pair this finds touching is among
+    them), or, when more than the record holds, over a's partners found as
+    contact.edge_contact finds them; fixed-point sums, so the result does not
+    depend on the order the partners come in (a partner not touching adds zero).
+    Each touching pair is also recorded (``record_pair``, sorted by partner) for
+    the exact product with the contact stiffness."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -272,13 +275,18 @@ def edge_contact_stiffness(
     e_off = vec3l()
     w = world_of[a]
     radius = query_radius[w]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and touching[a] > 0:
+    noted = touch_count[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and noted > 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+        candidates = neighbours  # a's neighbour list (NO_LIST: the grid)
         listed = neighbour_count[a]
+        if noted <= touch_b.shape[1]:  # the partners the contact pass noted touching
+            candidates = touch_b
+            listed = noted
         k = int(0)
         b = int(0)
-        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+        while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius)
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)

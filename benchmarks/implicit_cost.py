@@ -1,0 +1,200 @@
+"""Cost of the implicit step: the seed case and the faceted sac, run by run and launch by launch.
+
+    python -m benchmarks.implicit_cost [--repeats 3] [--out docs/bench/implicit_cost.md]
+
+1. ``scenes/seed_sphere.toml`` and a 60 mm coil (d 0.2921 mm) into the irregular
+   faceted sac of 20 mm³ (warpcoil.faceted_sac, as ``warpcoil validate dense-pack``
+   builds it, on the implicit step) deployed to the end ``--repeats`` times: steps,
+   the run's CPU time split into the steps (graph replays) and the frames (the
+   host's measurements between them), µs per step; the fastest repeat.
+2. The seed case's step at three saved moments (15 mm out, 15 mm left, settling):
+   graph-replayed steps from there (the fastest of the repeats), and each launch of
+   one step replayed alone from a captured graph (neighbour-grid builds weighted by
+   how often a step builds there). Launches with state (the wall pass's anchors and
+   certificates, the neighbour lists, the touching record) cost less replayed on a
+   state that does not move: their sum is a floor, the step's replay the figure.
+3. The wall pass's signed BVH queries per step over each run (the frames' exact
+   measurement pass included).
+
+Times are this process's CPU time (``time.process_time``: Warp runs CPU kernels in
+the calling thread; time the shared machine gives others is left out, cache
+contention is not). Units µs, s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpcoil import CatheterSpec, CoilSpec
+from warpcoil.bench.ensemble import STATE_ARRAYS
+from warpcoil.bench.report import machine, markdown_table
+from warpcoil.bench.steps import LaunchRecorder, seed_scene
+from warpcoil.deploy import Anatomy, Deployment, Ensemble
+from warpcoil.faceted_sac import catheter_tip, lobulated_sac
+from warpcoil.settings import OutputSettings, Scene, SimulationSettings
+from warpcoil.solver import Stepper
+from warpcoil.state import new_state_like
+
+D_MM = 0.2921
+WINDOW_MM = 15.0
+MOMENTS = ("15 mm out", "15 mm left", "settling")
+
+
+def faceted_sac_run(packing: float = 0.20, loop_mm: float = 4.0, length_mm: float = 60.0, seed: int = 1) -> Ensemble:
+    """The dense-pack case of ``warpcoil validate`` (20 mm³ at 20 %) on the implicit step."""
+    coil = CoilSpec(wire_diameter_mm=D_MM, length_mm=length_mm, loop_diameter_mm=loop_mm)
+    wall = lobulated_sac(math.pi * (D_MM / 2.0) ** 2 * length_mm / packing, seed=seed)
+    catheter = CatheterSpec(tip_mm=catheter_tip(wall, seed), direction=(0.0, 0.0, 1.0))
+    scene = Scene(coils=(coil,), catheter=catheter, output=OutputSettings(usd=False),
+                  simulation=SimulationSettings(integrator="implicit"))
+    return Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])
+
+
+def timed_run(ensemble: Ensemble) -> dict:
+    """Run to the end; steps, CPU time (s) of the run, of its steps and of its frames."""
+    in_steps = [0.0]
+    run_chunk = Stepper.run_chunk
+
+    def timed_chunk(stepper):
+        start = time.process_time()
+        state = run_chunk(stepper)
+        in_steps[0] += time.process_time() - start
+        return state
+
+    Stepper.run_chunk = timed_chunk
+    try:
+        start = time.process_time()
+        result = Ensemble.run(ensemble)[0]  # (a Deployment's run returns its one result)
+        total = time.process_time() - start
+    finally:
+        Stepper.run_chunk = run_chunk
+    searches = getattr(ensemble.solver, "wall_searches", None)
+    return dict(status=result.status, steps=result.steps, cpu_s=total, steps_s=in_steps[0], frames_s=total - in_steps[0],
+                us_per_step=in_steps[0] / result.steps * 1e6,
+                searches_per_step=float(searches.numpy().sum()) / result.steps if searches is not None else math.nan)
+
+
+def seed_states() -> dict:
+    """Host copies of the seed run's state at the three moments (with the step there)."""
+    deployment = Deployment(seed_scene())
+    total = float(deployment.coil_lengths_mm.sum())
+    states: dict = {}
+
+    def on_frame(frame, state):
+        reached = {"15 mm out": frame.deployed_length_mm >= WINDOW_MM,
+                   "15 mm left": frame.deployed_length_mm >= total - WINDOW_MM,
+                   "settling": deployment.solver.dt_s > deployment.settle_dt_s * 0.99 > 0.0}
+        for moment, now in reached.items():
+            if now and moment not in states:
+                states[moment] = {k: getattr(state, k).numpy().copy() for k in STATE_ARRAYS}
+                states[moment]["time_s"], states[moment]["dt_s"] = state.time_s, deployment.solver.dt_s
+
+    deployment.run(on_frame)
+    return states
+
+
+def replay_us(target, args, kwargs, device, kind: str, launches: int = 20, repeats: int = 15) -> float:
+    """µs per call of one recorded launch, the fastest of ``repeats`` replays of a
+    graph of ``launches`` of it (a HashGrid build, not capturable here, called directly)."""
+    best = math.inf
+    if kind == "build":
+        for _ in range(repeats):
+            start = time.process_time()
+            target.build(*args, **kwargs)
+            best = min(best, time.process_time() - start)
+        return best * 1e6
+    with wp.ScopedCapture(device=device) as capture:
+        for _ in range(launches):
+            wp.launch(target, *args, **kwargs)
+    wp.capture_launch(capture.graph)
+    for _ in range(repeats):
+        start = time.process_time()
+        wp.capture_launch(capture.graph)
+        best = min(best, time.process_time() - start)
+    return best / launches * 1e6
+
+
+def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict]:
+    """Per moment: the graph-replayed step (µs, fastest of ``repeats`` chunks) and µs per
+    launch of one step (each replayed alone)."""
+    deployment = Deployment(seed_scene())
+    solver, control, device = deployment.solver, deployment.control, deployment.model.device
+    whole, launches = {}, {}
+    for moment, host in states.items():
+        state = new_state_like(deployment.model)
+        for k in STATE_ARRAYS:
+            getattr(state, k).assign(host[k])
+        state.time_s = host["time_s"]
+        control.set_active_coil(-1 if moment == "settling" else 0)
+        solver.dt_s = host["dt_s"]
+        stepper = Stepper(solver, state, control, chunk=steps)
+        stepper.run_chunk()  # capture, anchors, lists
+        best = math.inf
+        for _ in range(repeats):
+            start = time.process_time()
+            stepper.run_chunk()
+            best = min(best, time.process_time() - start)
+        whole[moment] = best / steps * 1e6
+        plain = Stepper(solver, stepper.state, control, chunk=steps, use_graph=False)
+        builds = solver.grid_builds
+        plain.run_chunk()
+        build_share = (solver.grid_builds - builds) / steps
+        solver._rebuild.fill_(1)
+        conditional, solver._conditional_rebuild = solver._conditional_rebuild, False  # record a build too
+        with LaunchRecorder() as recorder:
+            solver.step(plain.state, plain._b, control)
+        solver._conditional_rebuild = conditional
+        touching = getattr(solver, "_touch_count", None)
+        noted = touching.numpy().copy() if touching is not None else None
+        times: dict[str, float] = defaultdict(float)
+        for kind, target, args, kwargs in recorder.launches:
+            name = target.key if kind == "launch" else "HashGrid.build"
+            if noted is not None:  # the contact pass's replays add to it: as the step left it
+                touching.assign(noted)
+            times[name] += replay_us(target, args, kwargs, device, kind)
+        for name in ("mark_built", "HashGrid.build", "build_neighbours"):
+            times[name] *= build_share
+        launches[moment] = dict(times)
+    return whole, launches
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=None, help="also write the report (markdown) here")
+    args = parser.parse_args()
+    runs = {}
+    for name, make in (("seed case", lambda: Deployment(seed_scene())), ("faceted sac 20 mm³", faceted_sac_run)):
+        rows = [timed_run(make()) for _ in range(args.repeats)]
+        runs[name] = min(rows, key=lambda r: r["cpu_s"])
+        print(name, runs[name], flush=True)
+    whole, launches = profile(seed_states(), args.repeats)
+    run_table = markdown_table(
+        ["case", "status", "steps", "CPU s (fastest)", "of which steps", "of which frames", "µs per step",
+         "signed BVH queries per step"],
+        [[n, r["status"], r["steps"], r["cpu_s"], r["steps_s"], r["frames_s"], r["us_per_step"],
+          r["searches_per_step"]] for n, r in runs.items()])
+    names = sorted({k for v in launches.values() for k in v}, key=lambda k: -launches["15 mm left"].get(k, 0.0))
+    launch_table = markdown_table(
+        ["launch: µs per step, replayed alone"] + list(MOMENTS),
+        [[k] + [launches[m].get(k, 0.0) for m in MOMENTS] for k in names]
+        + [["sum of the launches"] + [sum(launches[m].values()) for m in MOMENTS],
+           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
+    text = "\n\n".join([
+        "# Cost of the implicit step", f"`python -m benchmarks.implicit_cost --repeats {args.repeats}`",
+        f"Machine: {machine()}. Times: this process's CPU time (the machine is shared).",
+        run_table, launch_table]) + "\n"
+    print(text)
+    if args.out:
+        args.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
