@@ -635,6 +635,34 @@ def build_neighbours(
 
 
 @wp.func
+def next_partner(query: wp.ref[wp.HashGridQuery[wp.float64]], k: wp.ref[int], b: wp.ref[int], a: int,
+                 neighbours: wp.array2d(dtype=wp.int32), listed: int, coil_of: wp.array(dtype=wp.int32),
+                 exclusion: int) -> bool:
+    """Advance ``b`` to edge a's next candidate partner; False when there is none.
+    The candidates: row a of a partner list (``neighbours``: the neighbour list, or
+    the implicit step's touching record; ``listed`` entries, ``k`` the next one),
+    or, when it overflowed (NO_LIST), what ``query`` (the build's grid around a)
+    finds, bonded neighbours skipped. One iterator for both, so each pass writes its pair
+    body once; kernels calling it need ``enable_backward=False`` (wp.ref)."""
+    if listed != NO_LIST:
+        if k >= listed:
+            return False
+        b = neighbours[a, k]
+        k = k + 1
+        return True
+    q = query  # Warp 1.19's hash_grid_query_next advances a local, not a wp.ref: copy in and out
+    found = int(0)
+    more = bool(True)
+    while more:
+        more = wp.hash_grid_query_next(q, found)
+        if more and not bonded(coil_of, exclusion, a, found):
+            break
+    query = q
+    b = found
+    return more
+
+
+@wp.func
 def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
     """Shift (mm, in [0, c0]) of a same-coil clearance whose rest value ``rest_gap``
     is below c0: c0 − rest_gap. The law then begins at the rest clearance (at
@@ -967,7 +995,7 @@ def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(d
     touch_count[e] = 0
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def edge_contact(
     x: wp.array(dtype=wp.vec3d),
     rest_x: wp.array(dtype=wp.vec3d),
@@ -1018,20 +1046,14 @@ def edge_contact(
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         listed = neighbour_count[a]
-        if listed != NO_LIST:
-            for k in range(listed):
-                visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a,
-                           neighbours[a, k], exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end,
-                           min_gap, contacts, bad, record, touch_count, touch_b)
-        else:
-            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
-            b = int(0)
-            while wp.hash_grid_query_next(query, b):
-                if not bonded(coil_of, exclusion, a, b):
-                    visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b,
-                               exclusion, reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts,
-                               bad, record, touch_count, touch_b)
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
+                       reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
+                       touch_count, touch_b)
 
 
 @wp.kernel

@@ -34,7 +34,7 @@ member = its single run).
 
 import warp as wp
 
-from .contact import (NO_LIST, bonded, edge_in_contact_pass, edge_is_obstacle, from_fixed, pair_contact,
+from .contact import (edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact,
                       segment_closest_params, to_fixed, vec3l)
 from .rod import F64_0, F64_1
 
@@ -135,7 +135,7 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
     return dv_start, dv_end
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def edge_friction(
     x: wp.array(dtype=wp.vec3d),
     rest_x: wp.array(dtype=wp.vec3d),
@@ -178,24 +178,16 @@ def edge_friction(
     w = world_of[a]
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         listed = neighbour_count[a]
-        if listed != NO_LIST:
-            for k in range(listed):
-                d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share, inv_mass, mid, contacts,
-                                      wall_force, device_force, a, neighbours[a, k], exclusion, radius, p0, c0, u_linear, mu_coil,
-                                      mu_catheter, v_reg, dt)
-                sum_start = sum_start + to_fixed(d0)
-                sum_end = sum_end + to_fixed(d1)
-        else:
-            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
-            b = int(0)
-            while wp.hash_grid_query_next(query, b):
-                if not bonded(coil_of, exclusion, a, b):
-                    d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share, inv_mass, mid,
-                                          contacts, wall_force, device_force, a, b, exclusion, radius, p0, c0, u_linear, mu_coil,
-                                          mu_catheter, v_reg, dt)
-                    sum_start = sum_start + to_fixed(d0)
-                    sum_end = sum_end + to_fixed(d1)
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share, inv_mass, mid,
+                                  contacts, wall_force, device_force, a, b, exclusion, radius, p0, c0, u_linear, mu_coil,
+                                  mu_catheter, v_reg, dt)
+            sum_start = sum_start + to_fixed(d0)
+            sum_end = sum_end + to_fixed(d1)
     dv_start[a] = from_fixed(sum_start)
     dv_end[a] = from_fixed(sum_end)
 

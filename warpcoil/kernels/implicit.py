@@ -47,13 +47,12 @@ trace ≥ −1 − det).
 import warp as wp
 
 from .contact import (
-    NO_LIST,
-    bonded,
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
     field_sample,
     from_fixed,
+    next_partner,
     rest_offset,
     segment_closest_params,
     to_fixed,
@@ -61,7 +60,7 @@ from .contact import (
     wall_feature_stiffness,
 )
 from .elastic import bonded_span, edge_torque
-from .integrate import catheter_point, coil_advance, pushed
+from .integrate import hold_node
 from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
 
 
@@ -231,7 +230,7 @@ def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: w
     pair_count[a] = count + 1
 
 
-@wp.kernel
+@wp.kernel(enable_backward=False)
 def edge_contact_stiffness(
     x: wp.array(dtype=wp.vec3d),
     rest_x: wp.array(dtype=wp.vec3d),
@@ -281,46 +280,24 @@ def edge_contact_stiffness(
     noted = touch_count[a]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and noted > 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+        candidates = neighbours  # a's neighbour list (NO_LIST: the grid)
         listed = neighbour_count[a]
-        if noted <= touch_b.shape[1]:
-            for k in range(noted):
-                b = touch_b[a, k]
-                start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed,
-                                                                 node_radius, mid, a, b, reach_a, p0, c0, u_linear,
-                                                                 radius)
-                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-                d, o = to_fixed_sym(start)
-                s_diag = s_diag + d
-                s_off = s_off + o
-                d, o = to_fixed_sym(end)
-                e_diag = e_diag + d
-                e_off = e_off + o
-        elif listed != NO_LIST:
-            for k in range(listed):
-                b = neighbours[a, k]
-                start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                                 reach_a, p0, c0, u_linear, radius)
-                record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-                d, o = to_fixed_sym(start)
-                s_diag = s_diag + d
-                s_off = s_off + o
-                d, o = to_fixed_sym(end)
-                e_diag = e_diag + d
-                e_off = e_off + o
-        else:
-            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
-            b = int(0)
-            while wp.hash_grid_query_next(query, b):
-                if not bonded(coil_of, exclusion, a, b):
-                    start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a,
-                                                                     b, reach_a, p0, c0, u_linear, radius)
-                    record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-                    d, o = to_fixed_sym(start)
-                    s_diag = s_diag + d
-                    s_off = s_off + o
-                    d, o = to_fixed_sym(end)
-                    e_diag = e_diag + d
-                    e_off = e_off + o
+        if noted <= touch_b.shape[1]:  # the partners the contact pass noted touching
+            candidates = touch_b
+            listed = noted
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
+            start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
+                                                             reach_a, p0, c0, u_linear, radius)
+            record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
+            d, o = to_fixed_sym(start)
+            s_diag = s_diag + d
+            s_off = s_off + o
+            d, o = to_fixed_sym(end)
+            e_diag = e_diag + d
+            e_off = e_off + o
     stiff_start[a] = from_fixed_sym(s_diag, s_off)
     stiff_end[a] = from_fixed_sym(e_diag, e_off)
 
@@ -493,41 +470,11 @@ def hold_nodes(
     free_out: wp.array(dtype=wp.int32),
     advance_out: wp.array(dtype=wp.float64),
 ):
-    """integrate.integrate_nodes without the free nodes' update: the pusher advance,
-    the nodes behind the tip on the catheter centerline at the pusher's speed,
-    clamped nodes at rest, a stopped world unchanged; free nodes are only
-    flagged (free_out = 1), the coil solve moves them."""
-    i = wp.tid()
-    if i < advance_in.shape[0]:
-        cw = coil_world[i]
-        if running[cw] != 0:
-            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
-        else:
-            advance_out[i] = advance_in[i]
-    w = world_of[i]
-    if running[w] == 0:
-        x_out[i] = x_in[i]
-        v_out[i] = v_in[i]
-        free_out[i] = free_in[i]
-        return
-    zero = wp.vec3d(F64_0, F64_0, F64_0)
-    if fixed[i] != 0:
-        x_out[i] = x_in[i]
-        v_out[i] = zero
-        free_out[i] = 0
-        return
-    c = coil_of[i]
-    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_speed[w] * dt) - arc_s[i]
-    if sigma < F64_0:
-        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
-        x_out[i] = p
-        if pushed(active_coil, coil_world, c):
-            v_out[i] = push_speed[w] * direction
-        else:
-            v_out[i] = zero
-        free_out[i] = 0
-        return
-    free_out[i] = 1
+    """integrate.hold_node alone: the free nodes are only flagged (free_out = 1),
+    the coil solve moves them."""
+    hold_node(wp.tid(), x_in, v_in, free_in, advance_in, fixed, coil_of, world_of, coil_world, arc_s, catheter_path,
+              catheter_first, catheter_count, active_coil, push_speed, running, dt, x_out, v_out, free_out,
+              advance_out)
 
 
 @wp.func

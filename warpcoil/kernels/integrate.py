@@ -76,6 +76,68 @@ def coil_advance(advance: wp.array(dtype=wp.float64), active_coil: wp.array(dtyp
     return a
 
 
+@wp.func
+def hold_node(
+    i: int,
+    x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
+    free_in: wp.array(dtype=wp.int32),
+    advance_in: wp.array(dtype=wp.float64),
+    fixed: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    coil_world: wp.array(dtype=wp.int32),
+    arc_s: wp.array(dtype=wp.float64),
+    catheter_path: wp.array(dtype=wp.vec3d),
+    catheter_first: wp.array(dtype=wp.int32),
+    catheter_count: wp.array(dtype=wp.int32),
+    active_coil: wp.array(dtype=wp.int32),
+    push_speed: wp.array(dtype=wp.float64),
+    running: wp.array(dtype=wp.int32),
+    dt: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    advance_out: wp.array(dtype=wp.float64),
+) -> bool:
+    """The part of node i's step that needs no force (both integrators): coil i's
+    pusher advance (mm, for i < coils); a stopped world keeps its state, a clamped
+    node rests, a node behind the catheter tip (σ < 0) sits on the centerline at
+    the pusher's velocity. True when node i is free (free_out = 1; its x_out,
+    v_out left to the caller)."""
+    if i < advance_in.shape[0]:
+        cw = coil_world[i]
+        if running[cw] != 0:
+            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
+        else:
+            advance_out[i] = advance_in[i]
+    w = world_of[i]
+    if running[w] == 0:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+        free_out[i] = free_in[i]
+        return False
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    if fixed[i] != 0:
+        x_out[i] = x_in[i]
+        v_out[i] = zero
+        free_out[i] = 0
+        return False
+    c = coil_of[i]
+    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_speed[w] * dt) - arc_s[i]
+    if sigma < F64_0:
+        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
+        x_out[i] = p
+        if pushed(active_coil, coil_world, c):
+            v_out[i] = push_speed[w] * direction
+        else:
+            v_out[i] = zero
+        free_out[i] = 0
+        return False
+    free_out[i] = 1
+    return True
+
+
 @wp.kernel
 def integrate_nodes(
     x_in: wp.array(dtype=wp.vec3d),
@@ -103,46 +165,18 @@ def integrate_nodes(
     free_out: wp.array(dtype=wp.int32),
     advance_out: wp.array(dtype=wp.float64),
 ):
-    """One step of node i (and of coil i's pusher advance, mm, for i < coils).
-    A world that is not running keeps its state."""
+    """One step of node i (and of coil i's pusher advance, mm, for i < coils):
+    :func:`hold_node`, then a free node's damped semi-implicit Euler update."""
     i = wp.tid()
-    if i < advance_in.shape[0]:
-        cw = coil_world[i]
-        if running[cw] != 0:
-            advance_out[i] = coil_advance(advance_in, active_coil, coil_world, i, push_speed[cw] * dt)
-        else:
-            advance_out[i] = advance_in[i]
-    w = world_of[i]
-    if running[w] == 0:
-        x_out[i] = x_in[i]
-        v_out[i] = v_in[i]
-        free_out[i] = free_in[i]
-        return
-    push_step = push_speed[w] * dt
-    zero = wp.vec3d(F64_0, F64_0, F64_0)
-    if fixed[i] != 0:
-        x_out[i] = x_in[i]
-        v_out[i] = zero
-        free_out[i] = 0
-        return
-    c = coil_of[i]
-    sigma = coil_advance(advance_in, active_coil, coil_world, c, push_step) - arc_s[i]
-    if sigma < F64_0:
-        p, direction = catheter_point(catheter_path, catheter_first[w], catheter_count[w], -sigma)
-        x_out[i] = p
-        if pushed(active_coil, coil_world, c):
-            v_out[i] = push_speed[w] * direction
-        else:
-            v_out[i] = zero
-        free_out[i] = 0
-        return
-    v = v_in[i] + dt * inv_mass[i] * force[i]
-    speed = wp.length(v)
-    if speed > F64_0:
-        v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
-    v_out[i] = v
-    x_out[i] = x_in[i] + dt * v
-    free_out[i] = 1
+    if hold_node(i, x_in, v_in, free_in, advance_in, fixed, coil_of, world_of, coil_world, arc_s, catheter_path,
+                 catheter_first, catheter_count, active_coil, push_speed, running, dt, x_out, v_out, free_out,
+                 advance_out):
+        v = v_in[i] + dt * inv_mass[i] * force[i]
+        speed = wp.length(v)
+        if speed > F64_0:
+            v = v * (damped_speed(speed, dt * damping_c[i] * inv_mass[i], damping_k) / speed)
+        v_out[i] = v
+        x_out[i] = x_in[i] + dt * v
 
 
 @wp.kernel
