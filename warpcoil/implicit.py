@@ -103,6 +103,7 @@ class ImplicitSolver(Solver):
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
         self._wall_stiffness = mats()  # per node: the wall's contact stiffness (µN/mm)
+        self.wall_feature_stiffness = mats()  # the wall pass's feature-sum stiffness (µN/mm, at P0)
         self._rhs, self._y, self._v, self._r, self._z, self._p, self._q = (vecs() for _ in range(7))
         self._rz = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         self._pair_count = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -141,9 +142,8 @@ class ImplicitSolver(Solver):
         if self.has_wall:
             wp.launch(kernels.wall_stiffness, n, device=dev, inputs=[
                 state_in.x, state_in.free, m.world_of, control.running, m.node_radius, self.wall_force,
-                self.wall_distance, m.wall_mesh, m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces,
-                m.wall_owners, self._field_ids, GRAD_TOLERANCE, p0_stiff, c.c0_mm, self.contact_u_linear,
-                self._wall_stiffness])
+                self.wall_distance, self.wall_feature_stiffness, m.wall_mesh, m.wall_origin, self._field_ids,
+                GRAD_TOLERANCE, p0_stiff, 1.0 / theta, c.c0_mm, self.contact_u_linear, self._wall_stiffness])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

@@ -223,7 +223,7 @@ def feature_force(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.flo
 @wp.func
 def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
                      owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
-                     p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
+                     p0: wp.float64, c0: wp.float64, u_linear: wp.float64, with_stiffness: int):
     """Wall force (µN) on a node sphere at ``p`` (relative to the mesh origin) in the
     lumen: Σ_faces F(d_f) − Σ_edges F(d_e) + Σ_vertices F(d_v), each the law of the
     distance from p to that closed face, edge or vertex, along p − its closest point.
@@ -236,13 +236,20 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     beyond the contact range is skipped with its edges and vertices (none of
     them nearer than the face: no term in range, the same sum).
     Also returns the distance (mm, float64) from p to the closest face within
-    reach (FAR_MM if none): exact whenever it is below ``radius + c0``."""
+    reach (FAR_MM if none): exact whenever it is below ``radius + c0``, and, with
+    ``with_stiffness``, the normal part of −∂F/∂p (µN/mm, for the implicit step):
+    the same features' k(h) n nᵀ with the same signs, summed in fixed point. One
+    closest face gives the single law's k n nᵀ; in a groove, or where faces meet
+    at a crease, every face that pushes adds its own direction (the net force's
+    direction alone misses them). Without it the matrix is zero."""
     reach = radius + c0 + BOX_MARGIN_MM
     lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
     upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
     query = wp.mesh_query_aabb(mesh, lower, upper)
     f = int(0)
     total = vec3l()
+    diagonal = vec3l()
+    off = vec3l()
     nearest = FAR_MM
     while wp.mesh_query_aabb_next(query, f):
         k = face_first + f
@@ -255,20 +262,29 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
         if dist >= radius + c0 + FEATURE_SKIP_MM:  # its edges and vertices are no nearer: no term in range
             continue
         own = owners[k]
-        total = total + feature_force(p, closest, radius, p0, c0, u_linear)
+        t, d, o = feature_terms(p, closest, radius, p0, c0, u_linear, with_stiffness)
+        total, diagonal, off = total + t, diagonal + d, off + o
         if own & OWN_EDGE_AB:
-            total = total - feature_force(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
+            t, d, o = feature_terms(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total - t, diagonal - d, off - o
         if own & OWN_EDGE_BC:
-            total = total - feature_force(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear)
+            t, d, o = feature_terms(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total - t, diagonal - d, off - o
         if own & OWN_EDGE_CA:
-            total = total - feature_force(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear)
+            t, d, o = feature_terms(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total - t, diagonal - d, off - o
         if own & OWN_VERTEX_A:
-            total = total + feature_force(p, a, radius, p0, c0, u_linear)
+            t, d, o = feature_terms(p, a, radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total + t, diagonal + d, off + o
         if own & OWN_VERTEX_B:
-            total = total + feature_force(p, b, radius, p0, c0, u_linear)
+            t, d, o = feature_terms(p, b, radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total + t, diagonal + d, off + o
         if own & OWN_VERTEX_C:
-            total = total + feature_force(p, c, radius, p0, c0, u_linear)
-    return from_fixed(total), nearest
+            t, d, o = feature_terms(p, c, radius, p0, c0, u_linear, with_stiffness)
+            total, diagonal, off = total + t, diagonal + d, off + o
+    dd = from_fixed(diagonal)
+    oo = from_fixed(off)
+    return from_fixed(total), nearest, wp.mat33d(dd[0], oo[0], oo[1], oo[0], dd[1], oo[2], oo[1], oo[2], dd[2])
 
 
 @wp.func
@@ -289,60 +305,14 @@ def feature_stiffness(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp
 
 
 @wp.func
-def wall_feature_stiffness(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-                           owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
-                           p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.mat33d:
-    """The normal part of −∂F/∂p of :func:`wall_feature_sum` (µN/mm): its faces, edges
-    and vertices' k(h) n nᵀ with the same signs, summed in fixed point (order-independent,
-    as the force). One closest face gives the single law's k n nᵀ; in a groove, or where
-    faces meet at a crease, every face that pushes adds its own direction (the net
-    force's direction alone misses them)."""
-    reach = radius + c0 + BOX_MARGIN_MM
-    lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
-    upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
-    query = wp.mesh_query_aabb(mesh, lower, upper)
-    f = int(0)
+def feature_terms(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
+                  u_linear: wp.float64, with_stiffness: int):
+    """One feature's force and (with ``with_stiffness``) stiffness entries, fixed point."""
     diagonal = vec3l()
-    off = vec3l()
-    while wp.mesh_query_aabb_next(query, f):
-        k = face_first + f
-        a = vertices[faces[3 * k]]
-        b = vertices[faces[3 * k + 1]]
-        c = vertices[faces[3 * k + 2]]
-        closest = closest_on_triangle(p, a, b, c)
-        if wp.length(p - closest) >= radius + c0 + FEATURE_SKIP_MM:  # its edges and vertices are no nearer
-            continue
-        own = owners[k]
-        d, o = feature_stiffness(p, closest, radius, p0, c0, u_linear)
-        diagonal = diagonal + d
-        off = off + o
-        if own & OWN_EDGE_AB:
-            d, o = feature_stiffness(p, closest_on_segment(p, a, b), radius, p0, c0, u_linear)
-            diagonal = diagonal - d
-            off = off - o
-        if own & OWN_EDGE_BC:
-            d, o = feature_stiffness(p, closest_on_segment(p, b, c), radius, p0, c0, u_linear)
-            diagonal = diagonal - d
-            off = off - o
-        if own & OWN_EDGE_CA:
-            d, o = feature_stiffness(p, closest_on_segment(p, c, a), radius, p0, c0, u_linear)
-            diagonal = diagonal - d
-            off = off - o
-        if own & OWN_VERTEX_A:
-            d, o = feature_stiffness(p, a, radius, p0, c0, u_linear)
-            diagonal = diagonal + d
-            off = off + o
-        if own & OWN_VERTEX_B:
-            d, o = feature_stiffness(p, b, radius, p0, c0, u_linear)
-            diagonal = diagonal + d
-            off = off + o
-        if own & OWN_VERTEX_C:
-            d, o = feature_stiffness(p, c, radius, p0, c0, u_linear)
-            diagonal = diagonal + d
-            off = off + o
-    dd = from_fixed(diagonal)
-    oo = from_fixed(off)
-    return wp.mat33d(dd[0], oo[0], oo[1], oo[0], dd[1], oo[2], oo[1], oo[2], dd[2])
+    upper = vec3l()
+    if with_stiffness != 0:
+        diagonal, upper = feature_stiffness(p, closest, radius, p0, c0, u_linear)
+    return feature_force(p, closest, radius, p0, c0, u_linear), diagonal, upper
 
 
 @wp.func
@@ -398,6 +368,8 @@ def wall_contact(
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
     searches: wp.array(dtype=wp.int32),
+    with_stiffness: int,
+    stiffness: wp.array(dtype=wp.mat33d),
 ):
     """Wall force on each free node (µN; the wall of the node's ensemble member,
     none where its mesh id is 0), times the node's ``contact_share`` (½ at a free
@@ -436,9 +408,12 @@ def wall_contact(
     node searched in full. The result is bit-identical to the full search (tested).
     Counts each node's signed BVH queries (``searches``). Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
-    anchored with; +FAR in the catheter or without a wall)."""
+    anchored with; +FAR in the catheter or without a wall). With ``with_stiffness``
+    (the implicit step) also each node's feature-sum stiffness (:func:`wall_feature_sum`,
+    µN/mm, without the contact share; zero where the force is not a feature sum)."""
     i = wp.tid()
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    k_wall = wp.mat33d()
     signed = FAR_MM
     w = world_of[i]
     mesh = meshes[w]
@@ -463,10 +438,12 @@ def wall_contact(
         contact_range = node_radius[i] + c0
         if not done and sided_skip != 0 and side > 0 and quiet == NO_ANCHOR:
             if wp.length(x[i] - seen_x[i]) < seen_distance[i] - anchor_margin:  # still in the lumen
-                summed, nearest = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], x[i] - origins[w],
-                                                   node_radius[i], p0, c0, u_linear)
+                summed, nearest, k_sum = wall_feature_sum(mesh, vertices, faces, owners, face_first[w],
+                                                          x[i] - origins[w], node_radius[i], p0, c0, u_linear,
+                                                          with_stiffness)
                 if nearest < contact_range:
                     f = summed
+                    k_wall = k_sum
                     signed = nearest
                     done = True
                     seen_x[i] = x[i]  # in the lumen at that distance: a new certificate
@@ -486,10 +463,12 @@ def wall_contact(
                 inside[i] = 0
             if face != NO_FACE and signed > wp.float64(0.0):
                 if signed < contact_range + anchor_margin:
-                    summed, nearest = wall_feature_sum(mesh, vertices, faces, owners, face_first[w],
-                                                       x[i] - origins[w], node_radius[i], p0, c0, u_linear)
+                    summed, nearest, k_sum = wall_feature_sum(mesh, vertices, faces, owners, face_first[w],
+                                                              x[i] - origins[w], node_radius[i], p0, c0, u_linear,
+                                                              with_stiffness)
                     if nearest < contact_range:
                         f = summed
+                        k_wall = k_sum
                         signed = nearest
             elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
                 f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
@@ -507,6 +486,8 @@ def wall_contact(
         quiet_steps[i] = NO_ANCHOR
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
+    if with_stiffness != 0:
+        stiffness[i] = k_wall
 
 
 # --- coil–coil -----------------------------------------------------------------

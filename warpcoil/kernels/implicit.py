@@ -57,7 +57,6 @@ from .contact import (
     segment_closest_params,
     to_fixed,
     vec3l,
-    wall_feature_stiffness,
 )
 from .elastic import bonded_span, edge_torque
 from .integrate import hold_node
@@ -321,15 +320,13 @@ def wall_stiffness(
     node_radius: wp.array(dtype=wp.float64),
     wall_force: wp.array(dtype=wp.vec3d),
     wall_distance: wp.array(dtype=wp.float64),
+    feature_sum_stiffness: wp.array(dtype=wp.mat33d),
     meshes: wp.array(dtype=wp.uint64),
-    face_first: wp.array(dtype=wp.int32),
     origins: wp.array(dtype=wp.vec3d),
-    vertices: wp.array(dtype=wp.vec3d),
-    faces: wp.array(dtype=wp.int32),
-    owners: wp.array(dtype=wp.int32),
     fields: wp.array(dtype=wp.uint64),
     grad_tolerance: wp.float64,
     p0: wp.float64,
+    stiffness_scale: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
     stiffness: wp.array(dtype=wp.mat33d),
@@ -338,8 +335,10 @@ def wall_stiffness(
     full k: an upper bound at a half-share end node), as the wall pass took its force
     (contact.wall_contact): where the wall field is trusted (no crease in its stencil),
     the law's k n nᵀ along the field's normal; elsewhere in the lumen the feature sum's
-    Σ ± k n nᵀ (every face that pushes, in its own direction:
-    contact.wall_feature_stiffness); outside it, k n nᵀ along the force."""
+    Σ ± k n nᵀ (every face that pushes, in its own direction), which the wall pass
+    summed with the force (``feature_sum_stiffness``, at the law's P0; times
+    ``stiffness_scale``); outside it, k n nᵀ along the force. ``p0``: the law's P0
+    already scaled."""
     i = wp.tid()
     k = wp.mat33d()
     w = world_of[i]
@@ -351,8 +350,7 @@ def wall_stiffness(
             trusted, sampled, normal = field_sample(fields[w], x[i] - origins[w], grad_tolerance)
             summed = not trusted
         if summed:
-            k = wall_feature_stiffness(meshes[w], vertices, faces, owners, face_first[w], x[i] - origins[w],
-                                       node_radius[i], p0, c0, u_linear)
+            k = stiffness_scale * feature_sum_stiffness[i]
         else:
             k = sym_outer(fw / magnitude, contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear))
     stiffness[i] = k
