@@ -405,3 +405,15 @@ def test_an_unwritable_parent_is_refused_in_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(folder.os, "access", lambda path, mode: False)
     with pytest.raises(folder.OutputFolderError, match=r"is not writable; fix: choose a folder you can write to"):
         folder.check_output_path(tmp_path / "run")
+
+
+def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_path):
+    """catheter.angle_deg tilts a catheter placed from the neck; on an explicit tip and
+    direction it would change nothing, so every member would be the same run."""
+    path = scene(tmp_path)
+    code, _, err = cli(tmp_path, "sweep", str(path), "--vary", "catheter.angle_deg=0,10", "-o", "never")
+    assert code == 2
+    line = one_line(err)
+    assert str(path) in line and "catheter.angle_deg: applies only with placement = 'neck'" in line
+    assert "catheter.tip and catheter.direction" in line
+    assert not (tmp_path / "never").exists()

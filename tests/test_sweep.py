@@ -196,10 +196,10 @@ def test_bad_input_names_the_fix_and_writes_nothing(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["sweep", str(scene), "--vary", "catheter.angel_deg=0:10:5", "-o", str(out), "-q"]) == 2
     assert "catheter.angel_deg" in capsys.readouterr().err
-    assert main(["sweep", str(scene), "--vary", "catheter.angle_deg=0:10:5", "-o", str(out), "-q", "--jobs", "2"]) == 2
+    assert main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100,150", "-o", str(out), "-q", "--jobs", "2"]) == 2
     assert "--workers 2" in capsys.readouterr().err
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        assert main(["sweep", str(scene), "--vary", "catheter.angle_deg=0", "-o", str(out), "-q",
+        assert main(["sweep", str(scene), "--vary", "simulation.push_speed_mm_s=100", "-o", str(out), "-q",
                      "--scheduler", "tcp://127.0.0.1:9"]) == 2
     assert "cannot connect" in capsys.readouterr().err
     assert not (out / "summary.md").exists() and not (out / "member_000").exists()

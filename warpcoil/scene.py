@@ -317,6 +317,13 @@ class _Reader:
                 if key in document.get("catheter", {}):
                     raise self.error(f"catheter.{key}", "is set by placement = 'neck'",
                                      "remove it, or use placement = 'explicit'")
+        else:  # an explicit tip and direction: the neck placement's keys would be ignored
+            for key in ("depth_mm", "angle_deg", "azimuth_deg"):
+                if key in document.get("catheter", {}):
+                    raise self.error(f"catheter.{key}", "applies only with placement = 'neck' (this catheter has "
+                                     "an explicit tip and direction, which it would not change)",
+                                     "use placement = 'neck' with a [neck] table, or set (or vary) catheter.tip "
+                                     "and catheter.direction")
         line = catheter.centerline_mm
         if line is not None and math.dist(line[-1], catheter.tip_mm) > 1e-6:
             raise self.error(
