@@ -37,7 +37,6 @@ from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
 from .state import State
-from .wall_field import GRAD_TOLERANCE
 
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
@@ -102,8 +101,7 @@ class ImplicitSolver(Solver):
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
-        self._wall_stiffness = mats()  # per node: the wall's contact stiffness (µN/mm)
-        self.wall_feature_stiffness = mats()  # the wall pass's feature-sum stiffness (µN/mm, at P0)
+        self.wall_stiffness = mats()  # per node: the wall's contact stiffness at P0 (µN/mm), from the wall pass
         self._rhs, self._y, self._v, self._r, self._z, self._p, self._q = (vecs() for _ in range(7))
         self._rz = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         self._pair_count = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -139,15 +137,10 @@ class ImplicitSolver(Solver):
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n])
-        if self.has_wall:
-            wp.launch(kernels.wall_stiffness, n, device=dev, inputs=[
-                state_in.x, state_in.free, m.world_of, control.running, m.node_radius, self.wall_force,
-                self.wall_distance, self.wall_feature_stiffness, m.wall_mesh, m.wall_origin, self._field_ids,
-                GRAD_TOLERANCE, p0_stiff, 1.0 / theta, c.c0_mm, self.contact_u_linear, self._wall_stiffness])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
-            m.rest_length, m.k_bend, self._wall_stiffness, self._stiff_start, self._stiff_end,
+            m.rest_length, m.k_bend, self.wall_stiffness, 1.0 / theta, self._stiff_start, self._stiff_end,
             int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)

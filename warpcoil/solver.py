@@ -287,7 +287,7 @@ class Solver:
         self._wall_seen_x, self._wall_seen_mm = zeros(wp.vec3d), zeros(wp.float64)  # last full search in the lumen
         self._wall_side.fill_(-1)
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
-        self.wall_feature_stiffness: wp.array | None = None
+        self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
         self.wall_searches = zeros(wp.int32)  # per node, its signed BVH queries so far (for tests and benchmarks)
         self._wall_quiet.fill_(-1)
@@ -358,8 +358,8 @@ class Solver:
                 self._field_ids if wall_search_mm is None else self._no_fields, GRAD_TOLERANCE, self._anchor_margin,
                 int(self.wall_sided_skip), self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet,
                 self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance, self.wall_searches,
-                int(self.wall_feature_stiffness is not None and wall_search_mm is None),
-                self.wall_feature_stiffness if self.wall_feature_stiffness is not None else self._no_stiffness])
+                int(self.wall_stiffness is not None and wall_search_mm is None),
+                self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:

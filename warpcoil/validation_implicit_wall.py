@@ -49,7 +49,7 @@ def stiffness_probe(centre_mm: np.ndarray, eps_mm: float = 1e-7) -> tuple[np.nda
     state = state_from_positions(model, model.rest_positions)
     solver = ImplicitSolver(model, dt_s=1e-4, coil_contact=False, wall_query="bvh")
     solver.step(state, new_state_like(model), Control.create(model))
-    matrix = solver._wall_stiffness.numpy()[1].copy()
+    matrix = solver.wall_stiffness.numpy()[1].copy()
     x0 = state.x.numpy().copy()  # (a CPU array's numpy() is a view)
     jacobian = np.zeros((3, 3))
     for a in range(3):

@@ -409,11 +409,15 @@ def wall_contact(
     Counts each node's signed BVH queries (``searches``). Writes the centre's signed distance (mm; for a node not
     searched, or with no face in reach, the distance plus slack bound it was
     anchored with; +FAR in the catheter or without a wall). With ``with_stiffness``
-    (the implicit step) also each node's feature-sum stiffness (:func:`wall_feature_sum`,
-    µN/mm, without the contact share; zero where the force is not a feature sum)."""
+    (the implicit step) also each node's wall stiffness (µN/mm, the law's full k: an
+    upper bound at a half-share end node), as its force was taken: in the lumen
+    within reach of faces, the feature sum's Σ ± k n nᵀ (:func:`wall_feature_sum`:
+    every face that pushes, in its own direction); otherwise (a trusted field, or
+    outside the lumen) the law's k n nᵀ along the force; zero without a force."""
     i = wp.tid()
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    k_wall = wp.mat33d()
+    k_sum = wp.mat33d()
+    from_sum = False
     signed = FAR_MM
     w = world_of[i]
     mesh = meshes[w]
@@ -443,7 +447,7 @@ def wall_contact(
                                                           with_stiffness)
                 if nearest < contact_range:
                     f = summed
-                    k_wall = k_sum
+                    from_sum = True
                     signed = nearest
                     done = True
                     seen_x[i] = x[i]  # in the lumen at that distance: a new certificate
@@ -468,7 +472,7 @@ def wall_contact(
                                                               with_stiffness)
                     if nearest < contact_range:
                         f = summed
-                        k_wall = k_sum
+                        from_sum = True
                         signed = nearest
             elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
                 f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
@@ -487,7 +491,15 @@ def wall_contact(
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
     if with_stiffness != 0:
-        stiffness[i] = k_wall
+        k = wp.mat33d()
+        magnitude = wp.length(force[i])
+        if magnitude > wp.float64(0.0):
+            if from_sum:
+                k = k_sum
+            else:
+                n = force[i] / magnitude
+                k = contact_stiffness(signed - node_radius[i], p0, c0, u_linear) * wp.outer(n, n)
+        stiffness[i] = k
 
 
 # --- coil–coil -----------------------------------------------------------------

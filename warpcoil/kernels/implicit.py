@@ -50,7 +50,6 @@ from .contact import (
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
-    field_sample,
     from_fixed,
     next_partner,
     rest_offset,
@@ -312,51 +311,6 @@ def damping_rate(speed: wp.float64, c: wp.float64, k: wp.float64) -> wp.float64:
 
 
 @wp.kernel
-def wall_stiffness(
-    x: wp.array(dtype=wp.vec3d),
-    free: wp.array(dtype=wp.int32),
-    world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
-    node_radius: wp.array(dtype=wp.float64),
-    wall_force: wp.array(dtype=wp.vec3d),
-    wall_distance: wp.array(dtype=wp.float64),
-    feature_sum_stiffness: wp.array(dtype=wp.mat33d),
-    meshes: wp.array(dtype=wp.uint64),
-    origins: wp.array(dtype=wp.vec3d),
-    fields: wp.array(dtype=wp.uint64),
-    grad_tolerance: wp.float64,
-    p0: wp.float64,
-    stiffness_scale: wp.float64,
-    c0: wp.float64,
-    u_linear: wp.float64,
-    stiffness: wp.array(dtype=wp.mat33d),
-):
-    """The wall's contact stiffness on each free node pressed by it (µN/mm, the law's
-    full k: an upper bound at a half-share end node), as the wall pass took its force
-    (contact.wall_contact): where the wall field is trusted (no crease in its stencil),
-    the law's k n nᵀ along the field's normal; elsewhere in the lumen the feature sum's
-    Σ ± k n nᵀ (every face that pushes, in its own direction), which the wall pass
-    summed with the force (``feature_sum_stiffness``, at the law's P0; times
-    ``stiffness_scale``); outside it, k n nᵀ along the force. ``p0``: the law's P0
-    already scaled."""
-    i = wp.tid()
-    k = wp.mat33d()
-    w = world_of[i]
-    fw = wall_force[i]
-    magnitude = wp.length(fw)
-    if free[i] != 0 and running[w] != 0 and magnitude > F64_0:
-        summed = wall_distance[i] > F64_0 and meshes[w] != wp.uint64(0)
-        if summed and fields[w] != wp.uint64(0):
-            trusted, sampled, normal = field_sample(fields[w], x[i] - origins[w], grad_tolerance)
-            summed = not trusted
-        if summed:
-            k = stiffness_scale * feature_sum_stiffness[i]
-        else:
-            k = sym_outer(fw / magnitude, contact_stiffness(wall_distance[i] - node_radius[i], p0, c0, u_linear))
-    stiffness[i] = k
-
-
-@wp.kernel
 def assemble_blocks(
     x: wp.array(dtype=wp.vec3d),
     v: wp.array(dtype=wp.vec3d),
@@ -372,6 +326,7 @@ def assemble_blocks(
     rest_length: wp.array(dtype=wp.float64),
     k_bend: wp.array(dtype=wp.float64),
     wall_stiffness: wp.array(dtype=wp.mat33d),
+    wall_scale: wp.float64,
     stiff_start: wp.array(dtype=wp.mat33d),
     stiff_end: wp.array(dtype=wp.mat33d),
     coil_contact: int,
@@ -428,7 +383,7 @@ def assemble_blocks(
     u1 = u1 + kb_mid * (mid_i * g0) - kb_next * (g0 * (g0 + g1))
     u2 = u2 + kb_next * (g0 * g1)
     if free[i] != 0:
-        h = h + wall_stiffness[i]
+        h = h + wall_scale * wall_stiffness[i]
         h = h + fold_stiffness(x, has_next, node_radius, i, fold_span, p0, c0, u_linear)
     dt2 = dt * dt
     mass = mass + dt * damping_rate(wp.length(v[i]), damping_c[i], damping_k)  # damping linearised at v
