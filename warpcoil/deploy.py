@@ -206,7 +206,7 @@ class Ensemble:
     def _restore(self, member: Member, snapshot: State) -> None:
         """Put a stopped member's nodes back to the frame's start (finite values)."""
         state, sl, coils = self.stepper.state, member.nodes, slice(member.coils.start, member.coils.stop)
-        for name in ("x", "v", "m1", "omega", "free"):
+        for name in ("x", "v", "m1", "omega", "free", "x_prev", "v_prev"):
             now, then = getattr(state, name).numpy(), getattr(snapshot, name).numpy()
             now[sl] = then[sl]
             getattr(state, name).assign(now)

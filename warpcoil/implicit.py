@@ -56,6 +56,11 @@ IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 # 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
 # docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
+# the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable and
+# second order: docs/FORMULATION.md "Implicit step: BDF2")
+IMPLICIT_METHODS = ("theta", "bdf2")
+IMPLICIT_METHOD = "theta"
+BDF2_SCALE = 2.0 / 3.0  # BDF2's implicit coefficient h = 2/3 dt
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
@@ -83,7 +88,8 @@ class ImplicitSolver(Solver):
     kernel_modules = Solver.kernel_modules + (kernels,)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
-                 cg_iterations: int = CG_ITERATIONS, theta: float = IMPLICIT_THETA, **kwargs):
+                 cg_iterations: int = CG_ITERATIONS, theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
+                 **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -98,6 +104,11 @@ class ImplicitSolver(Solver):
         if not 0.5 < theta <= 1.0:
             raise ValueError(f"theta must be in (0.5, 1] (1: linearly implicit Euler), got {theta}")
         self.theta = float(theta)
+        if method not in IMPLICIT_METHODS:
+            raise ValueError(f"method must be one of {IMPLICIT_METHODS}, got {method!r}")
+        if method == "bdf2" and theta != 1.0:
+            raise ValueError(f"theta applies to the θ-method only; BDF2 needs theta = 1, got {theta}")
+        self.method = method
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -120,10 +131,16 @@ class ImplicitSolver(Solver):
         m, dev, n = self.model, self.model.device, self.model.node_count
         dt = self.dt_s if dt is None else dt
         theta = self.theta
+        bdf2 = self.method == "bdf2" and state_in.history_dt_s == dt  # else its Euler start (θ = 1)
         dt_m = theta * dt  # the system matrix is M + θ dt B + θ² dt² H + θ dt² K_c
+        if bdf2:
+            dt_m = BDF2_SCALE * dt  # BDF2: M + h B + h² (H + K_c), h = 2/3 dt
         c = m.contact
         p0_stiff = c.p0_uN / theta  # contact stiffness K_c/θ in a matrix assembled at θ dt: θ dt² K_c
         self.compute_forces(state_in, control.running)
+        if self.method == "bdf2":
+            wp.launch(kernels.keep_history, n, device=dev, inputs=[state_in.x, state_in.v, state_out.x_prev,
+                                                                  state_out.v_prev])
         # catheter kinematics, releases and pusher advance as the reference has them
         wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
             state_in.x, state_in.v, state_in.free, state_in.advance, m.fixed, m.coil_of, m.world_of, m.coil_world,
@@ -144,22 +161,24 @@ class ImplicitSolver(Solver):
             int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
-            self._devices.add(self, state_in, control.running, math.sqrt(theta) * dt, self._diag, self._diag_exact,
-                              self._upper1)
+            self._devices.add(self, state_in, control.running, dt_m if bdf2 else math.sqrt(theta) * dt, self._diag,
+                              self._diag_exact, self._upper1)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
             wp.launch(kernels.theta_rhs, n, device=dev, inputs=[self._rhs, self._q, theta])
+        if bdf2:  # BDF2's right side: the history terms (y in _z, A y in _q)
+            wp.launch(kernels.bdf2_history_rate, n, device=dev, inputs=[state_in.x, state_in.x_prev, dt_m, self._z])
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._z, self._rhs, 0] + self._product_args(
+                state_out, control, dt_m) + [self._q])
+            wp.launch(kernels.bdf2_rhs, n, device=dev, inputs=[
+                state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt_m)
-        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-            state_in.x, state_in.v, self._v, state_out.free, m.fixed, m.world_of, control.running, dt, theta,
-            state_out.x, state_out.v])
+        self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2)
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
-            self._apply_friction(state_in, state_out, control.running, dt)
-            if theta != 1.0:  # the positions from the θ-combination of the old and the new velocities
-                wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
-                    state_in.x, state_in.v, state_out.v, state_out.free, m.fixed, m.world_of, control.running, dt,
-                    theta, state_out.x, state_out.v])
+            self._apply_friction(state_in, state_out, control.running, dt_m if bdf2 else dt)
+            if theta != 1.0 or bdf2:  # the positions from the scheme's combination of the old and new velocities
+                self._finish_positions(state_in, state_out, control, state_out.v, dt, dt_m, bdf2)
         # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
         # torque there, then the spins solved and the directors turned
         wp.launch(kernels.transport_frames, n, device=dev, inputs=[
@@ -174,6 +193,26 @@ class ImplicitSolver(Solver):
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
             self.push_share, m.world_node_range, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
+        state_out.history_dt_s = dt if self.method == "bdf2" else 0.0
+
+    def needs_start(self, state: State) -> bool:
+        """BDF2 without a history at this step (first step, a changed step, a restart):
+        the next step is its Euler start."""
+        return self.method == "bdf2" and state.history_dt_s != self.dt_s
+
+    def _finish_positions(self, state_in: State, state_out: State, control: Control, v_new: wp.array, dt: float,
+                          dt_m: float, bdf2: bool) -> None:
+        """New velocities and positions of the unknowns: BDF2's x' = 4/3 x − 1/3 x₋₁ + h v',
+        or the θ-method's x' = x + dt ((1 − θ) v + θ v')."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        if bdf2:
+            wp.launch(kernels.finish_nodes_bdf2, n, device=dev, inputs=[
+                state_in.x, state_in.x_prev, v_new, state_out.free, m.fixed, m.world_of, control.running, dt_m,
+                state_out.x, state_out.v])
+            return
+        wp.launch(kernels.finish_nodes, n, device=dev, inputs=[
+            state_in.x, state_in.v, v_new, state_out.free, m.fixed, m.world_of, control.running, dt, self.theta,
+            state_out.x, state_out.v])
 
     def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
         """The arguments of kernels.system_product after (x, b, residual), before out."""

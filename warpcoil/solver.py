@@ -446,6 +446,11 @@ class Solver:
             m.contact.p0_uN, m.contact.c0_mm, self.contact_u_linear, m.world_of, m.catheter_axis_of,
             self.force, self.torque, self.push_share])
 
+    def needs_start(self, state: State) -> bool:
+        """Whether the next step from ``state`` is a multistep scheme's start (not the
+        step a captured graph replays): never for a one-step scheme."""
+        return False
+
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
         """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
@@ -668,10 +673,15 @@ class Stepper:
             self.solver.step(self._b, self._a, self.control)
 
     def run_chunk(self) -> State:
-        """Advance by ``chunk`` steps; returns the current state."""
+        """Advance by ``chunk`` steps; returns the current state. A multistep solver's
+        start (Solver.needs_start) is launched directly, before the graph, which
+        always captures the solver's steady step."""
         start = self._a.time_s
         even = self.chunk - self.chunk % 2
         per_graph = graph_steps(even)
+        if even and self.solver.needs_start(self._a):
+            self._launch_steps(2)
+            even -= 2
         if self._use_graph and self._graph is None and per_graph:
             for module in self.solver.kernel_modules:
                 wp.load_module(module, device=self.solver.model.device)
@@ -689,6 +699,7 @@ class Stepper:
         if self._graph is not None:
             for _ in range(even // per_graph):
                 wp.capture_launch(self._graph)
+            self._launch_steps(even % per_graph)  # (after a start: the steps short of a whole graph)
         else:
             self._launch_steps(even)
         if self.chunk % 2:  # the odd step, into the other buffer and back

@@ -21,12 +21,16 @@ class State:
     omega: wp.array  # edge twist rates, rad/s
     free: wp.array  # 1 where a node has free dynamics
     advance: wp.array  # per coil pusher advance, mm (node i is out when advance − s_i ≥ 0)
+    x_prev: wp.array  # node positions one step earlier, mm (the BDF2 step's history)
+    v_prev: wp.array  # node velocities one step earlier, mm/s
     time_s: float = 0.0
+    history_dt_s: float = 0.0  # the step (s) that led from (x_prev, v_prev) here; 0: no history
 
     def copy_from(self, other: "State") -> None:
-        for name in ("x", "v", "m1", "omega", "free", "advance"):
+        for name in ("x", "v", "m1", "omega", "free", "advance", "x_prev", "v_prev"):
             wp.copy(getattr(self, name), getattr(other, name))
         self.time_s = other.time_s
+        self.history_dt_s = other.history_dt_s
 
 
 def _free_flags(model: Model, advance: np.ndarray) -> np.ndarray:
@@ -41,6 +45,7 @@ def _state(model: Model, x: np.ndarray, m1: np.ndarray, advance: np.ndarray) -> 
         x=model.array(x, wp.vec3d), v=wp.zeros(n, dtype=wp.vec3d, device=model.device),
         m1=model.array(m1, wp.vec3d), omega=wp.zeros(n, dtype=wp.float64, device=model.device),
         free=model.array(_free_flags(model, advance), wp.int32), advance=model.array(advance, wp.float64),
+        x_prev=model.array(x, wp.vec3d), v_prev=wp.zeros(n, dtype=wp.vec3d, device=model.device),
     )
 
 
@@ -84,4 +89,5 @@ def new_state_like(model: Model) -> State:
         x=wp.zeros(n, dtype=wp.vec3d, device=dev), v=wp.zeros(n, dtype=wp.vec3d, device=dev),
         m1=wp.zeros(n, dtype=wp.vec3d, device=dev), omega=wp.zeros(n, dtype=wp.float64, device=dev),
         free=wp.zeros(n, dtype=wp.int32, device=dev), advance=wp.zeros(model.coil_count, dtype=wp.float64, device=dev),
+        x_prev=wp.zeros(n, dtype=wp.vec3d, device=dev), v_prev=wp.zeros(n, dtype=wp.vec3d, device=dev),
     )

@@ -516,6 +516,12 @@ def friction() -> list[CaseResult]:
     return friction_cases()
 
 
+def bdf2() -> list[CaseResult]:
+    """The linearly implicit BDF2 step: slow-mode damping, stiff-mode decay, convergence (validation_bdf2.py)."""
+    from .validation_bdf2 import bdf2_cases
+    return bdf2_cases()
+
+
 def push_force() -> list[CaseResult]:
     """The push force where it is known: a straight coil into free space (damping) and
     at rest on a wall (the wall's reaction), both integrators (validation_push.py)."""
@@ -712,7 +718,7 @@ def _positions_at(model, start: np.ndarray, solver: Solver, time_s: float) -> np
 
 
 def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025),
-                         theta: float | None = None) -> list[CaseResult]:
+                         theta: float | None = None, method: str | None = None) -> list[CaseResult]:
     """The implicit step against the reference integrator (symplectic Euler at
     0.005 × its bound) as dt shrinks: RMS node distance at ``time_s`` over the
     reference's RMS displacement, for dt = factor × the explicit bound, and the
@@ -726,16 +732,21 @@ def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0
     scale = float(np.sqrt(((x_ref - start) ** 2).sum(axis=1).mean()))
     bound = reference.bound.dt_s
     errors = []
+    label, options = _implicit_label(theta, method)
     for f in factors:
-        options = {} if theta is None else {"theta": theta}
         x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False, **options),
                           time_s)
         errors.append(float(np.sqrt(((x - x_ref) ** 2).sum(axis=1).mean())) / scale)
     orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
-    label = "implicit" if theta is None else f"implicit θ {theta:g}"
     rows = [CaseResult(f"{label} vs reference at 1 ms, dt {f:g}× bound (rel. RMS)", 0.0, e, e, 5e-2)
             for f, e in zip(factors, errors)]
     rows.append(_row(f"{label}: observed order, finest pair (→ 1)", 1.0, orders[-1], 0.25))
+    if method == "bdf2":  # first order here, not 2: the damping's secant at the old speed, the Jacobian at the
+        # step start (Gauss–Newton bending) and the backward-Euler twist are each first order (docs/FORMULATION.md)
+        euler = _theta_errors(model, start, x_ref, scale, bound, factors, time_s)
+        below = all(e <= r for e, r in zip(errors, euler))
+        return rows + [CaseResult(f"{label}: below the θ-method's error at every dt", 1.0, float(below),
+                                  0.0 if below else 1.0, 0.0)]
     # rising towards 1: no pair falls back by more than 0.01 (the two coarsest sit on a plateau, equal to
     # ~1e-4) and the finest is clearly above the coarsest
     rising = all(b > a - 0.01 for a, b in zip(orders, orders[1:])) and orders[-1] > orders[0] + 0.05
@@ -744,13 +755,40 @@ def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0
     return rows
 
 
+def bdf2_principal_root(w: float) -> complex:
+    """BDF2's amplification of an undamped mode at ω dt = w: the root of
+    (1 − 2/3 i w) r² − 4/3 r + 1/3 = 0 that tends to 1 as w → 0 (the other, the
+    start-up's parasite, tends to 1/3 and to 0 for stiff modes: L-stable)."""
+    a = 1.0 - 2.0j * w / 3.0
+    disc = np.sqrt(complex(16.0 / 9.0 - 4.0 * a / 3.0))
+    return max(((4.0 / 3.0 + disc) / (2.0 * a), (4.0 / 3.0 - disc) / (2.0 * a)), key=lambda r: abs(r))
+
+
+def euler_loss_per_period(w: float) -> float:
+    """Linearly implicit Euler's amplitude lost per period of an undamped mode at ω dt = w."""
+    return 1.0 - (1.0 + w * w) ** (-math.pi / w)
+
+
+def _implicit_label(theta: float | None, method: str | None) -> tuple[str, dict]:
+    """A validation row's label and the solver options of the θ-method at ``theta`` or BDF2."""
+    if method == "bdf2":
+        return "implicit BDF2", {"method": "bdf2"}
+    return ("implicit" if theta is None else f"implicit θ {theta:g}"), ({} if theta is None else {"theta": theta})
+
+
+def _theta_errors(model, start, x_ref, scale, bound, factors, time_s) -> list[float]:
+    """The linearly implicit Euler step's errors in :func:`implicit_convergence`."""
+    return [float(np.sqrt(((_positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False),
+                                          time_s) - x_ref) ** 2).sum(axis=1).mean())) / scale for f in factors]
+
+
 def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: float | None = None) -> list[CaseResult]:
     """Numerical damping of the implicit step at its default dt: undamped free
     vibration of a 20 mm cantilever (40 segments) in its lowest bending mode,
     amplitude lost per period (between tip maxima after the first period, when
     the higher modes the start excites have died out) against the linear theory
     of the θ-method, 1 − |R|^(2π/(ω dt)) with |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²)
-    (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt), ω measured."""
+    (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt), ω measured (BDF2: validation_bdf2)."""
     length, segments = 20.0, 40
     l0 = length / segments
     spec = CoilSpec(length_mm=length, segment_length_mm=l0)
@@ -819,6 +857,7 @@ CASES = {
     "implicit-devices": implicit_devices,
     "push-force": push_force,
     "implicit-wall": implicit_wall,
+    "bdf2": bdf2,
 }
 
 

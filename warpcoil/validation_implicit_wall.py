@@ -82,7 +82,7 @@ def stiffness_cases() -> list[CaseResult]:
                  second(groove), 1e-6)]
 
 
-def groove_rest() -> list[CaseResult]:
+def groove_rest(method: str = "theta") -> list[CaseResult]:
     """A straight coil along a groove of the box, pressed into it along the bisector by
     a body load of GROOVE_LOAD_UN per interior node, at the 2 ms settling step for
     REST_TIME_S, from ±0.2 c0 off its rest clearances (across the net force): it comes
@@ -100,18 +100,19 @@ def groove_rest() -> list[CaseResult]:
     mass = spec.rho * spec.l0
     builder.body_acceleration(GROOVE_LOAD_UN / mass * np.array([1.0, 0.0, 1.0]) / math.sqrt(2.0))
     model = builder.finalize()
-    solver = ImplicitSolver(model, dt_s=IMPLICIT_SETTLE_DT_S)
+    solver = ImplicitSolver(model, dt_s=IMPLICIT_SETTLE_DT_S, method=method)
     stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=10)
+    label = "implicit BDF2" if method == "bdf2" else "implicit"
     try:
         stepper.run_steps(int(round(REST_TIME_S / solver.dt_s)))
     except SimulationUnstable:  # (the net force's direction alone: the node cycles, then runs away)
-        return [CaseResult(f"implicit at the {IMPLICIT_SETTLE_DT_S * 1e3:g} ms settling step in a groove: unstable",
+        return [CaseResult(f"{label} at the {IMPLICIT_SETTLE_DT_S * 1e3:g} ms settling step in a groove: unstable",
                            0.0, math.inf, math.inf, 1e-3)]
     state = stepper.state
     v = state.v.numpy()
     middle = state.x.numpy()[GROOVE_NODES // 2]
     gaps = HALF_BOX_MM - middle[[0, 2]] - 0.5 * REFERENCE_D_MM
-    return [_row(f"implicit at the {IMPLICIT_SETTLE_DT_S * 1e3:g} ms settling step in a groove: rms node speed "
+    return [_row(f"{label} at the {IMPLICIT_SETTLE_DT_S * 1e3:g} ms settling step in a groove: rms node speed "
                  "(mm/s)", 0.0, float(np.sqrt((v**2).sum(axis=1).mean())), 1e-3),
             _row(f"... middle node clearance to each face (mm), load {GROOVE_LOAD_UN:g} µN on the bisector", expected,
                  float(gaps.mean()), 1e-3),
@@ -119,4 +120,4 @@ def groove_rest() -> list[CaseResult]:
 
 
 def implicit_wall_cases() -> list[CaseResult]:
-    return stiffness_cases() + groove_rest()
+    return stiffness_cases() + groove_rest() + groove_rest("bdf2")

@@ -48,13 +48,13 @@ def _step(model, integrator: str, dt_s: float | None) -> float | None:
 
 
 def free_space_push_force(integrator: str, dt_s: float | None = None, out_mm: float = 3.0,
-                          window_mm: float = 0.6) -> tuple[float, float]:
+                          window_mm: float = 0.6, **options) -> tuple[float, float]:
     """A straight coil (40 segments) pushed ``out_mm`` out of a straight catheter into
     free space: (the push force averaged over the next ``window_mm``, the damping force
     its free nodes meet at the push speed, Σ c_i (1 − e^{−v/k}), the mean of its values at
     the window's ends) (µN, compressive > 0)."""
     model = _straight_coil(40, ModelBuilder(catheter=CatheterSpec(tip_mm=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 1.0))))
-    solver = make_solver(model, integrator, _step(model, integrator, dt_s), coil_contact=False)
+    solver = make_solver(model, integrator, _step(model, integrator, dt_s), coil_contact=False, **options)
     control = Control.create(model, active_coil=0, push_speed_mm_s=PUSH_MM_S)
     stepper = Stepper(solver, packed_state(model), control, chunk=2)
     c = model.damping_c.numpy() * (1.0 - np.exp(-PUSH_MM_S / model.damping_k))
@@ -75,7 +75,7 @@ def _law_uN(h_mm: float, p0_uN: float, c0_mm: float, u_linear: float) -> float:
 
 
 def wall_push_force(integrator: str, dt_s: float | None = None, overlap_c0: float = 0.5,
-                    tip_height_mm: float = 1.0) -> tuple[float, float, float]:
+                    tip_height_mm: float = 1.0, **options) -> tuple[float, float, float]:
     """A straight coil (10 segments) pushed down a catheter whose tip is ``tip_height_mm``
     above a flat floor, until its distal node would sit ``overlap_c0`` c0 into the contact
     (nominal clearance −overlap_c0 c0, its radius counted), the pusher stopped, the coil
@@ -84,7 +84,7 @@ def wall_push_force(integrator: str, dt_s: float | None = None, overlap_c0: floa
     builder = ModelBuilder(contact=ContactSettings(P0_uN=P0_UN), wall=_floor(),
                            catheter=CatheterSpec(tip_mm=(0.0, 0.0, tip_height_mm), direction=(0.0, 0.0, -1.0)))
     model = _straight_coil(10, builder)
-    solver = make_solver(model, integrator, _step(model, integrator, dt_s), coil_contact=False)
+    solver = make_solver(model, integrator, _step(model, integrator, dt_s), coil_contact=False, **options)
     c0, radius = model.contact.c0_mm, float(model.node_radius.numpy()[0])
     advance = tip_height_mm - radius + overlap_c0 * c0
     control = Control.create(model, active_coil=0, push_speed_mm_s=PUSH_MM_S)
@@ -118,11 +118,12 @@ def wall_push_force(integrator: str, dt_s: float | None = None, overlap_c0: floa
 
 def push_force_cases() -> list[CaseResult]:
     rows = []
-    for integrator in ("symplectic", "implicit"):
-        label = "reference step" if integrator == "symplectic" else "implicit default step"
-        push, damping = free_space_push_force(integrator)
+    for integrator, options in (("symplectic", {}), ("implicit", {}), ("implicit", {"method": "bdf2"})):
+        label = "reference step" if integrator == "symplectic" else \
+            "implicit BDF2 default step" if options else "implicit default step"
+        push, damping = free_space_push_force(integrator, **options)
         rows.append(_row(f"push force, straight coil into free space ({label}): = damping (µN)", damping, push, 5e-2))
-        push, reaction, analytic = wall_push_force(integrator)
+        push, reaction, analytic = wall_push_force(integrator, **options)
         rows.append(_row(f"push force, straight coil at rest on a wall ({label}): s0|F|(h) (µN)", analytic, push,
                          1e-3))
         rows.append(_row(f"push force, straight coil at rest on a wall ({label}): = wall reaction (µN)", reaction,

@@ -17,8 +17,8 @@ Cases and their references:
   energy ≤ 0.1 while pushing, MODEL.md).
 
 Knobs: step size (dt_safety × the stable bound), the integrator (the implicit
-step at its default, its push advance per step from 0.4 to 2.4 c0, and the θ-method
-at θ = 0.7 beside its linearly implicit Euler step), push advance per step (push
+step at its default, its push advance per step from 0.4 to 2.4 c0, the θ-method
+at θ = 0.7 beside its linearly implicit Euler step, and linearly implicit BDF2), push advance per step (push
 speed), segment length l0 ∈ {d/2, d, 2d} (d/2 on the validation cases, where
 it is affordable), mass scaling. The deployment reference is the finest
 setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d.
@@ -233,6 +233,9 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         for advance in (0.8, 1.2, 1.6, 2.4) if theta != 1.0 else (0.4, 1.2, 1.6, 2.4):
             settings[f"implicit θ {theta:g}, push advance {advance:g} c0 (kept)"] = (
                 variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"theta": theta})
+    for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable, second order), kept after the push
+        settings[f"implicit BDF2, push advance {advance:g} c0 (kept)"] = (
+            variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"method": "bdf2"})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
         settings.update({"push 100 mm/s": (variant(push=100.0), None), "mass scale 100": (variant(mass_scale=100.0), None),
                          "l0 2d": (variant(l0_factor=2.0), None)})

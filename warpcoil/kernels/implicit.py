@@ -747,6 +747,69 @@ def theta_rhs(rhs: wp.array(dtype=wp.vec3d), a_v: wp.array(dtype=wp.vec3d), thet
     rhs[i] = (rhs[i] - (F64_1 - theta) * a_v[i]) / theta
 
 
+@wp.kernel
+def keep_history(x_in: wp.array(dtype=wp.vec3d), v_in: wp.array(dtype=wp.vec3d), x_prev: wp.array(dtype=wp.vec3d),
+                 v_prev: wp.array(dtype=wp.vec3d)):
+    """The BDF2 step's history: the step's start becomes the next step's previous state."""
+    i = wp.tid()
+    x_prev[i] = x_in[i]
+    v_prev[i] = v_in[i]
+
+
+@wp.kernel
+def bdf2_history_rate(x: wp.array(dtype=wp.vec3d), x_prev: wp.array(dtype=wp.vec3d), h: wp.float64,
+                      y: wp.array(dtype=wp.vec3d)):
+    """y = (x − x₋₁) / (3 h) (mm/s), h = 2/3 dt: the BDF2 positions' history part
+    x' − x = h (y + v') as a velocity, every node (held ones couple through H)."""
+    i = wp.tid()
+    y[i] = (x[i] - x_prev[i]) / (wp.float64(3.0) * h)
+
+
+@wp.kernel
+def bdf2_rhs(
+    v: wp.array(dtype=wp.vec3d),
+    v_prev: wp.array(dtype=wp.vec3d),
+    y: wp.array(dtype=wp.vec3d),
+    a_y: wp.array(dtype=wp.vec3d),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    h: wp.float64,
+    rhs: wp.array(dtype=wp.vec3d),
+):
+    """BDF2's right side from the one assembled at h = 2/3 dt (M v + h F) and
+    A y (A = M + h B + h² H, y from :func:`bdf2_history_rate`):
+    M (4/3 v − 1/3 v₋₁) + h F − h² H y, with h² H y = A y − (M + h B) y
+    (g·mm/s; only unknown rows are read)."""
+    i = wp.tid()
+    mass = F64_1 / inv_mass[i]
+    mass_b = mass + h * damping_rate(wp.length(v[i]), damping_c[i], damping_k)  # as assemble_blocks has it
+    third = F64_1 / wp.float64(3.0)
+    rhs[i] = rhs[i] + mass * third * (v[i] - v_prev[i]) - (a_y[i] - mass_b * y[i])
+
+
+@wp.kernel
+def finish_nodes_bdf2(
+    x_in: wp.array(dtype=wp.vec3d),
+    x_prev: wp.array(dtype=wp.vec3d),
+    v_solved: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    h: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    """Unknown node i: x' = 4/3 x − 1/3 x₋₁ + h v' (h = 2/3 dt), the solved velocity.
+    Held nodes keep what hold_nodes gave them."""
+    i = wp.tid()
+    if not solving(free, fixed, world_of, running, i):
+        return
+    v_out[i] = v_solved[i]
+    x_out[i] = x_in[i] + (x_in[i] - x_prev[i]) / wp.float64(3.0) + h * v_solved[i]
+
+
 @wp.func
 def spin_free(free: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
               e: int) -> bool:
