@@ -20,6 +20,11 @@ physically. θ = 1 damps every mode it does not resolve, the slow bending modes 
 forced against a wall too: a numerical viscosity ≈ dt H that made a pushed coil bear on
 the far wall and turned the push force's sign (docs/FORMULATION.md "Implicit step").
 
+``method="bdf2"``: linearly implicit BDF2 (h = 2/3 dt, the Euler matrix at h, the history
+x₋₁, v₋₁ carried in the State, an Euler start on a new or changed step): L-stable with
+third-order slow-mode damping, but the push force stays Euler's (docs/FORMULATION.md
+"Implicit step: BDF2"), so it is an option, not the default.
+
 The contact law keeps the reference's linear onset (computed for the explicit
 step), so both integrators integrate the same forces.
 """
@@ -56,8 +61,9 @@ IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 # 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
 # docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
-# the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable and
-# second order: docs/FORMULATION.md "Implicit step: BDF2")
+# the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
+# default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
+# docs/FORMULATION.md "Implicit step: BDF2")
 IMPLICIT_METHODS = ("theta", "bdf2")
 IMPLICIT_METHOD = "theta"
 BDF2_SCALE = 2.0 / 3.0  # BDF2's implicit coefficient h = 2/3 dt

@@ -14,6 +14,9 @@ catheter tip then carry a spurious compression — the push force came out
 +600 µN at 117 µs and +5000 µN at 467 µs on the small seed case, against the
 reference's −530 µN.)
 
+(BDF2, ``ImplicitSolver(method="bdf2")``: the same matrix at h = 2/3 dt, right side
+M (4/3 v − 1/3 v₋₁) + h F − h² H (x − x₋₁)/(3 h), x' = 4/3 x − 1/3 x₋₁ + h v'.)
+
 and per spinning edge (twist inertia J, twist damping b)::
 
     (J + dt b + dt² H_θ) ω' = J ω + dt T
