@@ -782,6 +782,21 @@ def _theta_errors(model, start, x_ref, scale, bound, factors, time_s) -> list[fl
                                           time_s) - x_ref) ** 2).sum(axis=1).mean())) / scale for f in factors]
 
 
+def loss_per_period(tip: np.ndarray, sample_s: float) -> tuple[float, float]:
+    """A decaying oscillation sampled every ``sample_s``: (amplitude lost per period
+    between its first and last maxima above half the largest, each refined by a
+    parabola through three samples; ω in rad/s)."""
+    peaks = []
+    for k in range(1, len(tip) - 1):
+        if tip[k] >= tip[k - 1] and tip[k] > tip[k + 1] and tip[k] > 0.5 * tip.max():
+            a, b, c = tip[k - 1], tip[k], tip[k + 1]
+            shift = 0.5 * (a - c) / (a - 2.0 * b + c)
+            peaks.append((k + shift, b - 0.25 * (a - c) * shift))
+    (t0, a0), (t1, a1) = peaks[0], peaks[-1]
+    cycles = len(peaks) - 1
+    return 1.0 - (a1 / a0) ** (1.0 / cycles), 2.0 * math.pi * cycles / ((t1 - t0) * sample_s)
+
+
 def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: float | None = None) -> list[CaseResult]:
     """Numerical damping of the implicit step at its default dt: undamped free
     vibration of a 20 mm cantilever (40 segments) in its lowest bending mode,
@@ -808,16 +823,7 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
     stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=chunk)
     count = (periods + 1) * samples_per_period + samples_per_period // 2
     tip = np.array([stepper.run_chunk().x.numpy()[-1, 1] for _ in range(count)])
-    peaks = []
-    for k in range(1, count - 1):
-        if tip[k] >= tip[k - 1] and tip[k] > tip[k + 1] and tip[k] > 0.5 * tip.max():
-            a, b, c = tip[k - 1], tip[k], tip[k + 1]  # parabola through the three samples
-            shift = 0.5 * (a - c) / (a - 2.0 * b + c)
-            peaks.append((k + shift, b - 0.25 * (a - c) * shift))
-    (t0, a0), (t1, a1) = peaks[0], peaks[-1]
-    cycles = len(peaks) - 1
-    omega = 2.0 * math.pi * cycles / ((t1 - t0) * chunk * dt)
-    loss = 1.0 - (a1 / a0) ** (1.0 / cycles)
+    loss, omega = loss_per_period(tip, chunk * dt)
     w, th = omega * dt, solver.theta
     theory = 1.0 - ((1.0 + ((1.0 - th) * w) ** 2) / (1.0 + (th * w) ** 2)) ** (math.pi / w)
     label = f"implicit θ {th:g}"

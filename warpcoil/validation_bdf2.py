@@ -20,7 +20,8 @@ from .model import ModelBuilder
 from .settings import SimulationSettings
 from .solver import Control, Solver, Stepper
 from .state import new_state_like, state_from_positions
-from .validation import CaseResult, _row, bdf2_principal_root, euler_loss_per_period, implicit_convergence
+from .validation import (CaseResult, _row, bdf2_principal_root, euler_loss_per_period, implicit_convergence,
+                         loss_per_period)
 
 CANTILEVER_MM, CANTILEVER_SEGMENTS = 20.0, 40
 TIP_AMPLITUDE = 0.02  # of the length
@@ -75,16 +76,8 @@ def mode_loss_per_period(method: str, periods: int = 3, samples_per_period: int 
     stepper = Stepper(solver, state_from_positions(model, start), Control.create(model), chunk=chunk)
     count = periods * samples_per_period + samples_per_period // 2
     tip = np.array([stepper.run_chunk().x.numpy()[-1, 1] for _ in range(count)])
-    peaks = []
-    for k in range(1, count - 1):
-        if tip[k] >= tip[k - 1] and tip[k] > tip[k + 1] and tip[k] > 0.5 * tip.max():
-            a, b, c = tip[k - 1], tip[k], tip[k + 1]  # parabola through the three samples
-            shift = 0.5 * (a - c) / (a - 2.0 * b + c)
-            peaks.append((k + shift, b - 0.25 * (a - c) * shift))
-    (t0, a0), (t1, a1) = peaks[0], peaks[-1]
-    cycles = len(peaks) - 1
-    omega = 2.0 * math.pi * cycles / ((t1 - t0) * chunk * dt)
-    return 1.0 - (a1 / a0) ** (1.0 / cycles), omega, omega * dt
+    loss, omega = loss_per_period(tip, chunk * dt)
+    return loss, omega, omega * dt
 
 
 def stiff_mode_history(method: str, theta: float = 1.0, steps: int = 6) -> tuple[np.ndarray, float]:
