@@ -18,6 +18,7 @@ from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
+import warp as wp
 
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
@@ -146,6 +147,8 @@ class Ensemble:
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
+        for module in self.solver.kernel_modules:  # hashed and loaded (from the kernel cache) with the solver,
+            wp.load_module(module, device=self.model.device)  # not at the first step inside the run's clock
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
@@ -227,7 +230,7 @@ class Ensemble:
                 mask[[m.world for m in live if m.settle_level == k]] = 1
                 self.control.running.assign(mask)
             if k not in self._levels:
-                self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k)
+                self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
             self.solver.dt_s = frame_s / (2 * k)
             self.stepper = self._levels[k]
             self.stepper.run_chunk()
