@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import warpcoil as wc
-from warpcoil import deploy
 from warpcoil.deploy import Deployment, Ensemble
 from warpcoil.implicit import IMPLICIT_SETTLE_DT_MAX_S
 from warpcoil.solver import Solver
@@ -32,7 +31,13 @@ def released_fast(angle_deg: float) -> wc.Scene:
 def coarsest_settling(monkeypatch):
     """The settling step at its coarsest whatever the nodes' speed (implicit.settle_level
     would take the finest here): the failure the health check must catch."""
-    monkeypatch.setattr(deploy, "settle_level", lambda _speed, _c0, frame_s: 1)
+    real = Ensemble.__init__
+
+    def coarsest(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        self.settle_rule = lambda _speed, _c0, _frame_s: 1
+
+    monkeypatch.setattr(Ensemble, "__init__", coarsest)
     assert ensemble_scene().simulation.frame_interval_s / 2 == IMPLICIT_SETTLE_DT_MAX_S
 
 

@@ -139,6 +139,7 @@ class Ensemble:
         self._push_dt_s: float | None = None  # the push's step, once the settling step took over
         self._settling = False  # every member steps at its own settling step (_settle_chunk)
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
+        self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -221,7 +222,7 @@ class Ensemble:
         for m in live:
             moving = free[m.nodes]
             speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
-            m.settle_level = settle_level(speed, c0, frame_s)
+            m.settle_level = self.settle_rule(speed, c0, frame_s)
         levels = sorted({m.settle_level for m in live})
         start = state.time_s
         for k in levels:
