@@ -49,8 +49,9 @@ IMPLICIT_SETTLE_DT_S = 2.0e-3
 # the settling step grows while the fastest free node moves at most this fraction of c0 per step:
 # no node crosses the contact range in one step (docs/FORMULATION.md "Settling step") ...
 SETTLE_ADVANCE_PER_C0 = 1.0
-# ... up to this: at 4–5 ms the seed coil's free distal tip runs a growing oscillation (its speed
-# 2 → 12 mm/s in two frames, twist energy rising) that doubles the settling time; none at 2.5 ms
+# ... up to this: at 4–5 ms the seed coil's free distal tip runs a growing bend–twist oscillation
+# (speed and edge spin ×1.6 a step, no contact near: the position/spin split amplifies it) that
+# lengthens the settling 1.5–2×; none at 2.5 ms (docs/FORMULATION.md "Implicit step: the settling step")
 IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
