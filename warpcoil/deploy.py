@@ -263,7 +263,8 @@ class Ensemble:
                                    snap, self.step_reductions)
         if self._push_dt_s is not None:  # settled at longer steps: dt_s stays the push's, settle_dt_s the last
             frame_s = member.scene.simulation.frame_interval_s
-            settle_dt = frame_s / (2 * member.settle_level) if self._settling else self.solver.dt_s
+            settle_dt = (self.solver.dt_s if not self._settling else  # (None: ended before its first settling frame)
+                         frame_s / (2 * member.settle_level) if member.settle_level else None)
             member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=settle_dt)
         self.control.stop(member.world)
 
