@@ -233,7 +233,7 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         for advance in (0.8, 1.2, 1.6, 2.4) if theta != 1.0 else (0.4, 1.2, 1.6, 2.4):
             settings[f"implicit θ {theta:g}, push advance {advance:g} c0 (kept)"] = (
                 variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"theta": theta})
-    for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable, second order), kept after the push
+    for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable), kept after the push
         settings[f"implicit BDF2, push advance {advance:g} c0 (kept)"] = (
             variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"method": "bdf2"})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
