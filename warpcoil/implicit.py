@@ -57,11 +57,11 @@ IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 # docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
-# ... in a world whose pusher drives a coil: there the pusher sets the step count, and one iteration
-# (a line search along the banded preconditioner's direction, the coil–coil coupling exact) leaves shape,
-# push force and contact depths within the chaotic spread; a settling world keeps CG_ITERATIONS (fewer
-# stretch the settling: docs/FORMULATION.md "Conjugate-gradient iterations while pushing")
-PUSH_CG_ITERATIONS = 1
+# ... in a world whose pusher drives a coil (a solver option, push_cg_iterations; fewer there do not add
+# steps, the pusher sets them): 1 or 2 keep the seed case's shape and push force but let coils overlap
+# deeper in dense patient packs (C0031's smallest coil gap −0.048 → −0.061 / −0.092 mm at 2 / 1), so
+# the default is all of them (docs/FORMULATION.md "Conjugate-gradient iterations while pushing")
+PUSH_CG_ITERATIONS = CG_ITERATIONS
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 

@@ -99,20 +99,11 @@ ANCHOR_MARGIN_MM = wp.constant(wp.float64(1.0e-5))  # ≫ the float32 BVH's erro
 
 
 @wp.func
-def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-               face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
-    """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
-    distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
-
-    The BVH (float32, mesh stored relative to ``origin``) finds the face and the
-    inside/outside sign (angle-weighted pseudo-normal); the distance is then
-    evaluated in float64 on that face (the mesh's faces start at ``face_first``
-    in the flat ``faces`` array of every wall of an ensemble). Warp's
-    pseudo-normal sums the normals of every face within 10⁻³ mean edge lengths
-    of the closest distance, adjacent or not, so near a vessel's medial axis
-    (opposite walls equidistant) it can call an inside point outside; an
-    "outside" answer is therefore confirmed by the winding number (exact for
-    the closed wall; the mesh is built with ``support_winding_number``)."""
+def wall_query_sided(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64, confirm_within: wp.float64):
+    """:func:`wall_query`, whose "outside" answer is confirmed by the winding number only
+    within ``confirm_within`` (mm) of the wall: farther out the pseudo-normal's side is
+    taken as it is (for a caller that needs no side there)."""
     local = p - origin
     local32 = wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2]))
     q = wp.mesh_query_point_sign_normal(mesh, local32, wp.float32(max_dist))
@@ -129,7 +120,7 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     delta = local - (u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2)
     dist = wp.length(delta)
     inside = q.sign < wp.float32(0.0)
-    if not inside:
+    if not inside and dist <= confirm_within:
         inside = wp.mesh_query_point_sign_winding_number(mesh, local32, wp.float32(max_dist)).sign < wp.float32(0.0)
     inward = -wp.normalize(wp.cross(v1 - v0, v2 - v0))  # faces are wound with outward normals
     if dist > wp.float64(1.0e-12):
@@ -139,6 +130,24 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     if inside:
         return f, dist, inward
     return f, -dist, inward
+
+
+@wp.func
+def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+               face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
+    """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
+    distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
+
+    The BVH (float32, mesh stored relative to ``origin``) finds the face and the
+    inside/outside sign (angle-weighted pseudo-normal); the distance is then
+    evaluated in float64 on that face (the mesh's faces start at ``face_first``
+    in the flat ``faces`` array of every wall of an ensemble). Warp's
+    pseudo-normal sums the normals of every face within 10⁻³ mean edge lengths
+    of the closest distance, adjacent or not, so near a vessel's medial axis
+    (opposite walls equidistant) it can call an inside point outside; an
+    "outside" answer is therefore confirmed by the winding number (exact for
+    the closed wall; the mesh is built with ``support_winding_number``)."""
+    return wall_query_sided(mesh, vertices, faces, face_first, origin, p, max_dist, FAR_MM)
 
 
 # Feature flags of a wall triangle abc (``owners``): the edges and vertices it counts
