@@ -158,7 +158,7 @@ OWN_EDGE_CA = wp.constant(4)
 OWN_VERTEX_A = wp.constant(8)
 OWN_VERTEX_B = wp.constant(16)
 OWN_VERTEX_C = wp.constant(32)
-BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes
+BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes and closest points
 # a face farther than the contact range by this is skipped with its edges and vertices (each at
 # least as far: they belong to the closed face); ≫ the float64 rounding of either distance
 FEATURE_SKIP_MM = wp.constant(wp.float64(1.0e-9))
@@ -252,15 +252,14 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     at a crease, every face that pushes adds its own direction (the net force's
     direction alone misses them). Without it the matrix is zero."""
     reach = radius + c0 + BOX_MARGIN_MM
-    lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
-    upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
-    query = wp.mesh_query_aabb(mesh, lower, upper)
+    centre = wp.vec3f(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    query = wp.mesh_query_sphere(mesh, centre, wp.float32(reach))  # faces within reach (float32 closest point)
     f = int(0)
     total = vec3l()
     diagonal = vec3l()
     off = vec3l()
     nearest = FAR_MM
-    while wp.mesh_query_aabb_next(query, f):
+    while wp.mesh_query_next(query, f):
         k = face_first + f
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]
