@@ -119,3 +119,28 @@ def test_members_with_their_own_step_bound_and_search_radius():
         assert member.step_bound_s == single.step_bound_s
         assert_same_run(single, member)
         assert [f.min_coil_gap_mm for f in member.frames] == [f.min_coil_gap_mm for f in single.frames]
+
+
+def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch):
+    """Implicit default step: after the push each member steps at the settling step its
+    own fastest node sets (implicit.settle_level); members at different steps in the
+    same frame advance apart, so each still equals its single run."""
+    from dataclasses import replace
+
+    scenes = [scene(a, push_mm_s=300.0) for a in (0.0, 25.0)]
+    scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit")) for s in scenes]
+    real = Ensemble._settle_chunk
+    levels: list[set[int]] = []
+
+    def recorded(self, live):
+        real(self, live)
+        if len(live) > 1:
+            levels.append({m.settle_level for m in live})
+
+    monkeypatch.setattr(Ensemble, "_settle_chunk", recorded)
+    results = Ensemble(scenes).run()
+    assert any(len(frame) > 1 for frame in levels)  # a frame with the members at different steps
+    for s, member in zip(scenes, results):
+        assert member.status == "completed", member.reason
+        assert_same_run(Deployment(s).run(), member)
+        assert member.settle_dt_s is not None

@@ -170,3 +170,28 @@ def test_atomic_path_cleans_up_on_error(tmp_path: Path) -> None:
             raise KeyError("fail")
     assert path.read_text() == "old"
     assert list(tmp_path.iterdir()) == [path]
+
+
+def test_frames_kept_until_close_write_the_same_file(tmp_path: Path, wall: trimesh.Trimesh) -> None:
+    """UsdFrames keeps each frame's positions (copies: the state changes after the call)
+    and writes the samples on close: byte for byte the file of a recorder fed frame by frame."""
+    from types import SimpleNamespace
+
+    from warpcoil.recorder.outputs import UsdFrames
+
+    frame_s = 1.0 / TIME_CODES_PER_SECOND
+    slices = [slice(3, 3 + NODE_COUNTS[0]), slice(3 + NODE_COUNTS[0], 3 + sum(NODE_COUNTS))]  # a member's nodes
+    direct = tmp_path / "direct.usdc"
+    with UsdRecorder(direct, NODE_COUNTS, WIDTHS_MM, wall.vertices, wall.faces, TIME_CODES_PER_SECOND,
+                     frames_per_second=TIME_CODES_PER_SECOND) as rec:
+        for frame, time_s in enumerate(FRAME_TIMES_S):
+            rec.add_frame(time_s, coil_positions_mm(frame))
+    kept = UsdFrames(tmp_path / "kept.usdc", slices, WIDTHS_MM, wall.vertices, wall.faces, frame_s)
+    x = np.zeros((3 + sum(NODE_COUNTS) + 2, 3))
+    state = SimpleNamespace(x=SimpleNamespace(numpy=lambda: x))
+    for frame, time_s in enumerate(FRAME_TIMES_S):
+        x[slices[0]], x[slices[1]] = coil_positions_mm(frame)
+        kept(SimpleNamespace(time_s=time_s, balloon_inflation=None), state)
+        x[:] = np.nan  # the state moves on
+    kept.close()
+    assert (tmp_path / "kept.usdc").read_bytes() == direct.read_bytes()

@@ -10,6 +10,7 @@ import pytest
 
 import warpcoil as wc
 from warpcoil.deploy import Deployment, Ensemble
+from warpcoil.implicit import IMPLICIT_SETTLE_DT_MAX_S
 from warpcoil.solver import Solver
 
 from test_ensemble import assert_same_run, scene as ensemble_scene
@@ -19,10 +20,25 @@ RADIUS_MM = 0.5 * wc.CoilSpec().d
 
 def released_fast(angle_deg: float) -> wc.Scene:
     """A 6 mm helix shot out at 2 m/s into a 3.5 mm sphere on the implicit default step:
-    the coil is out after 3.5 ms and still whips at ~10³ mm/s when the 2 ms settling
-    step takes over (2 mm per step against c0 = 0.029 mm)."""
+    the coil is out after 3.5 ms and still whips at ~10³ mm/s when the settling step
+    takes over (pinned at its coarsest, 2.5 ms, by ``coarsest_settling``: 2.5 mm per step
+    against c0 = 0.029 mm)."""
     s = ensemble_scene(angle_deg=angle_deg, push_mm_s=2000.0)
     return replace(s, simulation=replace(s.simulation, integrator="implicit"))
+
+
+@pytest.fixture
+def coarsest_settling(monkeypatch):
+    """The settling step at its coarsest whatever the nodes' speed (implicit.settle_level
+    would take the finest here): the failure the health check must catch."""
+    real = Ensemble.__init__
+
+    def coarsest(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        self.settle_rule = lambda _speed, _c0, _frame_s: 1
+
+    monkeypatch.setattr(Ensemble, "__init__", coarsest)
+    assert ensemble_scene().simulation.frame_interval_s / 2 == IMPLICIT_SETTLE_DT_MAX_S
 
 
 def centre_distances_mm(result) -> np.ndarray:
@@ -35,7 +51,7 @@ def without_the_wall_check(monkeypatch) -> None:
     monkeypatch.setattr(Solver, "world_health", lambda self, state, budget=None, _wall=None: real(self, state, budget))
 
 
-def test_the_case_tunnels_without_the_check(monkeypatch):
+def test_the_case_tunnels_without_the_check(monkeypatch, coarsest_settling):
     """The test case is real: unchecked, the settling step carries the coil through the
     wall (the node is then beyond the wall search and feels nothing) and it leaves the sac."""
     without_the_wall_check(monkeypatch)
@@ -44,18 +60,30 @@ def test_the_case_tunnels_without_the_check(monkeypatch):
     assert centre_distances_mm(result).min() < -1.0  # mm outside the lumen
 
 
-def test_a_node_past_the_wall_redoes_the_frame_at_half_the_step():
+def test_a_node_past_the_wall_redoes_the_frame_at_half_the_step(coarsest_settling):
     """Every frame keeps every free node centre in the lumen; the reason is reported."""
     deployment = Deployment(released_fast(0.0))
     result = deployment.run()
     assert result.status == "completed", result.reason
     assert centre_distances_mm(result).min() > 0.0
     assert len(result.step_reductions) == 1
-    assert "past the wall" in result.step_reductions[0] and "step halved to 1.000e-03 s" in result.step_reductions[0]
-    assert result.settle_dt_s == pytest.approx(1.0e-3)  # the settling step, halved once
+    halved = 0.5 * IMPLICIT_SETTLE_DT_MAX_S
+    assert "past the wall" in result.step_reductions[0] and f"step halved to {halved:.3e} s" in result.step_reductions[0]
+    assert result.settle_dt_s == pytest.approx(halved)  # the settling step, halved once
 
 
-def test_an_escaping_member_is_rerun_alone_and_both_equal_their_single_runs():
+def test_the_settling_step_set_by_the_fastest_node_keeps_every_node_in_the_lumen(monkeypatch):
+    """The same fast release with the settling step its fastest node sets (at most
+    c0 per step, implicit.settle_level): nothing to redo, every frame's node centres
+    in the lumen, at rest."""
+    without_the_wall_check(monkeypatch)
+    result = Deployment(released_fast(0.0)).run()
+    assert result.status == "completed", result.reason
+    assert result.step_reductions == []
+    assert centre_distances_mm(result).min() > 0.0
+
+
+def test_an_escaping_member_is_rerun_alone_and_both_equal_their_single_runs(coarsest_settling):
     scenes = [released_fast(0.0), released_fast(45.0)]  # the first tunnels, the second does not
     results = Ensemble(scenes).run()
     singles = [Deployment(s).run() for s in scenes]

@@ -18,12 +18,13 @@ from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
+import warp as wp
 
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import implicit_step_s, make_solver, settle_step_s
+from .implicit import implicit_step_s, make_solver, settle_level, settle_step_s
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -91,6 +92,8 @@ class Member:
         self.deflate_from_s = None if self.balloon is None else self.balloon.deflate_at_s
         self.inflation = None if self.balloon is None else 1.0  # 1 inflated .. 0 deflated
         self.steps = 0
+        self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
+        self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
         self.result: RunResult | None = None
 
     def energy_budget_nJ(self, advance: np.ndarray, free: np.ndarray, push_force_uN: float) -> float:
@@ -134,6 +137,9 @@ class Ensemble:
         self.integrator = steps[0][3]
         self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit default) step after the push
         self._push_dt_s: float | None = None  # the push's step, once the settling step took over
+        self._settling = False  # every member steps at its own settling step (_settle_chunk)
+        self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
+        self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -142,6 +148,8 @@ class Ensemble:
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
+        for module in self.solver.kernel_modules:  # hashed and loaded (from the kernel cache) with the solver,
+            wp.load_module(module, device=self.model.device)  # not at the first step inside the run's clock
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
@@ -180,7 +188,9 @@ class Ensemble:
         The step bound is linear; dense contact (several deep overlaps on one node)
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
-        self._steps_before += self.stepper.steps - self.stepper.chunk  # the failed chunk is dropped
+        done = self.members[0].settle_steps if self._settling else self.stepper.steps
+        self._steps_before += done - self.stepper.chunk  # the failed chunk is dropped
+        self._settling = False  # (a single run) on at the halved step to its end
         solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
                              dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True,
                              **self._solver_options)
@@ -192,16 +202,46 @@ class Ensemble:
         self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
 
     def _settle_step(self) -> None:
-        """Every coil is out (at the push's scheduled end, the same for every member): go on
-        at the settling step (a new captured graph, the same frame length)."""
+        """Every coil is out (at the push's scheduled end, the same for every member): from
+        the next frame on each member steps at its own settling step (:meth:`_settle_chunk`)."""
         self._steps_before += self.stepper.steps
         self._push_dt_s = self.solver.dt_s
-        self.solver.dt_s = self.settle_dt_s
         if getattr(self.solver, "theta", 1.0) != 1.0:  # the θ-method does not bring a coil to rest at this step
             self.solver.theta = 1.0  # (docs/FORMULATION.md "Implicit step: push force"): Euler settles it
+        self._settling = True
+
+    def _settle_chunk(self, live: list[Member]) -> None:
+        """One frame of settling: each live member at the step its fastest free node sets
+        (implicit.settle_level: frame / (2 k), k whole, so every member's frame has the same
+        length); the members of each step advance together, the others held (a member's
+        steps do not depend on the others': it equals its single run)."""
         frame_s = self.members[0].scene.simulation.frame_interval_s
-        self.stepper = Stepper(self.solver, self.stepper.state, self.control,
-                               chunk=max(2, 2 * round(frame_s / self.settle_dt_s / 2)))
+        state = self.stepper.state
+        v, free = state.v.numpy(), state.free.numpy() == 1
+        c0 = self.model.contact.c0_mm
+        for m in live:
+            moving = free[m.nodes]
+            speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
+            m.settle_level = self.settle_rule(speed, c0, frame_s)
+        levels = sorted({m.settle_level for m in live})
+        start = state.time_s
+        for k in levels:
+            if len(levels) > 1:
+                mask = np.zeros(self.model.world_count, dtype=np.int32)
+                mask[[m.world for m in live if m.settle_level == k]] = 1
+                self.control.running.assign(mask)
+            if k not in self._levels:
+                self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
+            self.solver.dt_s = frame_s / (2 * k)
+            self.stepper = self._levels[k]
+            self.stepper.run_chunk()
+            for m in live:
+                m.settle_steps += 2 * k if m.settle_level == k else 0
+        if len(levels) > 1:
+            mask = np.zeros(self.model.world_count, dtype=np.int32)
+            mask[[m.world for m in live]] = 1
+            self.control.running.assign(mask)
+        state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
     def _restore(self, member: Member, snapshot: State) -> None:
         """Put a stopped member's nodes back to the frame's start (finite values)."""
@@ -218,11 +258,14 @@ class Ensemble:
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
         if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
-        member.steps = self._steps_before + self.stepper.steps
+        member.steps = self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
                                    snap, self.step_reductions)
-        if self._push_dt_s is not None:  # settled at a longer step: dt_s stays the push's
-            member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=self.solver.dt_s)
+        if self._push_dt_s is not None:  # settled at longer steps: dt_s stays the push's, settle_dt_s the last
+            frame_s = member.scene.simulation.frame_interval_s
+            settle_dt = (self.solver.dt_s if not self._settling else  # (None: ended before its first settling frame)
+                         frame_s / (2 * member.settle_level) if member.settle_level else None)
+            member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=settle_dt)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
@@ -341,7 +384,10 @@ class Ensemble:
                 self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
                 break
             snapshot.copy_from(self.stepper.state)
-            self.stepper.run_chunk()
+            if self._settling:
+                self._settle_chunk([m for m in self.members if m.result is None and m not in rerun])
+            else:
+                self.stepper.run_chunk()
             state = self.stepper.state
             push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
@@ -374,7 +420,7 @@ class Ensemble:
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
             pushing = [m for m in self.members if m.result is None and m not in rerun and m.active >= 0]
-            if (self.settle_dt_s and self.solver.dt_s < self.settle_dt_s and not self.step_reductions
+            if (self.settle_dt_s and not self._settling and self._push_dt_s is None and not self.step_reductions
                     and not pushing and self.stepper.state.time_s >= self.push_time_s):
                 self._settle_step()
         if interrupted[0] and rerun:

@@ -43,9 +43,16 @@ INTEGRATORS = ("symplectic", "implicit")
 # (accuracy, not stability, sets it: BENCHMARKS.md, bench accuracy)
 IMPLICIT_ADVANCE_PER_C0 = 0.8
 IMPLICIT_DT_MAX_S = 5.0e-4  # and never more than this (a released coil's damping time ~1.3 ms)
-# default step once every coil is out (no pusher to follow): the settling is an overdamped creep
-# (kinetic energy decays with τ ≈ 60 ms on the seed case), resolved by a few ms (BENCHMARKS.md)
+# finest settling step once every coil is out (no pusher to follow): the step the settling starts at,
+# when the coil's end still whips at ~50 mm/s (docs/FORMULATION.md "Settling step")
 IMPLICIT_SETTLE_DT_S = 2.0e-3
+# the settling step grows while the fastest free node moves at most this fraction of c0 per step:
+# no node crosses the contact range in one step (docs/FORMULATION.md "Settling step") ...
+SETTLE_ADVANCE_PER_C0 = 1.0
+# ... up to this: at 4–5 ms the seed coil's free distal tip runs a growing bend–twist oscillation
+# (speed and edge spin ×1.6 a step, no contact near: the position/spin split amplifies it) that
+# lengthens the settling 1.5–2×; none at 2.5 ms (docs/FORMULATION.md "Implicit step: the settling step")
+IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -72,9 +79,28 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
 
 
 def settle_step_s(push_dt_s: float, frame_interval_s: float) -> float:
-    """Default implicit step (s) after the push: IMPLICIT_SETTLE_DT_S, at most half a frame
-    (frames keep about their length), never below the push's step."""
-    return max(min(IMPLICIT_SETTLE_DT_S, 0.5 * frame_interval_s), push_dt_s)
+    """Finest default implicit step (s) after the push: the largest frame / (2 k) (k whole:
+    every settling step splits a frame evenly) up to IMPLICIT_SETTLE_DT_S, never below
+    the push's step."""
+    return max(frame_interval_s / (2 * settle_finest_level(frame_interval_s)), push_dt_s)
+
+
+def settle_finest_level(frame_interval_s: float) -> int:
+    """Steps per half frame at the finest settling step (≤ IMPLICIT_SETTLE_DT_S)."""
+    return max(1, math.ceil(frame_interval_s / (2.0 * IMPLICIT_SETTLE_DT_S) - 1e-9))
+
+
+def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> int:
+    """Steps per half frame of the settling step for a world whose fastest free node moves
+    at ``speed_mm_s`` (mm/s): the fewest (the longest step frame / (2 k)) that move it at
+    most SETTLE_ADVANCE_PER_C0 · c0 (mm), from the coarsest level (a step up to
+    IMPLICIT_SETTLE_DT_MAX_S) to the finest."""
+    finest = settle_finest_level(frame_interval_s)
+    coarsest = min(max(1, math.ceil(frame_interval_s / (2.0 * IMPLICIT_SETTLE_DT_MAX_S) - 1e-9)), finest)
+    if not math.isfinite(speed_mm_s):
+        return finest
+    wanted = math.ceil(frame_interval_s * speed_mm_s / (2.0 * SETTLE_ADVANCE_PER_C0 * c0_mm) - 1e-9)
+    return min(max(wanted, coarsest), finest)
 
 
 class ImplicitSolver(Solver):

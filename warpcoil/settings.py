@@ -156,7 +156,8 @@ class SimulationSettings:
       warpcoil/implicit.py: no stability bound, step set by accuracy).
     * dt_s: step; None → dt_safety (default 0.9) × the stable bound (symplectic), or
       the implicit default (the pusher advances 0.8 c0 per step, at most 0.5 ms; once every
-      coil is out, 2 ms).
+      coil is out, frame / (2k), the longest moving the fastest node ≤ c0, 1.67–2.5 ms at
+      10 ms frames: implicit.settle_level).
       A symplectic dt above the bound is refused unless allow_unstable_dt.
     * mass_scale: node masses, twist inertia and damping × this factor (default 1,
       true inertia): a named quasi-static speed-up (the damped, first-order motion

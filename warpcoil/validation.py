@@ -523,6 +523,12 @@ def push_force() -> list[CaseResult]:
     return push_force_cases()
 
 
+def settle() -> list[CaseResult]:
+    """The settling step set by the fastest node against the finest step (validation_settle.py)."""
+    from .validation_settle import settle_cases
+    return settle_cases()
+
+
 def contact_share() -> list[CaseResult]:
     """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
     from .validation_contact import contact_share_cases
@@ -819,6 +825,7 @@ CASES = {
     "implicit-devices": implicit_devices,
     "push-force": push_force,
     "implicit-wall": implicit_wall,
+    "settle": settle,
 }
 
 

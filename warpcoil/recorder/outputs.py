@@ -73,7 +73,9 @@ def write_timeseries_csv(path: Path, frames: list[Frame]) -> None:
 
 class UsdFrames:
     """``on_frame`` callback that records every frame's centerlines into a USD file
-    (written on :meth:`close`; nothing is written if the run raises).
+    (written on :meth:`close`; nothing is written if the run raises). A frame only
+    keeps a copy of the node positions; the stage takes its time samples on
+    :meth:`close`, in frame order (~0.25 ms a frame, outside the run).
 
     ``coil_nodes``: each coil's node slice in the state; ``wall_vertices_mm`` /
     ``wall_faces``: the static wall, or None."""
@@ -82,6 +84,7 @@ class UsdFrames:
                  wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float):
         self.coil_nodes = coil_nodes
         self.balloon = False  # the model has a balloon (its inflation is recorded per frame)
+        self._frames: list[tuple[float, np.ndarray, float | None]] = []  # (time s, positions mm, inflation)
         self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
                                     wall_faces, time_codes_per_second=1.0 / frame_interval_s,
                                     frames_per_second=1.0 / frame_interval_s)  # one code per frame: real time
@@ -114,12 +117,16 @@ class UsdFrames:
             self.balloon = True
 
     def __call__(self, frame: Frame, state: State) -> None:
-        x = state.x.numpy()
-        self.recorder.add_frame(frame.time_s, [x[s] for s in self.coil_nodes])
-        if self.balloon and frame.balloon_inflation is not None:
-            self.recorder.set_balloon(frame.time_s, frame.balloon_inflation)
+        nodes = slice(self.coil_nodes[0].start, self.coil_nodes[-1].stop)
+        self._frames.append((frame.time_s, state.x.numpy()[nodes].copy(), frame.balloon_inflation))
 
     def close(self) -> None:
+        first = self.coil_nodes[0].start
+        for time_s, x, inflation in self._frames:
+            self.recorder.add_frame(time_s, [x[s.start - first:s.stop - first] for s in self.coil_nodes])
+            if self.balloon and inflation is not None:
+                self.recorder.set_balloon(time_s, inflation)
+        self._frames = []
         self.recorder.close()
 
 

@@ -1,0 +1,60 @@
+"""The settling step set by the fastest node (implicit.settle_level, deploy.Ensemble._settle_chunk):
+its rule, the settled state against the finest-step settle, and captured-graph sizes
+that change no result."""
+
+import math
+
+import numpy as np
+import pytest
+
+from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, SETTLE_ADVANCE_PER_C0,
+                               settle_finest_level, settle_level)
+from warpcoil.validation_settle import settle_cases
+
+C0_MM = 0.02921
+
+
+@pytest.mark.parametrize("frame_s", [0.004, 0.005, 0.01, 0.02])
+def test_the_settling_step_moves_the_fastest_node_at_most_c0_unless_at_the_finest(frame_s):
+    finest = settle_finest_level(frame_s)
+    assert frame_s / (2 * finest) <= IMPLICIT_SETTLE_DT_S < frame_s / (2 * (finest - 1)) if finest > 1 else True
+    for speed in np.geomspace(0.01, 1e4, 60):
+        k = settle_level(speed, C0_MM, frame_s)
+        dt = frame_s / (2 * k)  # a whole number of steps splits the frame
+        assert 1 <= k <= finest and dt <= IMPLICIT_SETTLE_DT_MAX_S * (1 + 1e-12)
+        if k < finest:  # not held at the finest: the step keeps the node within SETTLE_ADVANCE_PER_C0 · c0
+            assert speed * dt <= SETTLE_ADVANCE_PER_C0 * C0_MM * (1 + 1e-9)
+            if k > 1 and dt < IMPLICIT_SETTLE_DT_MAX_S:  # and is the longest that does
+                assert speed * frame_s / (2 * (k - 1)) > SETTLE_ADVANCE_PER_C0 * C0_MM
+    assert settle_level(math.inf, C0_MM, frame_s) == finest
+
+
+def test_the_settled_state_is_at_rest_within_the_chaotic_spread_of_the_finest_step_settle():
+    """Small seed case: node-wise distance to the finest-step settle under half the spread
+    that a 0.01° catheter turn makes, no wall gap after the push deeper than the finest-step
+    run's deepest, at rest."""
+    rows = settle_cases()
+    assert len(rows) == 3
+    for row in rows:
+        assert row.passed, (row.case, row.reference, row.result, row.error)
+
+
+def test_the_graph_size_changes_no_result():
+    """A chunk replayed from 2-step graphs (the settling steppers) or from 8-step ones:
+    bit-identical states."""
+    from warpcoil.deploy import Deployment
+    from warpcoil.solver import Stepper
+    from warpcoil.state import new_state_like
+    from warpcoil.validation_settle import small_seed
+
+    states = []
+    for most in (2, 8):
+        deployment = Deployment(small_seed())
+        start = new_state_like(deployment.model)
+        start.copy_from(deployment.stepper.state)
+        stepper = Stepper(deployment.solver, start, deployment.control, chunk=16, graph_steps_max=most)
+        stepper.run_chunk()
+        states.append(stepper.state)
+    assert states[0].x.numpy()[0].tolist() != [0.0, 0.0, 0.0]
+    for name in ("x", "v", "m1", "omega", "advance"):
+        assert np.array_equal(getattr(states[0], name).numpy(), getattr(states[1], name).numpy()), name
