@@ -16,8 +16,8 @@
    runs its data-dependent branches (BVH traversal, closest-point regions) predicted:
    their sum is a floor. So each launch is also timed *in sequence*: every launch of
    two steps captured as its own graph, the graphs replayed in the step's order for
-   64 steps from the moment (each timed alone, less an empty graph's replay; the
-   conditional grid build is one graph): what each launch costs in a real run.
+   64 steps on from the graph-replayed ones (each timed alone, less an empty graph's
+   replay; the conditional grid build is one graph): what each launch costs in a run.
 3. The wall pass's signed BVH queries per step over each run (the frames' exact
    measurement pass included).
 
@@ -147,9 +147,7 @@ def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict, di
             stepper.run_chunk()
             best = min(best, time.process_time() - start)
         whole[moment] = best / steps * 1e6
-        for k in STATE_ARRAYS:  # back to the moment
-            getattr(stepper.state, k).assign(host[k])
-        sequence[moment] = in_sequence_us(stepper, device, steps)
+        sequence[moment] = in_sequence_us(stepper, device, steps)  # on from there (anchors, lists as the run left them)
         plain = Stepper(solver, stepper.state, control, chunk=steps, use_graph=False)
         builds = solver.grid_builds
         plain.run_chunk()
