@@ -215,6 +215,17 @@ def in_sequence_us(stepper: Stepper, device, steps: int = 64) -> dict:
     return dict(times)
 
 
+def moment_table(how: str, per_moment: dict, total: str, whole: dict) -> str:
+    """µs per step of each launch at each moment (slowest late in the push first), their
+    sum and the graph-replayed step."""
+    names = sorted({k for v in per_moment.values() for k in v}, key=lambda k: -per_moment["15 mm left"].get(k, 0.0))
+    return markdown_table(
+        [f"launch: µs per step, {how}"] + list(MOMENTS),
+        [[k] + [per_moment[m].get(k, 0.0) for m in MOMENTS] for k in names]
+        + [[total] + [sum(per_moment[m].values()) for m in MOMENTS],
+           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
@@ -231,18 +242,8 @@ def main() -> None:
          "signed BVH queries per step"],
         [[n, r["status"], r["steps"], r["cpu_s"], r["steps_s"], r["frames_s"], r["us_per_step"],
           r["searches_per_step"]] for n, r in runs.items()])
-    names = sorted({k for v in launches.values() for k in v}, key=lambda k: -launches["15 mm left"].get(k, 0.0))
-    launch_table = markdown_table(
-        ["launch: µs per step, replayed alone"] + list(MOMENTS),
-        [[k] + [launches[m].get(k, 0.0) for m in MOMENTS] for k in names]
-        + [["sum of the launches"] + [sum(launches[m].values()) for m in MOMENTS],
-           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
-    names = sorted({k for v in sequence.values() for k in v}, key=lambda k: -sequence["15 mm left"].get(k, 0.0))
-    sequence_table = markdown_table(
-        ["launch: µs per step, in sequence"] + list(MOMENTS),
-        [[k] + [sequence[m].get(k, 0.0) for m in MOMENTS] for k in names]
-        + [["sum in sequence"] + [sum(sequence[m].values()) for m in MOMENTS],
-           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
+    launch_table = moment_table("replayed alone", launches, "sum of the launches", whole)
+    sequence_table = moment_table("in sequence", sequence, "sum in sequence", whole)
     text = "\n\n".join([
         "# Cost of the implicit step", f"`python -m benchmarks.implicit_cost --repeats {args.repeats}`",
         f"Machine: {machine()}. Times: this process's CPU time (the machine is shared).",
