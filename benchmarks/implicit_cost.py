@@ -12,7 +12,12 @@
    one step replayed alone from a captured graph (neighbour-grid builds weighted by
    how often a step builds there). Launches with state (the wall pass's anchors and
    certificates, the neighbour lists, the touching record) cost less replayed on a
-   state that does not move: their sum is a floor, the step's replay the figure.
+   state that does not move, and a launch replayed on the same data again and again
+   runs its data-dependent branches (BVH traversal, closest-point regions) predicted:
+   their sum is a floor. So each launch is also timed *in sequence*: every launch of
+   two steps captured as its own graph, the graphs replayed in the step's order for
+   64 steps on from the graph-replayed ones (each timed alone, less an empty graph's
+   replay; the conditional grid build is one graph): what each launch costs in a run.
 3. The wall pass's signed BVH queries per step over each run (the frames' exact
    measurement pass included).
 
@@ -121,12 +126,12 @@ def replay_us(target, args, kwargs, device, kind: str, launches: int = 20, repea
     return best / launches * 1e6
 
 
-def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict]:
-    """Per moment: the graph-replayed step (µs, fastest of ``repeats`` chunks) and µs per
-    launch of one step (each replayed alone)."""
+def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict, dict]:
+    """Per moment: the graph-replayed step (µs, fastest of ``repeats`` chunks), µs per
+    launch of one step replayed alone, and µs per step of each launch in sequence."""
     deployment = Deployment(seed_scene())
     solver, control, device = deployment.solver, deployment.control, deployment.model.device
-    whole, launches = {}, {}
+    whole, launches, sequence = {}, {}, {}
     for moment, host in states.items():
         state = new_state_like(deployment.model)
         for k in STATE_ARRAYS:
@@ -142,6 +147,7 @@ def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict]:
             stepper.run_chunk()
             best = min(best, time.process_time() - start)
         whole[moment] = best / steps * 1e6
+        sequence[moment] = in_sequence_us(stepper, device, steps)  # on from there (anchors, lists as the run left them)
         plain = Stepper(solver, stepper.state, control, chunk=steps, use_graph=False)
         builds = solver.grid_builds
         plain.run_chunk()
@@ -162,7 +168,62 @@ def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict]:
         for name in ("mark_built", "HashGrid.build", "build_neighbours"):
             times[name] *= build_share
         launches[moment] = dict(times)
-    return whole, launches
+    return whole, launches, sequence
+
+
+def step_ops(solver, state_a, state_b, control) -> list:
+    """Two steps (a → b → a) as (name, launch thunk), not run: each wp.launch, and the
+    conditional neighbour-grid build as one."""
+    ops = []
+    launch, capture_if = wp.launch, wp.capture_if
+    wp.launch = lambda kernel, *a, **kw: ops.append((kernel.key, lambda: launch(kernel, *a, **kw)))
+    wp.capture_if = lambda condition, on_true: ops.append(
+        ("grid build (conditional)", lambda: capture_if(condition, on_true=on_true)))
+    try:
+        solver.step(state_a, state_b, control)
+        solver.step(state_b, state_a, control)
+    finally:
+        wp.launch, wp.capture_if = launch, capture_if
+    return ops
+
+
+def in_sequence_us(stepper: Stepper, device, steps: int = 64) -> dict:
+    """µs per step of each launch replayed in the step's order from ``stepper``'s state
+    (each launch its own captured graph, timed alone, less an empty graph's replay;
+    the mean over ``steps`` steps)."""
+    solver = stepper.solver
+    solver.allocate_neighbour_grid(stepper.state)
+    graphs = []
+    for name, thunk in step_ops(solver, stepper.state, stepper._b, stepper.control):
+        with wp.ScopedCapture(device=device) as capture:
+            thunk()
+        graphs.append((name, capture.graph))
+    with wp.ScopedCapture(device=device) as capture:
+        pass
+    empty = capture.graph
+    overhead = math.inf
+    for _ in range(200):
+        start = time.process_time_ns()
+        wp.capture_launch(empty)
+        overhead = min(overhead, time.process_time_ns() - start)
+    times: dict[str, float] = defaultdict(float)
+    for _ in range(steps // 2):
+        for name, graph in graphs:
+            start = time.process_time_ns()
+            wp.capture_launch(graph)
+            times[name] += (time.process_time_ns() - start - overhead) * 1e-3 / steps
+    return dict(times)
+
+
+def moment_table(how: str, per_moment: dict, total: str, whole: dict) -> str:
+    """µs per step of each launch at each moment (slowest late in the push first), their
+    sum and the graph-replayed step."""
+    names = sorted({k for v in per_moment.values() for k in v}, key=lambda k: -per_moment["15 mm left"].get(k, 0.0))
+    return markdown_table(
+        [f"launch: µs per step, {how}"] + list(MOMENTS),
+        [[k] + [per_moment[m].get(k, 0.0) for m in MOMENTS] for k in names]
+        + [[total] + [sum(per_moment[m].values()) for m in MOMENTS],
+           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
 
 
 def main() -> None:
@@ -175,22 +236,18 @@ def main() -> None:
         rows = [timed_run(make()) for _ in range(args.repeats)]
         runs[name] = min(rows, key=lambda r: r["cpu_s"])
         print(name, runs[name], flush=True)
-    whole, launches = profile(seed_states(), args.repeats)
+    whole, launches, sequence = profile(seed_states(), args.repeats)
     run_table = markdown_table(
         ["case", "status", "steps", "CPU s (fastest)", "of which steps", "of which frames", "µs per step",
          "signed BVH queries per step"],
         [[n, r["status"], r["steps"], r["cpu_s"], r["steps_s"], r["frames_s"], r["us_per_step"],
           r["searches_per_step"]] for n, r in runs.items()])
-    names = sorted({k for v in launches.values() for k in v}, key=lambda k: -launches["15 mm left"].get(k, 0.0))
-    launch_table = markdown_table(
-        ["launch: µs per step, replayed alone"] + list(MOMENTS),
-        [[k] + [launches[m].get(k, 0.0) for m in MOMENTS] for k in names]
-        + [["sum of the launches"] + [sum(launches[m].values()) for m in MOMENTS],
-           ["the step, graph-replayed"] + [whole[m] for m in MOMENTS]])
+    launch_table = moment_table("replayed alone", launches, "sum of the launches", whole)
+    sequence_table = moment_table("in sequence", sequence, "sum in sequence", whole)
     text = "\n\n".join([
         "# Cost of the implicit step", f"`python -m benchmarks.implicit_cost --repeats {args.repeats}`",
         f"Machine: {machine()}. Times: this process's CPU time (the machine is shared).",
-        run_table, launch_table]) + "\n"
+        run_table, launch_table, sequence_table]) + "\n"
     print(text)
     if args.out:
         args.out.write_text(text)

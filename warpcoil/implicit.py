@@ -75,6 +75,11 @@ IMPLICIT_METHODS = ("theta", "bdf2")
 IMPLICIT_METHOD = "theta"
 BDF2_SCALE = 2.0 / 3.0  # BDF2's implicit coefficient h = 2/3 dt
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
+# ... in a world whose pusher drives a coil (a solver option, push_cg_iterations; fewer there do not add
+# steps, the pusher sets them): 1 or 2 keep the seed case's shape and push force but let coils overlap
+# deeper in dense patient packs (C0031's smallest coil gap −0.048 → −0.061 / −0.092 mm at 2 / 1), so
+# the default is all of them (docs/FORMULATION.md "Conjugate-gradient iterations while pushing")
+PUSH_CG_ITERATIONS = CG_ITERATIONS
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
@@ -120,8 +125,8 @@ class ImplicitSolver(Solver):
     kernel_modules = Solver.kernel_modules + (kernels,)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
-                 cg_iterations: int = CG_ITERATIONS, theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
-                 **kwargs):
+                 cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
+                 theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -133,6 +138,10 @@ class ImplicitSolver(Solver):
         if cg_iterations < 1:
             raise ValueError(f"cg_iterations must be ≥ 1, got {cg_iterations}")
         self.cg_iterations = int(cg_iterations)
+        if not 1 <= push_cg_iterations:
+            raise ValueError(f"push_cg_iterations must be ≥ 1, got {push_cg_iterations}")
+        self.push_cg_iterations = min(int(push_cg_iterations), self.cg_iterations)
+        self._settling = wp.zeros(model.world_count, dtype=wp.int32, device=dev)
         if not 0.5 < theta <= 1.0:
             raise ValueError(f"theta must be in (0.5, 1] (1: linearly implicit Euler), got {theta}")
         self.theta = float(theta)
@@ -256,7 +265,8 @@ class ImplicitSolver(Solver):
     def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
         """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
         gradients per world, started at the old velocities, preconditioned by each
-        coil's banded factorisation (``cg_iterations`` iterations)."""
+        coil's banded factorisation: ``cg_iterations`` iterations, ``push_cg_iterations``
+        in a world whose pusher drives a coil (its later iterations' launches skip it)."""
         m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
         free, running = state_out.free, control.running
         coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
@@ -270,15 +280,23 @@ class ImplicitSolver(Solver):
         wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
         wp.launch(kernels.pcg_begin, m.world_count, device=dev, inputs=[
             m.world_node_range, running, self._r, self._z, self._p, self._rz])
+        if self.push_cg_iterations < self.cg_iterations:
+            wp.launch(kernels.settling_worlds, m.world_count, device=dev, inputs=[
+                running, control.active_coil, self._settling])
+
+        def worlds(k: int) -> wp.array:  # the worlds taking iteration k
+            return running if k < self.push_cg_iterations else self._settling
+
         for k in range(self.cg_iterations):
-            wp.launch(kernels.system_product, n, device=dev, inputs=[self._p, self._rhs, 0] + product_args
-                      + [self._q])
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._p, self._rhs, 0] + product_args[:4]
+                      + [worlds(k)] + product_args[5:] + [self._q])
             wp.launch(kernels.pcg_advance, m.world_count, device=dev, inputs=[
-                m.world_node_range, running, self._p, self._q, self._rz, self._v, self._r])
+                m.world_node_range, worlds(k), self._p, self._q, self._rz, self._v, self._r])
             if k + 1 < self.cg_iterations:
-                wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
+                wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args[:3] + [worlds(k + 1)]
+                          + precondition_args[4:])
                 wp.launch(kernels.pcg_direction, m.world_count, device=dev, inputs=[
-                    m.world_node_range, running, self._r, self._z, self._rz, self._p])
+                    m.world_node_range, worlds(k + 1), self._r, self._z, self._rz, self._p])
 
     def unstable_reason(self, problem: str, time_s: float) -> str:
         return (f"{problem} at t = {time_s:.6f} s (implicit step dt = {self.dt_s:.3e} s): reduce simulation.dt_s, "

@@ -90,7 +90,7 @@ def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM,
     voxels = volume.get_voxels()
     voxels = wp.array(voxels.numpy().reshape(-1, 3), dtype=wp.vec3i, device=dev) if voxels.dtype != wp.vec3i else voxels
     wp.launch(kernels.fill_distances, voxels.shape[0], device=dev, inputs=[
-        volume.id, wall.mesh.id, wall.vertices, wall.faces, voxels, h, reach + tile_mm])
+        volume.id, wall.mesh.id, wall.vertices, wall.faces, voxels, h, reach + tile_mm, inner + math.sqrt(3.0) * h])
     crease = wp.zeros(voxels.shape[0], dtype=wp.int32, device=dev)
     wp.launch(kernels.find_creases, voxels.shape[0], device=dev, inputs=[volume.id, voxels, crease_mm, crease])
     wp.launch(kernels.clear_creases, voxels.shape[0], device=dev, inputs=[volume.id, voxels, crease])

@@ -99,20 +99,11 @@ ANCHOR_MARGIN_MM = wp.constant(wp.float64(1.0e-5))  # ≫ the float32 BVH's erro
 
 
 @wp.func
-def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-               face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
-    """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
-    distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
-
-    The BVH (float32, mesh stored relative to ``origin``) finds the face and the
-    inside/outside sign (angle-weighted pseudo-normal); the distance is then
-    evaluated in float64 on that face (the mesh's faces start at ``face_first``
-    in the flat ``faces`` array of every wall of an ensemble). Warp's
-    pseudo-normal sums the normals of every face within 10⁻³ mean edge lengths
-    of the closest distance, adjacent or not, so near a vessel's medial axis
-    (opposite walls equidistant) it can call an inside point outside; an
-    "outside" answer is therefore confirmed by the winding number (exact for
-    the closed wall; the mesh is built with ``support_winding_number``)."""
+def wall_query_sided(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64, confirm_within: wp.float64):
+    """:func:`wall_query`, whose "outside" answer is confirmed by the winding number only
+    within ``confirm_within`` (mm) of the wall: farther out the pseudo-normal's side is
+    taken as it is (for a caller that needs no side there)."""
     local = p - origin
     local32 = wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2]))
     q = wp.mesh_query_point_sign_normal(mesh, local32, wp.float32(max_dist))
@@ -129,7 +120,7 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     delta = local - (u * v0 + v * v1 + (wp.float64(1.0) - u - v) * v2)
     dist = wp.length(delta)
     inside = q.sign < wp.float32(0.0)
-    if not inside:
+    if not inside and dist <= confirm_within:
         inside = wp.mesh_query_point_sign_winding_number(mesh, local32, wp.float32(max_dist)).sign < wp.float32(0.0)
     inward = -wp.normalize(wp.cross(v1 - v0, v2 - v0))  # faces are wound with outward normals
     if dist > wp.float64(1.0e-12):
@@ -141,6 +132,24 @@ def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.ar
     return f, -dist, inward
 
 
+@wp.func
+def wall_query(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+               face_first: int, origin: wp.vec3d, p: wp.vec3d, max_dist: wp.float64):
+    """Closest wall face within ``max_dist`` of a point: (face or NO_FACE, signed
+    distance in mm, > 0 inside the lumen, unit normal pointing into the lumen).
+
+    The BVH (float32, mesh stored relative to ``origin``) finds the face and the
+    inside/outside sign (angle-weighted pseudo-normal); the distance is then
+    evaluated in float64 on that face (the mesh's faces start at ``face_first``
+    in the flat ``faces`` array of every wall of an ensemble). Warp's
+    pseudo-normal sums the normals of every face within 10⁻³ mean edge lengths
+    of the closest distance, adjacent or not, so near a vessel's medial axis
+    (opposite walls equidistant) it can call an inside point outside; an
+    "outside" answer is therefore confirmed by the winding number (exact for
+    the closed wall; the mesh is built with ``support_winding_number``)."""
+    return wall_query_sided(mesh, vertices, faces, face_first, origin, p, max_dist, FAR_MM)
+
+
 # Feature flags of a wall triangle abc (``owners``): the edges and vertices it counts
 # in the wall's feature sum (each edge and vertex is counted by one of its faces).
 OWN_EDGE_AB = wp.constant(1)
@@ -149,7 +158,7 @@ OWN_EDGE_CA = wp.constant(4)
 OWN_VERTEX_A = wp.constant(8)
 OWN_VERTEX_B = wp.constant(16)
 OWN_VERTEX_C = wp.constant(32)
-BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes
+BOX_MARGIN_MM = wp.constant(wp.float64(1.0e-4))  # ≫ float32 rounding of the BVH's boxes and closest points
 # a face farther than the contact range by this is skipped with its edges and vertices (each at
 # least as far: they belong to the closed face); ≫ the float64 rounding of either distance
 FEATURE_SKIP_MM = wp.constant(wp.float64(1.0e-9))
@@ -243,15 +252,14 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     at a crease, every face that pushes adds its own direction (the net force's
     direction alone misses them). Without it the matrix is zero."""
     reach = radius + c0 + BOX_MARGIN_MM
-    lower = wp.vec3f(wp.float32(p[0] - reach), wp.float32(p[1] - reach), wp.float32(p[2] - reach))
-    upper = wp.vec3f(wp.float32(p[0] + reach), wp.float32(p[1] + reach), wp.float32(p[2] + reach))
-    query = wp.mesh_query_aabb(mesh, lower, upper)
+    centre = wp.vec3f(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    query = wp.mesh_query_sphere(mesh, centre, wp.float32(reach))  # faces within reach (float32 closest point)
     f = int(0)
     total = vec3l()
     diagonal = vec3l()
     off = vec3l()
     nearest = FAR_MM
-    while wp.mesh_query_aabb_next(query, f):
+    while wp.mesh_query_next(query, f):
         k = face_first + f
         a = vertices[faces[3 * k]]
         b = vertices[faces[3 * k + 1]]

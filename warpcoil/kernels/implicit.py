@@ -626,6 +626,15 @@ def system_product(
 
 
 @wp.kernel
+def settling_worlds(running: wp.array(dtype=wp.int32), active_coil: wp.array(dtype=wp.int32),
+                    settling: wp.array(dtype=wp.int32)):
+    """Per world: 1 where it runs and no pusher drives a coil (active_coil < 0), else 0
+    (the worlds that take the conjugate-gradient iterations beyond the push's)."""
+    w = wp.tid()
+    settling[w] = wp.where(running[w] != 0 and active_coil[w] < 0, 1, 0)
+
+
+@wp.kernel
 def pcg_begin(
     world_node_range: wp.array2d(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),

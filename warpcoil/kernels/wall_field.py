@@ -5,7 +5,9 @@ pass uses.
 The field holds, at every voxel of the tiles (8³ voxels) that touch the band
 ``−inner_mm ≤ d ≤ band_mm`` (d: signed distance, mm, > 0 in the lumen), the
 exact signed distance of the voxel centre (float32, from :func:`contact.wall_query`),
-in the wall's local frame (relative to its origin). Every other voxel is NaN,
+in the wall's local frame (relative to its origin), except where the centre lies
+more than a stencil's diagonal beyond the band outside the lumen (:func:`fill_distances`).
+Every other voxel is NaN,
 so a trilinear sample that touches one is NaN: a sample is either built from
 eight exact corner values or visibly untrusted. The sampler is
 :func:`contact.field_sample`.
@@ -13,7 +15,7 @@ eight exact corner values or visibly untrusted. The sampler is
 
 import warp as wp
 
-from .contact import field_sample, wall_query
+from .contact import field_sample, wall_query, wall_query_sided
 
 FIELD_NAN = wp.constant(wp.float32(wp.nan))
 TILE_VOXELS = wp.constant(8)  # NanoVDB leaf: 8³ voxels
@@ -114,16 +116,21 @@ def keep_band_tiles(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: 
 @wp.kernel
 def fill_distances(volume: wp.uint64, mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d),
                    faces: wp.array(dtype=wp.int32), voxels: wp.array(dtype=wp.vec3i), voxel_mm: wp.float64,
-                   reach_mm: wp.float64):
-    """Each active voxel gets the exact signed distance (mm) of its centre (NaN
-    if no face is within ``reach_mm``, which a kept tile cannot have)."""
+                   reach_mm: wp.float64, outside_mm: wp.float64):
+    """Each active voxel gets the exact signed distance (mm) of its centre; NaN if no
+    face is within ``reach_mm`` (which a kept tile cannot have) or if the centre lies
+    more than ``outside_mm`` outside the lumen (beyond the band by a stencil's
+    diagonal: in no trusted sample of the band). That far out the pseudo-normal's
+    side is not confirmed by the winding number (half a tile's voxels lie outside,
+    and each confirmation costs ~4× the query): an inside voxel it misjudges is NaN
+    too, which leaves its samples to the BVH."""
     i = wp.tid()
     c = voxels[i]
     p = wp.vec3d(wp.float64(c[0]) * voxel_mm, wp.float64(c[1]) * voxel_mm, wp.float64(c[2]) * voxel_mm)
     zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    face, d, inward = wall_query(mesh, vertices, faces, 0, zero, p, reach_mm)
+    face, d, inward = wall_query_sided(mesh, vertices, faces, 0, zero, p, reach_mm, outside_mm)
     value = FIELD_NAN
-    if face >= 0:
+    if face >= 0 and d >= -outside_mm:
         value = wp.float32(d)
     wp.volume_store(volume, c[0], c[1], c[2], value)
 
