@@ -2,7 +2,6 @@
 its slow-mode damping, its history carried by the State (copies, restarts, changed
 steps), and an ensemble member equal to its single run."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest

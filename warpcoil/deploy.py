@@ -24,7 +24,7 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import implicit_step_s, make_solver, settle_level, settle_step_s
+from .implicit import implicit_step_s, make_solver, settle_finest_level, settle_level, settle_stalled, settle_step_s
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -94,6 +94,8 @@ class Member:
         self.steps = 0
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
+        self.settle_finest = False  # its kinetic energy stalled at a longer step: the finest from then on
+        self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
         self.result: RunResult | None = None
 
     def energy_budget_nJ(self, advance: np.ndarray, free: np.ndarray, push_force_uN: float) -> float:
@@ -191,9 +193,12 @@ class Ensemble:
         done = self.members[0].settle_steps if self._settling else self.stepper.steps
         self._steps_before += done - self.stepper.chunk  # the failed chunk is dropped
         self._settling = False  # (a single run) on at the halved step to its end
+        options = dict(self._solver_options)
+        if self._push_dt_s is not None:  # halved while settling: on with Euler, as _settle_step switched to
+            options.update(method="theta", theta=1.0)
         solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
                              dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True,
-                             **self._solver_options)
+                             **options)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -224,7 +229,9 @@ class Ensemble:
         for m in live:
             moving = free[m.nodes]
             speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
-            m.settle_level = self.settle_rule(speed, c0, frame_s)
+            m.settle_finest = m.settle_finest or settle_stalled(m.settle_kinetic_nJ, frame_s)
+            m.settle_level = (settle_finest_level(frame_s) if m.settle_finest
+                              else self.settle_rule(speed, c0, frame_s))
         levels = sorted({m.settle_level for m in live})
         start = state.time_s
         for k in levels:
@@ -348,6 +355,8 @@ class Ensemble:
 
     def _record(self, member: Member, frame: Frame, on_frame) -> None:
         member.frames.append(frame)
+        if self._settling:
+            member.settle_kinetic_nJ.append(frame.kinetic_nJ)
         if on_frame:
             on_frame(member, frame, self.stepper.state)
 
@@ -429,7 +438,7 @@ class Ensemble:
             self._interrupt(rerun, started)  # (restored to their last healthy frame)
             rerun = []
         for member in rerun:
-            alone = Ensemble([member.scene], self.device, [member.anatomy])
+            alone = Ensemble([member.scene], self.device, [member.anatomy], solver_options=self._solver_options)
             alone.members[0].index = member.index
             result = alone.run(on_frame)[0]
             member.frames, member.result = alone.members[0].frames, result

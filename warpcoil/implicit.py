@@ -58,6 +58,14 @@ SETTLE_ADVANCE_PER_C0 = 1.0
 # (speed and edge spin ×1.6 a step, no contact near: the position/spin split amplifies it) that
 # lengthens the settling 1.5–2×; none at 2.5 ms (docs/FORMULATION.md "Implicit step: the settling step")
 IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
+# ... but not for a member whose kinetic energy stops falling: a 6 mm framing coil in C0001 ran a
+# steady oscillation at 2.5 ms (kinetic 0.031 nJ from 2.8 s to the 6 s timeout) and came to rest
+# at ≤ 2 ms. A member whose frame kinetic energy fell by less than SETTLE_STALL_DROP over the last
+# SETTLE_STALL_S of settling (a decay at the slowest measured rate, τ = 0.3 s, falls to 4 % in 0.5 s;
+# the seed case's plateaus while it creeps last ~0.1 s) settles at the finest step for the rest of
+# the run (docs/FORMULATION.md "Implicit step: the settling step")
+SETTLE_STALL_S = 0.5
+SETTLE_STALL_DROP = 0.1
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -99,6 +107,16 @@ def settle_step_s(push_dt_s: float, frame_interval_s: float) -> float:
 def settle_finest_level(frame_interval_s: float) -> int:
     """Steps per half frame at the finest settling step (≤ IMPLICIT_SETTLE_DT_S)."""
     return max(1, math.ceil(frame_interval_s / (2.0 * IMPLICIT_SETTLE_DT_S) - 1e-9))
+
+
+def settle_stalled(kinetic_nJ: list[float], frame_interval_s: float) -> bool:
+    """Whether a settling member's kinetic energy (nJ, one value per frame of
+    ``frame_interval_s``, oldest first) fell by less than SETTLE_STALL_DROP over its last
+    SETTLE_STALL_S of simulated time."""
+    frames = max(1, math.ceil(SETTLE_STALL_S / frame_interval_s - 1e-9))
+    if len(kinetic_nJ) <= frames:
+        return False
+    return kinetic_nJ[-1] > (1.0 - SETTLE_STALL_DROP) * kinetic_nJ[-1 - frames]
 
 
 def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> int:
@@ -232,7 +250,7 @@ class ImplicitSolver(Solver):
             m.clamp_tangent, state_in.omega, self.grad_theta, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend,
             m.rest_K0, m.rest_K1, state_out.x, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
-            self.push_share, m.world_node_range, self.push_accumulator])
+            self.push_share, m.world_node_range, control.running, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
         state_out.history_dt_s = dt if self.method == "bdf2" else 0.0
 

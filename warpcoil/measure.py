@@ -99,7 +99,7 @@ class RunResult:
     regions: dict | None = None  # regional densities and neck coverage (with a neck; docs/REGIONS.md)
     occlusion: dict | None = None  # in-silico Raymond–Roy class from the regions (warpcoil.occlusion)
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
-    settle_dt_s: float | None = None  # implicit default: the step once every coil was out (dt_s: the push's)
+    settle_dt_s: float | None = None  # implicit default: the last settling step (each frame's set by its fastest node)
     wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
     catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
     catheter_direction: tuple | None = None

@@ -467,7 +467,7 @@ class Solver:
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.fixed, m.has_next,
             m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
         wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
-            self.push_share, m.world_node_range, self.push_accumulator])
+            self.push_share, m.world_node_range, control.running, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
 
     def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
@@ -655,7 +655,7 @@ class Stepper:
     def __init__(self, solver: Solver, state: State, control: Control, chunk: int = 100,
                  use_graph: bool = True, graph_steps_max: int = GRAPH_STEPS_MAX):
         """``graph_steps_max``: the most steps one captured graph holds (capture costs
-        ~0.3 ms a launch on the CPU; 2 for a stepper that runs few chunks)."""
+        milliseconds a step on the CPU, GRAPH_STEPS_MAX's note; 2 for a stepper that runs few chunks)."""
         if chunk < 1:
             raise ValueError(f"chunk must be 1 or more steps, got {chunk}")
         self.solver, self.control, self.chunk = solver, control, chunk

@@ -296,13 +296,16 @@ def transported_directors(
 
 @wp.kernel
 def accumulate_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32),
-                          accumulator: wp.array2d(dtype=wp.float64)):
-    """One thread per world: this step's push force (µN) = Σ push shares of its
+                          running: wp.array(dtype=wp.int32), accumulator: wp.array2d(dtype=wp.float64)):
+    """One thread per running world: this step's push force (µN) = Σ push shares of its
     nodes; adds it to accumulator[w, 0], keeps the step maximum (from 0: the
     peak compressive force) in accumulator[w, 1], adds its square to
     accumulator[w, 2] and counts the step in accumulator[w, 3] (a fixed-order
-    sum, so the result does not depend on the device or on the other worlds)."""
+    sum, so the result does not depend on the device or on the other worlds; a
+    world held while others step counts nothing)."""
     w = wp.tid()
+    if running[w] == 0:
+        return
     total = wp.float64(0.0)
     for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
         total = total + push_share[i]
