@@ -40,7 +40,7 @@ import warp as wp
 from warpcoil import CatheterSpec, CoilSpec
 from warpcoil.bench.ensemble import STATE_ARRAYS
 from warpcoil.bench.report import machine, markdown_table
-from warpcoil.bench.steps import LaunchRecorder, seed_scene
+from warpcoil.bench.steps import launch_costs, seed_scene
 from warpcoil.deploy import Anatomy, Deployment, Ensemble
 from warpcoil.faceted_sac import catheter_tip, lobulated_sac
 from warpcoil.settings import OutputSettings, Scene, SimulationSettings
@@ -105,7 +105,7 @@ def seed_states() -> dict:
     return states
 
 
-def replay_us(target, args, kwargs, device, kind: str, launches: int = 20, repeats: int = 15) -> float:
+def replay_us(kind: str, target, args, kwargs, device, launches: int = 20, repeats: int = 15) -> float:
     """µs per call of one recorded launch, the fastest of ``repeats`` replays of a
     graph of ``launches`` of it (a HashGrid build, not capturable here, called directly)."""
     best = math.inf
@@ -148,26 +148,7 @@ def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict, di
             best = min(best, time.process_time() - start)
         whole[moment] = best / steps * 1e6
         sequence[moment] = in_sequence_us(stepper, device, steps)  # on from there (anchors, lists as the run left them)
-        plain = Stepper(solver, stepper.state, control, chunk=steps, use_graph=False)
-        builds = solver.grid_builds
-        plain.run_chunk()
-        build_share = (solver.grid_builds - builds) / steps
-        solver._rebuild.fill_(1)
-        conditional, solver._conditional_rebuild = solver._conditional_rebuild, False  # record a build too
-        with LaunchRecorder() as recorder:
-            solver.step(plain.state, plain._b, control)
-        solver._conditional_rebuild = conditional
-        touching = getattr(solver, "_touch_count", None)
-        noted = touching.numpy().copy() if touching is not None else None
-        times: dict[str, float] = defaultdict(float)
-        for kind, target, args, kwargs in recorder.launches:
-            name = target.key if kind == "launch" else "HashGrid.build"
-            if noted is not None:  # the contact pass's replays add to it: as the step left it
-                touching.assign(noted)
-            times[name] += replay_us(target, args, kwargs, device, kind)
-        for name in ("mark_built", "HashGrid.build", "build_neighbours"):
-            times[name] *= build_share
-        launches[moment] = dict(times)
+        launches[moment] = launch_costs(solver, stepper.state, control, steps, time_launch=replay_us)[0]
     return whole, launches, sequence
 
 

@@ -203,27 +203,40 @@ def window_us(deployment: Deployment, moment: str, host: dict, steps: int) -> fl
     return chunk_time_s(stepper) / steps * 1e6
 
 
-def profile_state(deployment: Deployment, moment: str, host: dict, steps: int) -> Profile:
-    """Each launch of a step at a saved moment replayed alone from a captured
-    graph; neighbour-grid builds weighted by how often a step builds there
-    (counted over ``steps`` steps run without graphs)."""
-    solver, device = deployment.solver, deployment.model.device
-    stepper = Stepper(solver, _start(deployment, moment, host), deployment.control, chunk=steps, use_graph=False)
+def launch_costs(solver, state, control, steps: int, time_launch=launch_us) -> tuple[dict[str, float], float]:
+    """µs per step of each launch of one step from ``state``, each replayed alone
+    (``time_launch(kind, target, args, kwargs, device)``, µs per call), and the
+    neighbour-grid builds per step there (counted over ``steps`` steps run without
+    graphs from ``state``), by which the build's launches are weighted. The
+    touching record a launch reads is put back as the step left it before each one."""
+    device = solver.model.device
+    stepper = Stepper(solver, state, control, chunk=steps, use_graph=False)
     builds_before = solver.grid_builds
     stepper.run_chunk()
     build_share = (solver.grid_builds - builds_before) / steps
     solver._rebuild.fill_(1)
     conditional, solver._conditional_rebuild = solver._conditional_rebuild, False  # record a build too
     with LaunchRecorder() as recorder:
-        solver.step(stepper.state, stepper._b, deployment.control)
+        solver.step(stepper.state, stepper._b, control)
     solver._conditional_rebuild = conditional
+    touching = getattr(solver, "_touch_count", None)  # the implicit step's coil-contact record
+    noted = touching.numpy().copy() if touching is not None else None
     times: dict[str, float] = defaultdict(float)
     for kind, target, args, kwargs in recorder.launches:
         name = target.key if kind == "launch" else "HashGrid.build"
-        times[name] += launch_us(kind, target, args, kwargs, device)
+        if noted is not None:  # the contact pass's replays add to it: as the step left it
+            touching.assign(noted)
+        times[name] += time_launch(kind, target, args, kwargs, device)
     for name in ("mark_built", "HashGrid.build", "build_neighbours"):
         if name in times:
             times[name] *= build_share
+    return dict(times), build_share
+
+
+def profile_state(deployment: Deployment, moment: str, host: dict, steps: int) -> Profile:
+    """Each launch of a step at a saved moment replayed alone from a captured graph
+    (:func:`launch_costs`)."""
+    times, build_share = launch_costs(deployment.solver, _start(deployment, moment, host), deployment.control, steps)
     times["(grid builds per step)"] = build_share
     return Profile(moment, 0.0, dict(sorted(times.items(), key=lambda kv: -kv[1])))
 
