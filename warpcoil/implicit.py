@@ -36,12 +36,14 @@ import math
 import warp as wp
 
 from .devices import ImplicitDeviceStiffness
+from .kernels import chord
 from .kernels import implicit as kernels
 from .kernels import elastic, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
 from .state import State
+from .wall_field import GRAD_TOLERANCE
 
 INTEGRATORS = ("symplectic", "implicit")
 # default implicit step: the pusher advances this fraction of the contact onset c0 per step
@@ -88,6 +90,11 @@ CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHM
 # deeper in dense patient packs (C0031's smallest coil gap −0.048 → −0.061 / −0.092 mm at 2 / 1), so
 # the default is all of them (docs/FORMULATION.md "Conjugate-gradient iterations while pushing")
 PUSH_CG_ITERATIONS = CG_ITERATIONS
+# each contact's stiffness along its normal: "tangent" (the law's slope at the step start) or "chord" (the law's
+# secant between the step start and the predicted end, where steeper: contacts that enter during the step are
+# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness")
+CONTACT_STIFFNESS = ("tangent", "chord")
+IMPLICIT_CONTACT_STIFFNESS = "tangent"
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
@@ -140,11 +147,12 @@ class ImplicitSolver(Solver):
 
     integrator = "implicit"
     record_touching = True
-    kernel_modules = Solver.kernel_modules + (kernels,)
+    kernel_modules = Solver.kernel_modules + (kernels, chord)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
-                 theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD, **kwargs):
+                 theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
+                 contact_stiffness: str = IMPLICIT_CONTACT_STIFFNESS, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -168,6 +176,10 @@ class ImplicitSolver(Solver):
         if method == "bdf2" and theta != 1.0:
             raise ValueError(f"theta applies to the θ-method only; BDF2 needs theta = 1, got {theta}")
         self.method = method
+        if contact_stiffness not in CONTACT_STIFFNESS:
+            raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
+        self.chord = contact_stiffness == "chord"
+        self._x_end = vecs() if self.chord else None  # the chord's predicted end (mm)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -206,13 +218,24 @@ class ImplicitSolver(Solver):
             m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
             control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
             state_out.advance])
+        x_end = state_in.x
+        if self.chord:  # the predicted end and the wall's chord excess on its tangent (kernels/chord.py)
+            x_end = self._x_end
+            wp.launch(kernels.predict_positions, n, device=dev, inputs=[
+                state_in.x, state_in.v, state_out.x, state_out.free, m.inv_mass, m.damping_c, m.damping_k, dt, x_end])
+            if self.has_wall:
+                wp.launch(chord.wall_chord_stiffness, n, device=dev, inputs=[
+                    state_in.x, x_end, state_in.free, m.world_of, control.running, m.node_radius, m.wall_mesh,
+                    m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, self._field_ids,
+                    GRAD_TOLERANCE, self._wall_side, self.wall_distance, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                    self.wall_stiffness])
         if self.coil_contact:
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
-                self._pair_st, self._pair_k, self._pair_n])
+                self._pair_st, self._pair_k, self._pair_n, x_end, int(self.chord)])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

@@ -60,6 +60,7 @@ from .contact import (
     to_fixed,
     vec3l,
 )
+from .chord import chord_stiffness
 from .elastic import bonded_span, edge_torque
 from .integrate import hold_node
 from .rod import F64_0, F64_1, clamp_vertex, director_normal, edge_valid, rotate_about, transport, vertex_valid
@@ -157,17 +158,55 @@ def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
 
 
 @wp.func
+def pair_gap(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+             node_radius: wp.array(dtype=wp.float64), a: int, b: int, c0: wp.float64):
+    """Edges a and b at positions ``x``: closest-point parameters (s, t), the vector from
+    b's closest point to a's (mm), its length and the gap (mm; a same-coil pair counted
+    from its rest clearance, contact.rest_offset)."""
+    pa0 = x[a]
+    pa1 = x[a + 1]
+    pb0 = x[b]
+    pb1 = x[b + 1]
+    st = segment_closest_params(pa0, pa1, pb0, pb1)
+    delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
+    dist = wp.length(delta)
+    gap = dist - node_radius[a] - node_radius[b]
+    if coil_of[a] == coil_of[b]:
+        ra0 = rest_x[a]
+        rb0 = rest_x[b]
+        rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+        rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
+            - node_radius[a] - node_radius[b]
+        gap = gap + rest_offset(rest_gap, c0)
+    return st, delta, dist, gap
+
+
+@wp.func
+def pair_in_reach(x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                  c0: wp.float64, far: wp.float64) -> bool:
+    """Edges a and b at ``x`` may be within the contact range: their midpoints within
+    ``far`` and within both half-lengths, radii and c0."""
+    apart = wp.length(wp.float64(0.5) * (x[a] + x[a + 1] - x[b] - x[b + 1]))
+    reach = wp.float64(0.5) * (wp.length(x[a + 1] - x[a]) + wp.length(x[b + 1] - x[b])) + node_radius[a] \
+        + node_radius[b] + c0
+    return apart <= far and apart < reach
+
+
+@wp.func
 def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                    free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
-                   c0: wp.float64, u_linear: wp.float64, far: wp.float64):
+                   c0: wp.float64, u_linear: wp.float64, far: wp.float64, x_end: wp.array(dtype=wp.vec3d),
+                   chord: int):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
     stiffness k, the unit normal n from b to a). Two parts of one coil closer than
     c0 in the rest shape start at their rest clearance (contact.rest_offset), as the
-    force does."""
+    force does. With ``chord`` the stiffness is the law's chord between the gap at x
+    and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
+    x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal)."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -175,26 +214,21 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     k = F64_0
     normal = wp.vec3d(F64_0, F64_0, F64_0)
     if edge_is_obstacle(free, has_next, fixed, b):
-        pa0 = x[a]
-        pa1 = x[a + 1]
-        pb0 = x[b]
-        pb1 = x[b + 1]
         apart = wp.length(mid[a] - mid[b])
-        if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
-            st = segment_closest_params(pa0, pa1, pb0, pb1)
-            delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
-            dist = wp.length(delta)
-            gap = dist - node_radius[a] - node_radius[b]
-            if coil_of[a] == coil_of[b]:
-                ra0 = rest_x[a]
-                rb0 = rest_x[b]
-                rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
-                rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
-                    - node_radius[a] - node_radius[b]
-                gap = gap + rest_offset(rest_gap, c0)
-            if gap < c0 and dist > wp.float64(1.0e-12):
+        near = apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(x[b + 1] - x[b]) + node_radius[b]
+        near_end = False
+        if chord != 0:
+            near_end = pair_in_reach(x_end, node_radius, a, b, c0, far)
+        if near or near_end:
+            st, delta, dist, gap = pair_gap(x, rest_x, coil_of, node_radius, a, b, c0)
+            gap_end = gap
+            if chord != 0:
+                st_end, delta_end, dist_end, gap_end = pair_gap(x_end, rest_x, coil_of, node_radius, a, b, c0)
+                if not (gap < c0 and dist > wp.float64(1.0e-12)) and gap_end < c0 and dist_end > wp.float64(1.0e-12):
+                    st, delta, dist = st_end, delta_end, dist_end  # enters during the step
+            if (gap < c0 or gap_end < c0) and dist > wp.float64(1.0e-12):
                 hit = 1
-                k = contact_stiffness(gap, p0, c0, u_linear)
+                k = chord_stiffness(gap, gap_end, p0, c0, u_linear)
                 normal = delta / dist
                 nn = sym_outer(normal, wp.float64(2.0) * k)
                 start = (F64_1 - st[0]) * nn
@@ -261,6 +295,8 @@ def edge_contact_stiffness(
     pair_st: wp.array2d(dtype=wp.vec2d),
     pair_k: wp.array2d(dtype=wp.float64),
     pair_n: wp.array2d(dtype=wp.vec3d),
+    x_end: wp.array(dtype=wp.vec3d),
+    chord: int,
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
     partners that contact.edge_contact noted within a hair of touching at the same
@@ -269,7 +305,9 @@ def edge_contact_stiffness(
     contact.edge_contact finds them; fixed-point sums, so the result does not
     depend on the order the partners come in (a partner not touching adds zero).
     Each touching pair is also recorded (``record_pair``, sorted by partner) for
-    the exact product with the contact stiffness."""
+    the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
+    every neighbour-list partner is a candidate (a pair may enter the contact range
+    on the way to the predicted end ``x_end``)."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -279,19 +317,19 @@ def edge_contact_stiffness(
     w = world_of[a]
     radius = query_radius[w]
     noted = touch_count[a]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and noted > 0:
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and (noted > 0 or chord != 0):
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         candidates = neighbours  # a's neighbour list (NO_LIST: the grid)
         listed = neighbour_count[a]
-        if noted <= touch_b.shape[1]:  # the partners the contact pass noted touching
+        if noted <= touch_b.shape[1] and chord == 0:  # the partners the contact pass noted touching
             candidates = touch_b
             listed = noted
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                             reach_a, p0, c0, u_linear, radius)
+                                                             reach_a, p0, c0, u_linear, radius, x_end, chord)
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
             d, o = to_fixed_sym(start)
             s_diag = s_diag + d
@@ -944,3 +982,27 @@ def solve_spin(
             m1_out[e] = director_normal(rotate_about(m1_out[e], t_new, w * dt), t_new)
         omega_out[e] = w
         following = w
+
+
+@wp.kernel
+def predict_positions(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    x_held: wp.array(dtype=wp.vec3d),
+    free_next: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    x_end: wp.array(dtype=wp.vec3d),
+):
+    """The predicted end x̃ (mm) of the chord contact stiffness: for a node free after
+    the step its damped free flight x + dt m v / (m + dt β) (β the damping law's secant
+    coefficient at v, as assemble_blocks takes it); elsewhere where hold_nodes put it
+    (the catheter's, a clamped node's, a stopped world's)."""
+    i = wp.tid()
+    if free_next[i] != 0:
+        mass = F64_1 / inv_mass[i]
+        x_end[i] = x[i] + dt * (mass / (mass + dt * damping_rate(wp.length(v[i]), damping_c[i], damping_k))) * v[i]
+    else:
+        x_end[i] = x_held[i]
