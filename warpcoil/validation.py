@@ -837,6 +837,12 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
             _row(f"{label}: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
 
 
+def chord() -> list[CaseResult]:
+    """The implicit step's chord contact stiffness: the law's secant, a thrown coil (validation_chord.py)."""
+    from .validation_chord import chord_cases
+    return chord_cases()
+
+
 def implicit_cases() -> list[CaseResult]:
     """The implicit step: convergence to the reference, numerical damping, and the
     cantilever and helix recovery at its default step."""
@@ -871,6 +877,7 @@ CASES = {
     "implicit-wall": implicit_wall,
     "bdf2": bdf2,
     "settle": settle,
+    "chord": chord,
 }
 
 

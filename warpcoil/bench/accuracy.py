@@ -236,6 +236,10 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
     for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable), kept after the push
         settings[f"implicit BDF2, push advance {advance:g} c0 (kept)"] = (
             variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"method": "bdf2"})
+    for advance in (0.8, 1.2, 1.6):  # Euler with the chord contact stiffness (kernels/chord.py), kept after the push
+        settings[f"implicit, chord contact stiffness, push advance {advance:g} c0 (kept)"] = (
+            variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s),
+            {"contact_stiffness": "chord"})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
         settings.update({"push 100 mm/s": (variant(push=100.0), None), "mass scale 100": (variant(mass_scale=100.0), None),
                          "l0 2d": (variant(l0_factor=2.0), None)})
