@@ -227,7 +227,7 @@ class ImplicitSolver(Solver):
                 wp.launch(chord.wall_chord_stiffness, n, device=dev, inputs=[
                     state_in.x, x_end, state_in.free, m.world_of, control.running, m.node_radius, m.wall_mesh,
                     m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, self._field_ids,
-                    GRAD_TOLERANCE, self._wall_side, self.wall_distance, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                    GRAD_TOLERANCE, self._wall_side, self.wall_distance, self.wall_force, c.p0_uN, c.c0_mm, self.contact_u_linear,
                     self.wall_stiffness])
         if self.coil_contact:
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[

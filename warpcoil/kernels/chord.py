@@ -39,6 +39,10 @@ from .rod import F64_0, F64_1
 
 # below this gap change (mm) the chord is the tangent (its quotient would be rounding)
 CHORD_MIN_CLOSING_MM = wp.constant(wp.float64(1.0e-9))
+# a node pressed on the wall at the step start whose predicted end closes by less than this share of c0 along
+# its wall force keeps the tangent (the chord would add ≈ ½ k'/k · closing ≲ 2 % to it): a node sliding along
+# the wall is not searched a second time
+CHORD_WALL_SKIP_C0 = wp.constant(wp.float64(0.02))
 
 
 @wp.func
@@ -148,6 +152,7 @@ def wall_chord_stiffness(
     grad_tolerance: wp.float64,
     inside: wp.array(dtype=wp.int32),
     centre_distance: wp.array(dtype=wp.float64),
+    wall_force: wp.array(dtype=wp.vec3d),
     p0: wp.float64,
     c0: wp.float64,
     u_linear: wp.float64,
@@ -157,9 +162,10 @@ def wall_chord_stiffness(
     each free node's wall ``stiffness`` (the tangent at x, from contact.wall_contact), for
     a node in the lumen (``inside``) whose end may be in range: its centre distance at x
     (exact, or the lower bound it was anchored with) less the step is within the
-    contact range (the distance is 1-Lipschitz). From the world's field where it is
-    trusted at x_end, else from the wall's feature sum there. A node outside the lumen
-    keeps the tangent."""
+    contact range (the distance is 1-Lipschitz), unless it is pressed on the wall at x and
+    its end closes by less than CHORD_WALL_SKIP_C0 · c0 along the wall's force (sliding).
+    From the world's field where it is trusted at x_end, else from the wall's feature sum
+    there. A node outside the lumen keeps the tangent."""
     i = wp.tid()
     w = world_of[i]
     mesh = meshes[w]
@@ -169,6 +175,9 @@ def wall_chord_stiffness(
     moved = wp.length(step)
     radius = node_radius[i]
     if moved == F64_0 or centre_distance[i] - moved >= radius + c0 + BOX_MARGIN_MM:
+        return
+    pressed = wp.length(wall_force[i])
+    if pressed > F64_0 and -wp.dot(wall_force[i], step) < CHORD_WALL_SKIP_C0 * c0 * pressed:
         return
     if fields[w] != wp.uint64(0):
         trusted, sampled, n = field_sample(fields[w], x_end[i] - origins[w], grad_tolerance)
