@@ -7,7 +7,14 @@ opens; and a coil driven at a wall from outside the contact range at a long step
 import numpy as np
 import pytest
 
+from test_implicit import blocks_dense
+from test_implicit_devices import BALLOON_R, DT, R_NODE, edge_model
+from test_implicit_devices import C0 as DEVICE_C0
+
+from warpcoil.implicit import ImplicitSolver
 from warpcoil.kernels.chord import CHORD_WALL_SKIP_C0
+from warpcoil.solver import Control
+from warpcoil.state import new_state_like, state_from_positions
 from warpcoil.validation_chord import C0, law, pair_probe, throw_depth, wall_probe
 
 
@@ -81,3 +88,47 @@ def test_chord_stops_a_thrown_coil_no_deeper_than_the_energy_balance():
     assert chord >= balance
     errors = [throw_depth("chord", advance)[0] - balance for advance in (1.0, 0.25)]
     assert 0.0 <= errors[1] < 0.5 * errors[0]
+
+
+def device_part(strut_or_balloon: str, x, velocity, stiffness: str):
+    """(M + dt² H) with the device less without it, over dt² (µN/mm), of one implicit step from
+    positions ``x`` at ``velocity`` (the devices test's straight 2-edge coil, undamped)."""
+    strut = ((-(R_NODE + 0.035), -2.0, 0.09), (-(R_NODE + 0.035), 2.0, 0.09))
+    parts = []
+    for with_device in (True, False):
+        model, _ = edge_model(balloon=with_device and strut_or_balloon == "balloon",
+                              strut=strut if with_device and strut_or_balloon == "strut" else None)
+        solver = ImplicitSolver(model, dt_s=DT, contact_stiffness=stiffness)
+        state = state_from_positions(model, x)
+        state.v.assign(np.tile(velocity, (model.node_count, 1)))
+        solver.allocate_neighbour_grid(state)
+        solver.step(state, new_state_like(model), Control.create(model))
+        parts.append(blocks_dense(solver, model.node_count))
+    return (parts[0] - parts[1]) / DT**2
+
+
+@pytest.mark.parametrize("device", ["strut", "balloon"])
+def test_device_chord_is_the_secant_of_the_law(device):
+    """An edge across a stent strut (30 % along it), a coil beside a balloon, each closing
+    on it from 1.5 c0 (outside the contact range) to −0.5 c0 in one step: the device's
+    stiffness along the normal is the law's secant between the two gaps (k w wᵀ ⊗ n nᵀ
+    for the strut, s_i k n nᵀ per node for the balloon); the tangent sees nothing."""
+    model, rest = edge_model(balloon=False)
+    gap, closing = 1.5 * DEVICE_C0, 2.0 * DEVICE_C0
+    if device == "strut":  # the strut runs along y at x = −(R + r_strut), z = 0.09: edge 0, s = 0.3
+        x, velocity = rest + [gap, 0.0, 0.0], [-closing / DT, 0.0, 0.0]
+    else:  # the balloon: radius BALLOON_R about z
+        x, velocity = rest + [BALLOON_R + R_NODE + gap, 0.0, 0.0], [-closing / DT, 0.0, 0.0]
+    chord = device_part(device, x, velocity, "chord")
+    tangent = device_part(device, x, velocity, "tangent")
+    forces = law(ImplicitSolver(model, dt_s=DT), [gap, gap - closing])  # the solver's law (|F| = 0 beyond c0)
+    secant = (forces[1] - forces[0]) / closing
+    n = np.diag([1.0, 0.0, 0.0])
+    if device == "strut":
+        w = np.array([0.7, 0.3])
+        expected = np.zeros_like(chord)
+        expected[:6, :6] = secant * np.kron(np.outer(w, w), n)
+    else:
+        expected = np.kron(np.diag(model.contact_share.numpy()), secant * n)
+    assert chord == pytest.approx(expected, rel=1e-9, abs=1e-9 * secant)
+    assert np.abs(tangent).max() == 0.0

@@ -167,19 +167,22 @@ class ImplicitDeviceStiffness:
             if model.has_stent else None
 
     def add(self, solver, state, running: wp.array, dt: float, diag: wp.array, diag_exact: wp.array,
-            upper1: wp.array) -> None:
-        """Add dt² × the device stiffness at ``state`` to the assembled blocks."""
+            upper1: wp.array, x_end: wp.array | None = None) -> None:
+        """Add dt² × the device stiffness at ``state`` to the assembled blocks; with ``x_end``
+        (the predicted end, mm) each contact's chord stiffness (kernels/chord.py)."""
+        chord = int(x_end is not None)
+        x_end = state.x if x_end is None else x_end
         m, dev, n, c = solver.model, solver.model.device, solver.model.node_count, solver.model.contact
         if solver.has_balloon:
             wp.launch(kernels.balloon_stiffness, n, device=dev, inputs=[
                 state.x, state.free, m.fixed, m.world_of, running, m.node_radius, m.contact_share, m.balloon_stations,
                 m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, c.p0_uN, c.c0_mm,
-                solver.contact_u_linear, dt, diag, diag_exact])
+                solver.contact_u_linear, dt, diag, diag_exact, x_end, chord])
         if solver.has_stent:
             start, end, cross = self._strut_blocks
             wp.launch(kernels.strut_stiffness, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.world_of, running, m.node_radius, solver._strut_grid.id,
                 m.strut_start, m.strut_end, m.strut_radius_mm, solver._strut_query_mm, c.p0_uN, c.c0_mm,
-                solver.contact_u_linear, start, end, cross])
+                solver.contact_u_linear, start, end, cross, x_end, chord])
             wp.launch(kernels.add_strut_stiffness, n, device=dev, inputs=[
                 m.has_next, start, end, cross, dt, diag, diag_exact, upper1])

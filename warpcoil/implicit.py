@@ -244,7 +244,7 @@ class ImplicitSolver(Solver):
             self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
             self._devices.add(self, state_in, control.running, dt_m if bdf2 else math.sqrt(theta) * dt, self._diag,
-                              self._diag_exact, self._upper1)
+                              self._diag_exact, self._upper1, self._x_end)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])

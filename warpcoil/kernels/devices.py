@@ -15,6 +15,7 @@ import warp as wp
 
 from .contact import (FAR_MM, contact_force_magnitude, contact_stiffness, edge_in_contact_pass, from_fixed,
                       segment_closest_params, to_fixed, vec3l, wall_query)
+from .chord import chord_stiffness
 from .implicit import from_fixed_sym, to_fixed_sym
 from .rod import F64_0, F64_1
 
@@ -187,17 +188,28 @@ def balloon_stiffness(
     dt: wp.float64,
     diag: wp.array(dtype=wp.mat33d),
     diag_exact: wp.array(dtype=wp.mat33d),
+    x_end: wp.array(dtype=wp.vec3d),
+    chord: int,
 ):
     """Adds dt² s_i k n nᵀ of node i's balloon contact (the gap and normal balloon_contact
-    uses, s_i its contact share) to its diagonal block of M + dt² H (g)."""
+    uses, s_i its contact share) to its diagonal block of M + dt² H (g). With ``chord``, k
+    is the law's chord between the gap at x and at the predicted end ``x_end``
+    (kernels/chord.py), and a contact that enters the range there counts (its normal)."""
     i = wp.tid()
     w = world_of[i]
     fraction = inflation[w]
     count = station_count[w]
     if free[i] != 0 and fixed[i] == 0 and running[w] != 0 and count >= 2 and fraction > F64_0:
         gap, normal = balloon_gap(x[i], node_radius[i], stations, cap_radius, station_first[w], count, fraction)
-        if gap < c0:
-            block = (dt * dt * contact_share[i] * contact_stiffness(gap, p0, c0, u_linear)) * wp.outer(normal, normal)
+        gap_end = gap
+        if chord != 0:
+            gap_end, normal_end = balloon_gap(x_end[i], node_radius[i], stations, cap_radius, station_first[w], count,
+                                              fraction)
+            if gap >= c0:
+                normal = normal_end
+        if gap < c0 or gap_end < c0:
+            block = (dt * dt * contact_share[i] * chord_stiffness(gap, gap_end, p0, c0, u_linear)) * \
+                wp.outer(normal, normal)
             diag[i] = diag[i] + block
             diag_exact[i] = diag_exact[i] + block
 
@@ -221,11 +233,15 @@ def strut_stiffness(
     start: wp.array(dtype=wp.mat33d),
     end: wp.array(dtype=wp.mat33d),
     cross: wp.array(dtype=wp.mat33d),
+    x_end: wp.array(dtype=wp.vec3d),
+    chord: int,
 ):
     """Edge a's strut contacts (the pairs strut_contact finds): with w = (1 − s, s) the
     weights of its two nodes, Σ k w wᵀ ⊗ n nᵀ as its blocks (start, start), (end, end)
     and (start, end) (µN/mm); the struts are fixed, so this is all the stiffness they
-    add. Fixed-point sums: independent of the grid's order."""
+    add. Fixed-point sums: independent of the grid's order. With ``chord``, k is the law's
+    chord between the gap at x and at the predicted end ``x_end`` (kernels/chord.py), and a
+    strut the edge enters the range of there counts (with that end's s and normal)."""
     a = wp.tid()
     s_diag = vec3l()
     s_off = vec3l()
@@ -242,8 +258,14 @@ def strut_stiffness(
         while wp.hash_grid_query_next(query, s):
             along, gap, delta, dist = strut_gap(pa0, pa1, strut_start[s], strut_end[s], node_radius[a],
                                                 strut_radius)
-            if gap < c0:
-                nn = (contact_stiffness(gap, p0, c0, u_linear) / (dist * dist)) * wp.outer(delta, delta)
+            gap_end = gap
+            if chord != 0:
+                along_end, gap_end, delta_end, dist_end = strut_gap(x_end[a], x_end[a + 1], strut_start[s],
+                                                                    strut_end[s], node_radius[a], strut_radius)
+                if gap >= c0:
+                    along, delta, dist = along_end, delta_end, dist_end
+            if gap < c0 or gap_end < c0:
+                nn = (chord_stiffness(gap, gap_end, p0, c0, u_linear) / (dist * dist)) * wp.outer(delta, delta)
                 d, o = to_fixed_sym((F64_1 - along) * (F64_1 - along) * nn)
                 s_diag = s_diag + d
                 s_off = s_off + o
