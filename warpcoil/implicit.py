@@ -95,6 +95,10 @@ PUSH_CG_ITERATIONS = CG_ITERATIONS
 # seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness")
 CONTACT_STIFFNESS = ("tangent", "chord")
 IMPLICIT_CONTACT_STIFFNESS = "tangent"
+# the chord's predicted end: "flight" (each node's damped free flight x + dt m v/(m + dt β): no extra solve) or
+# "solve" (the tangent step's solution: a second assembly and solve per step; sees force-driven approaches too)
+CHORD_ENDS = ("flight", "solve")
+CHORD_END = "flight"
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
@@ -152,7 +156,7 @@ class ImplicitSolver(Solver):
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
                  theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
-                 contact_stiffness: str = IMPLICIT_CONTACT_STIFFNESS, **kwargs):
+                 contact_stiffness: str = IMPLICIT_CONTACT_STIFFNESS, chord_end: str = CHORD_END, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -179,6 +183,9 @@ class ImplicitSolver(Solver):
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
+        if chord_end not in CHORD_ENDS:
+            raise ValueError(f"chord_end must be one of {CHORD_ENDS}, got {chord_end!r}")
+        self.chord_end = chord_end
         self._x_end = vecs() if self.chord else None  # the chord's predicted end (mm)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
@@ -218,33 +225,26 @@ class ImplicitSolver(Solver):
             m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
             control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
             state_out.advance])
+        device_dt = dt_m if bdf2 else math.sqrt(theta) * dt  # the devices' stiffness enters at θ dt² K_c too
         x_end = state_in.x
         if self.chord:  # the predicted end and the wall's chord excess on its tangent (kernels/chord.py)
             x_end = self._x_end
-            wp.launch(kernels.predict_positions, n, device=dev, inputs=[
-                state_in.x, state_in.v, state_out.x, state_out.free, m.inv_mass, m.damping_c, m.damping_k, dt, x_end])
+            if self.chord_end == "solve":  # the tangent step's solution (a first solve)
+                self._assemble(state_in, state_out, control, state_in.x, 0, p0_stiff, dt_m, device_dt)
+                self._solve_velocities(state_in, state_out, control, dt_m)
+                wp.launch(kernels.end_of_solve, n, device=dev, inputs=[
+                    state_in.x, self._v, state_out.x, state_out.free, dt, x_end])
+            else:  # the damped free flight
+                wp.launch(kernels.predict_positions, n, device=dev, inputs=[
+                    state_in.x, state_in.v, state_out.x, state_out.free, m.inv_mass, m.damping_c, m.damping_k, dt,
+                    x_end])
             if self.has_wall:
                 wp.launch(chord.wall_chord_stiffness, n, device=dev, inputs=[
                     state_in.x, x_end, state_in.free, m.world_of, control.running, m.node_radius, m.wall_mesh,
                     m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, self._field_ids,
-                    GRAD_TOLERANCE, self._wall_side, self.wall_distance, self.wall_force, c.p0_uN, c.c0_mm, self.contact_u_linear,
-                    self.wall_stiffness])
-        if self.coil_contact:
-            wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
-                state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
-                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
-                self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
-                self._pair_st, self._pair_k, self._pair_n, x_end, int(self.chord)])
-        wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
-            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
-            m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
-            m.rest_length, m.k_bend, self.wall_stiffness, 1.0 / theta, self._stiff_start, self._stiff_end,
-            int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
-            self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
-        if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
-            self._devices.add(self, state_in, control.running, dt_m if bdf2 else math.sqrt(theta) * dt, self._diag,
-                              self._diag_exact, self._upper1, self._x_end)
+                    GRAD_TOLERANCE, self._wall_side, self.wall_distance, self.wall_force, c.p0_uN, c.c0_mm,
+                    self.contact_u_linear, self.wall_stiffness])
+        self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
@@ -276,6 +276,30 @@ class ImplicitSolver(Solver):
             self.push_share, m.world_node_range, control.running, self.push_accumulator])
         state_out.time_s = state_in.time_s + dt
         state_out.history_dt_s = dt if self.method == "bdf2" else 0.0
+
+    def _assemble(self, state_in: State, state_out: State, control: Control, x_end: wp.array, chord_on: int,
+                  p0_stiff: float, dt_m: float, device_dt: float) -> None:
+        """The system's blocks, its right side M v + dt F and the recorded coil–coil pairs:
+        contact stiffness at the step start (``chord_on``: the chord to ``x_end``); the
+        devices' at ``device_dt``."""
+        m, dev, n, c = self.model, self.model.device, self.model.node_count, self.model.contact
+        theta = self.theta
+        if self.coil_contact:
+            wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
+                state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
+                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
+                self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
+                self._pair_st, self._pair_k, self._pair_n, x_end, chord_on])
+        wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
+            state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
+            m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
+            m.rest_length, m.k_bend, self.wall_stiffness, 1.0 / theta, self._stiff_start, self._stiff_end,
+            int(self.coil_contact), m.node_radius, c.fold_span, p0_stiff, c.c0_mm, self.contact_u_linear, dt_m,
+            self._diag, self._diag_exact, self._upper1, self._upper2, self._rhs])
+        if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
+            self._devices.add(self, state_in, control.running, device_dt, self._diag, self._diag_exact, self._upper1,
+                              x_end if chord_on else None)
 
     def needs_start(self, state: State) -> bool:
         """BDF2 without a history at this step (first step, a changed step, a restart):

@@ -1006,3 +1006,21 @@ def predict_positions(
         x_end[i] = x[i] + dt * (mass / (mass + dt * damping_rate(wp.length(v[i]), damping_c[i], damping_k))) * v[i]
     else:
         x_end[i] = x_held[i]
+
+
+@wp.kernel
+def end_of_solve(
+    x: wp.array(dtype=wp.vec3d),
+    v_solved: wp.array(dtype=wp.vec3d),
+    x_held: wp.array(dtype=wp.vec3d),
+    free_next: wp.array(dtype=wp.int32),
+    dt: wp.float64,
+    x_end: wp.array(dtype=wp.vec3d),
+):
+    """The chord's predicted end from a first (tangent) solve: x + dt v* for a node free
+    after the step, where hold_nodes put it otherwise (mm)."""
+    i = wp.tid()
+    if free_next[i] != 0:
+        x_end[i] = x[i] + dt * v_solved[i]
+    else:
+        x_end[i] = x_held[i]
