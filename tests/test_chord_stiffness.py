@@ -7,10 +7,12 @@ opens; and a coil driven at a wall from outside the contact range at a long step
 import numpy as np
 import pytest
 
-from test_implicit import blocks_dense
+from test_ensemble import assert_same_run
+from test_implicit import blocks_dense, implicit_scene
 from test_implicit_devices import BALLOON_R, DT, R_NODE, edge_model
 from test_implicit_devices import C0 as DEVICE_C0
 
+from warpcoil.deploy import Deployment, Ensemble
 from warpcoil.implicit import ImplicitSolver
 from warpcoil.kernels.chord import CHORD_WALL_SKIP_C0
 from warpcoil.solver import Control
@@ -132,3 +134,21 @@ def test_device_chord_is_the_secant_of_the_law(device):
         expected = np.kron(np.diag(model.contact_share.numpy()), secant * n)
     assert chord == pytest.approx(expected, rel=1e-9, abs=1e-9 * secant)
     assert np.abs(tangent).max() == 0.0
+
+
+@pytest.mark.parametrize("chord_end", ["flight", "solve"])
+def test_ensemble_members_equal_their_single_runs_with_the_chord(chord_end):
+    """Gather-form chord passes and fixed-point sums: an ensemble member is its single run."""
+    options = {"contact_stiffness": "chord", "chord_end": chord_end}
+    scenes = [implicit_scene(angle_deg=0.0), implicit_scene(angle_deg=20.0, sac_diameter_mm=4.0)]
+    results = Ensemble(scenes, solver_options=options).run()
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s, solver_options=options).run(), member)
+
+
+def test_chord_options_are_checked():
+    model, _ = edge_model(balloon=False)
+    with pytest.raises(ValueError, match="contact_stiffness"):
+        ImplicitSolver(model, dt_s=DT, contact_stiffness="secant")
+    with pytest.raises(ValueError, match="chord_end"):
+        ImplicitSolver(model, dt_s=DT, contact_stiffness="chord", chord_end="guess")
