@@ -99,6 +99,7 @@ IMPLICIT_CONTACT_STIFFNESS = "tangent"
 # "solve" (the tangent step's solution: a second assembly and solve per step; sees force-driven approaches too)
 CHORD_ENDS = ("flight", "solve")
 CHORD_END = "flight"
+CHORD_END_CG_ITERATIONS = 1  # conjugate-gradient iterations of the "solve" end's first solve (a predictor)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
@@ -231,7 +232,7 @@ class ImplicitSolver(Solver):
             x_end = self._x_end
             if self.chord_end == "solve":  # the tangent step's solution (a first solve)
                 self._assemble(state_in, state_out, control, state_in.x, 0, p0_stiff, dt_m, device_dt)
-                self._solve_velocities(state_in, state_out, control, dt_m)
+                self._solve_velocities(state_in, state_out, control, dt_m, CHORD_END_CG_ITERATIONS)
                 wp.launch(kernels.end_of_solve, n, device=dev, inputs=[
                     state_in.x, self._v, state_out.x, state_out.free, dt, x_end])
             else:  # the damped free flight
@@ -327,12 +328,16 @@ class ImplicitSolver(Solver):
                 self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b, self._pair_st,
                 self._pair_k, self._pair_n, dt_m]
 
-    def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
+    def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float,
+                          iterations: int | None = None) -> None:
         """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
         gradients per world, started at the old velocities, preconditioned by each
         coil's banded factorisation: ``cg_iterations`` iterations, ``push_cg_iterations``
-        in a world whose pusher drives a coil (its later iterations' launches skip it)."""
+        in a world whose pusher drives a coil (its later iterations' launches skip it);
+        ``iterations``: that many in every world instead."""
         m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
+        total = self.cg_iterations if iterations is None else iterations
+        pushing = self.push_cg_iterations if iterations is None else iterations
         free, running = state_out.free, control.running
         coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
         wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
@@ -345,19 +350,19 @@ class ImplicitSolver(Solver):
         wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
         wp.launch(kernels.pcg_begin, m.world_count, device=dev, inputs=[
             m.world_node_range, running, self._r, self._z, self._p, self._rz])
-        if self.push_cg_iterations < self.cg_iterations:
+        if pushing < total:
             wp.launch(kernels.settling_worlds, m.world_count, device=dev, inputs=[
                 running, control.active_coil, self._settling])
 
         def worlds(k: int) -> wp.array:  # the worlds taking iteration k
-            return running if k < self.push_cg_iterations else self._settling
+            return running if k < pushing else self._settling
 
-        for k in range(self.cg_iterations):
+        for k in range(total):
             wp.launch(kernels.system_product, n, device=dev, inputs=[self._p, self._rhs, 0] + product_args[:4]
                       + [worlds(k)] + product_args[5:] + [self._q])
             wp.launch(kernels.pcg_advance, m.world_count, device=dev, inputs=[
                 m.world_node_range, worlds(k), self._p, self._q, self._rz, self._v, self._r])
-            if k + 1 < self.cg_iterations:
+            if k + 1 < total:
                 wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args[:3] + [worlds(k + 1)]
                           + precondition_args[4:])
                 wp.launch(kernels.pcg_direction, m.world_count, device=dev, inputs=[
