@@ -25,6 +25,12 @@ x₋₁, v₋₁ carried in the State, an Euler start on a new or changed step):
 third-order slow-mode damping, but the push force stays Euler's (docs/FORMULATION.md
 "Implicit step: BDF2"), so it is an option, not the default.
 
+``contact_stiffness="chord"``: each contact's stiffness along its normal is the law's chord
+between the step start and a predicted end (``chord_end``: the damped free flight, or the
+tangent step's solution), where steeper than the tangent (kernels/chord.py): a contact that
+enters during the step is seen. An option, not the default (docs/FORMULATION.md "Implicit
+step: chord contact stiffness").
+
 The contact law keeps the reference's linear onset (computed for the explicit
 step), so both integrators integrate the same forces.
 """
