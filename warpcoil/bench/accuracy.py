@@ -18,7 +18,8 @@ Cases and their references:
 
 Knobs: step size (dt_safety × the stable bound), the integrator (the implicit
 step at its default, its push advance per step from 0.4 to 2.4 c0, the θ-method
-at θ = 0.7 beside its linearly implicit Euler step, and linearly implicit BDF2), push advance per step (push
+at θ = 0.7 beside its linearly implicit Euler step, linearly implicit BDF2, and the chord contact
+stiffness to either predicted end), push advance per step (push
 speed), segment length l0 ∈ {d/2, d, 2d} (d/2 on the validation cases, where
 it is affordable), mass scaling. The deployment reference is the finest
 setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d.
@@ -236,10 +237,11 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
     for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable), kept after the push
         settings[f"implicit BDF2, push advance {advance:g} c0 (kept)"] = (
             variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"method": "bdf2"})
-    for advance in (0.8, 1.2, 1.6):  # Euler with the chord contact stiffness (kernels/chord.py), kept after the push
-        settings[f"implicit, chord contact stiffness, push advance {advance:g} c0 (kept)"] = (
-            variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s),
-            {"contact_stiffness": "chord"})
+    for end, advances in (("flight", (0.8, 1.2, 1.6)), ("solve", (1.2, 1.6))):  # Euler with the chord contact
+        for advance in advances:  # stiffness to each predicted end (kernels/chord.py), kept after the push
+            settings[f"implicit, chord contact stiffness ({end} end), push advance {advance:g} c0 (kept)"] = (
+                variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s),
+                {"contact_stiffness": "chord", "chord_end": end})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
         settings.update({"push 100 mm/s": (variant(push=100.0), None), "mass scale 100": (variant(mass_scale=100.0), None),
                          "l0 2d": (variant(l0_factor=2.0), None)})
