@@ -23,7 +23,7 @@ import time
 import warp as wp
 
 KERNEL_MODULES = (
-    "warpcoil.kernels.contact", "warpcoil.kernels.devices", "warpcoil.kernels.elastic",
+    "warpcoil.kernels.chord", "warpcoil.kernels.contact", "warpcoil.kernels.devices", "warpcoil.kernels.elastic",
     "warpcoil.kernels.friction", "warpcoil.kernels.implicit", "warpcoil.kernels.integrate",
     "warpcoil.kernels.wall_field", "warpcoil.geometry", "warpcoil.porous", "warpcoil.preflight",
     "warpcoil.bench.steps",
