@@ -20,15 +20,16 @@ from warpcoil.validation import _helix_spec
 D = 0.2921
 
 
-def stiffness(solver: ImplicitSolver, state, touch_count: wp.array) -> dict:
-    """edge_contact_stiffness at ``state`` (after its contact pass) with ``touch_count``."""
+def stiffness(solver: ImplicitSolver, state, touch_count: wp.array, chord: int = 0) -> dict:
+    """edge_contact_stiffness at ``state`` (after its contact pass) with ``touch_count`` (``chord``:
+    the chord to the predicted end x itself, over every neighbour-list partner)."""
     m, c = solver.model, solver.model.contact
     wp.launch(kernels.edge_contact_stiffness, m.node_count, inputs=[
         state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, solver._running_all, m.fixed,
         m.node_radius, solver._grid.id, solver._neighbours, solver._neighbour_count, solver._midpoints,
         m.query_radius_of, solver._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, solver.contact_u_linear,
         touch_count, solver._touch_b, solver._stiff_start, solver._stiff_end, solver._pair_count, solver._pair_b,
-        solver._pair_st, solver._pair_k, solver._pair_n])
+        solver._pair_st, solver._pair_k, solver._pair_n, state.x, chord])
     out = {k: getattr(solver, k).numpy().copy() for k in ("_stiff_start", "_stiff_end", "_pair_count")}
     count = np.maximum(out["_pair_count"], 0)
     for k in ("_pair_b", "_pair_st", "_pair_k", "_pair_n"):  # the recorded slots
@@ -56,12 +57,14 @@ def test_contact_stiffness_over_the_touching_record_equals_the_neighbour_list_pa
     from_record = stiffness(solver, state, solver._touch_count)
     overflowed = wp.array(np.where(noted > 0, solver._touch_b.shape[1] + 1, 0).astype(np.int32))
     from_list = stiffness(solver, state, overflowed)
+    from_chord = stiffness(solver, state, solver._touch_count, chord=1)  # no motion: the chord is the tangent
     assert from_record["_pair_count"].sum() > 500
-    for k, v in from_list.items():
-        if isinstance(v, list):
-            assert all(np.array_equal(a, b) for a, b in zip(v, from_record[k])), k
-        else:
-            assert np.array_equal(v, from_record[k]), k
+    for other in (from_list, from_chord):
+        for k, v in other.items():
+            if isinstance(v, list):
+                assert all(np.array_equal(a, b) for a, b in zip(v, from_record[k])), k
+            else:
+                assert np.array_equal(v, from_record[k]), k
 
 
 def reference_wall_force(local: np.ndarray, vertices: np.ndarray, faces: np.ndarray, owners: np.ndarray,
