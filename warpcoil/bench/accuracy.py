@@ -111,20 +111,24 @@ RELEASE_AZIMUTHS_DEG = (0.0, 90.0, 180.0, 270.0)
 
 
 def _release_detail(res, speed: float, integrator: str, perturbations: int, advance_per_c0: float | None = None
-                    ) -> str:
-    """The fitted helix, and how many of the run and its ``perturbations`` tilted reruns
-    came to rest in the helix (every row within tolerance)."""
+                    ) -> tuple[str, str]:
+    """(detail, not_default): the fitted helix and how many of the run and its
+    ``perturbations`` tilted reruns came to rest in the helix (every row within
+    tolerance); a setting that tangled in any of them is not a default candidate."""
     shape = f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"
     if perturbations == 0:
-        return shape
+        return shape, ""
     runs = [res] + [validation.free_release(push_speed_mm_s=speed, integrator=integrator,
                                             catheter=validation.tilted_catheter(RELEASE_TILT_DEG, azimuth),
                                             advance_per_c0=advance_per_c0)
                     for azimuth in RELEASE_AZIMUTHS_DEG[:perturbations]]
     helix = sum(all(r.passed for r in run) for run in runs)
     pitches = ", ".join(f"{run[1].result:.2f}" for run in runs[1:])
-    return (f"{shape}; rest helix in {helix} of {len(runs)} runs (catheter turned {RELEASE_TILT_DEG:g}°: "
-            f"pitch {pitches} mm)")
+    detail = (f"{shape}; rest helix in {helix} of {len(runs)} runs "
+              f"(catheter turned {RELEASE_TILT_DEG:g}°: pitch {pitches} mm)")
+    tangled = len(runs) - helix
+    return detail, (f"comes to rest tangled in {tangled} of {len(runs)} runs (catheter turned {RELEASE_TILT_DEG:g}°)"
+                    if tangled else "")
 
 
 def release_rows(quick: bool, repeats: int) -> list[Row]:
@@ -138,19 +142,21 @@ def release_rows(quick: bool, repeats: int) -> list[Row]:
         for safety in (0.5, 0.9) if speed > 50.0 else (0.9,):
             res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, dt_safety=safety), repeats)
             default = speed == default_speed and safety == 0.9
+            detail, tangled = _release_detail(res, speed, "symplectic", 0 if quick or not default else 4)
             rows.append(Row("free release", f"push {speed:g} mm/s, dt {safety} bound", default, 0, t,
-                            _helix_error(res), _release_detail(res, speed, "symplectic",
-                                                               0 if quick or not default else 4)))
+                            _helix_error(res), detail, not_default=tangled))
     for speed in (default_speed,) if quick else (50.0, 100.0, 150.0, 200.0):
         res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit"), repeats)
+        detail, tangled = _release_detail(res, speed, "implicit", 2 if quick else 4)
         rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step", False, 0, t,
-                        _helix_error(res), _release_detail(res, speed, "implicit", 2 if quick else 4)))
+                        _helix_error(res), detail, not_default=tangled))
     advance = 0.5 * IMPLICIT_ADVANCE_PER_C0  # the finer push step that comes to rest in the helix (FORMULATION.md)
     for speed in () if quick else (100.0, 150.0):
         res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
                                                        advance_per_c0=advance), repeats)
+        detail, tangled = _release_detail(res, speed, "implicit", 4, advance)
         rows.append(Row("free release", f"push {speed:g} mm/s, implicit {advance:g} c0 per push step", False, 0, t,
-                        _helix_error(res), _release_detail(res, speed, "implicit", 4, advance)))
+                        _helix_error(res), detail, not_default=tangled))
     return rows
 
 
