@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from .kernels import contact, devices, elastic, friction, integrate
+from .kernels import contact, devices, elastic, friction, integrate, wall_measure
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
@@ -216,7 +216,7 @@ class Solver:
 
     integrator = "symplectic"
     record_touching = False  # note each edge's touching partners in the contact pass (the implicit step reads them)
-    kernel_modules = (contact, devices, elastic, friction, integrate)  # loaded before a graph capture
+    kernel_modules = (contact, devices, elastic, friction, integrate, wall_measure)  # loaded before a graph capture
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
@@ -286,6 +286,9 @@ class Solver:
         self._wall_slack = zeros(wp.float64)
         self._wall_seen_x, self._wall_seen_mm = zeros(wp.vec3d), zeros(wp.float64)  # last full search in the lumen
         self._wall_side.fill_(-1)
+        # per node, 1 where the frame measurement's wall_distance is exact, 0 where a bound (measure_contacts)
+        self.wall_distance_exact = wp.ones(n, dtype=wp.int32, device=dev)
+        self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)  # mm, per world
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -339,17 +342,20 @@ class Solver:
         self.grid_builds += 1
 
     def compute_contacts(self, state: State, wall_search_mm: float | None = None,
-                         running: wp.array | None = None) -> None:
+                         running: wp.array | None = None, wall_measure: bool = False) -> None:
         """Wall and coil–coil contact forces into ``contact_force`` (µN), with the
         per-node wall distance and the per-edge smallest coil gap and touching pairs
         (each pair counted from both edges). ``wall_search_mm``: how far beyond the
         contact range the wall is searched (default the solver's; a large value
-        gives exact distances for every node, for measurements). ``running``:
-        the worlds to compute (default all)."""
+        gives exact distances for every node). ``running``: the worlds to compute
+        (default all). ``wall_measure``: the wall part is a frame's measurement
+        (:meth:`_launch_wall_measure`) instead."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         running = self._running_all if running is None else running
-        if self.has_wall:
+        if self.has_wall and wall_measure:
+            self._launch_wall_measure(state, running)
+        elif self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh, m.wall_face_first,
                 m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
@@ -401,14 +407,39 @@ class Solver:
             else:
                 wp.copy(self.contact_force, self.device_force)
 
+    def _launch_wall_measure(self, state: State, running: wp.array) -> None:
+        """The frame measurement's wall pass (kernels/wall_measure.py): force and signed
+        centre distance of every free node, exact where the node may be in contact or
+        outside the lumen and for each world's smallest gap, elsewhere a certified lower
+        bound above the contact range (``wall_distance_exact`` 0). Reads the step
+        pass's wall state, writes none of it."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
+
+        def measure(fix_up: int) -> None:
+            wp.launch(wall_measure.measure_wall, n, device=dev, inputs=[
+                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh,
+                m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
+                self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
+                self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
+                self._wall_seen_mm, fix_up, self._smallest_wall_gap, self.wall_force, self.wall_distance,
+                self.wall_distance_exact])
+
+        measure(0)
+        wp.launch(wall_measure.reset_smallest_gap, m.world_count, device=dev, inputs=[self._smallest_wall_gap])
+        wp.launch(wall_measure.smallest_exact_gap, n, device=dev, inputs=[
+            state.free, m.world_of, m.node_radius, self.wall_distance, self.wall_distance_exact,
+            self._smallest_wall_gap])
+        measure(1)
+
     def measure_contacts(self, state: State, running: wp.array) -> None:
-        """:meth:`compute_contacts` with exact wall distances for every node (the frame
-        measurement's pass; replayed, :meth:`_replayed`)."""
-        far = float(contact.FAR_MM)
+        """:meth:`compute_contacts` as a frame's measurement (replayed, :meth:`_replayed`):
+        the coil–coil pass as a step has it, the wall by :meth:`_launch_wall_measure`."""
         if ("contacts", id(state), id(running)) not in self._graphs:
             self.allocate_neighbour_grid(state)  # no allocation inside the capture
+            wp.load_module(wall_measure, device=self.model.device)
         self._replayed("contacts", state, running,
-                       lambda: self.compute_contacts(state, wall_search_mm=far, running=running))
+                       lambda: self.compute_contacts(state, running=running, wall_measure=True))
 
     def _replayed(self, name: str, state: State, extra, launches) -> None:
         """Run ``launches()`` (kernel launches on ``state`` and ``extra``) from a graph

@@ -1,0 +1,155 @@
+"""A frame's wall measurement: every free node's wall force (µN) and signed centre
+distance (mm, > 0 in the lumen), exact where a frame reports them, without searching
+the BVH from nodes that a certificate already puts out of contact.
+
+The exact search (:func:`exact_wall_terms`) is the full search of
+:func:`warpcoil.kernels.contact.wall_contact` with no search limit: from a node deep
+in the sac every face is nearly equidistant and the BVH prunes little, which made
+it most of a frame's measurement. A node whose lower bound L on its signed distance
+(:func:`distance_lower_bound`: the step pass's anchor or last full search, or the
+trusted narrow-band field; each 1-Lipschitz) is above its contact range d/2 + c0
+has exactly zero force, is in the lumen and is no wall contact; its distance is
+then reported as L (``exact`` 0). Only the world's smallest wall gap needs such a
+node's value: a second pass (:func:`measure_wall` with ``fix_up``) searches, in
+full, the bounded nodes whose L − d/2 lies below the smallest exact gap of their
+world (:func:`smallest_exact_gap`), so that minimum is the exact one. The step
+pass's wall state is only read: a measurement does not steer the run.
+"""
+
+import warp as wp
+
+from .contact import (FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude, field_sample, wall_feature_sum,
+                      wall_query)
+
+
+@wp.func
+def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, p: wp.vec3d,
+                     radius: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                     anchor_margin: wp.float64, in_lumen: bool):
+    """(signed centre distance mm, wall force µN before the contact share) of a node
+    sphere at ``p``, as wall_contact's unlimited search gives them: with ``in_lumen``
+    (certified), the feature sum alone when it finds a face within the contact range;
+    otherwise the signed BVH query, then the feature sum in the lumen within range,
+    or the law along the closest face's inward normal outside it."""
+    contact_range = radius + c0
+    if in_lumen:
+        summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius, p0, c0,
+                                              u_linear, 0)
+        if nearest < contact_range:
+            return nearest, summed
+    face, signed, inward = wall_query(mesh, vertices, faces, face_first, origin, p, FAR_MM)
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if face != NO_FACE and signed > wp.float64(0.0):
+        if signed < contact_range + anchor_margin:
+            summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius, p0,
+                                                  c0, u_linear, 0)
+            if nearest < contact_range:
+                f = summed
+                signed = nearest
+    elif face != NO_FACE:
+        f = contact_force_magnitude(signed - radius, p0, c0, u_linear) * inward
+    return signed, f
+
+
+@wp.func
+def distance_lower_bound(p: wp.vec3d, inside: int, quiet: int, anchor: wp.vec3d, anchor_slack: wp.float64,
+                         seen_x: wp.vec3d, seen_distance: wp.float64, field: wp.uint64, origin: wp.vec3d,
+                         grad_tolerance: wp.float64, contact_range: wp.float64, margin: wp.float64) -> wp.float64:
+    """A lower bound (mm) of the signed centre distance at ``p`` (−FAR_MM: none), from
+    the step pass's wall state, each bound 1-Lipschitz in p: an anchor (in the lumen
+    at ≥ contact range + slack), the last full search in the lumen (``seen_x`` at
+    ``seen_distance``), and the trusted field (within ``margin`` of the distance: it
+    is at least its error bound plus the BVH's float32 margin)."""
+    bound = -FAR_MM
+    if inside == 1 and quiet != NO_ANCHOR:
+        bound = contact_range + anchor_slack - wp.length(p - anchor) - margin
+    if seen_distance > wp.float64(0.0):
+        bound = wp.max(bound, seen_distance - wp.length(p - seen_x) - margin)
+    if field != wp.uint64(0):
+        trusted, sampled, normal = field_sample(field, p - origin, grad_tolerance)
+        if trusted:
+            bound = wp.max(bound, sampled - margin)
+    return bound
+
+
+@wp.kernel
+def measure_wall(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    owners: wp.array(dtype=wp.int32),
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    fields: wp.array(dtype=wp.uint64),
+    grad_tolerance: wp.float64,
+    margin: wp.float64,
+    sided_skip: int,
+    inside: wp.array(dtype=wp.int32),
+    anchor: wp.array(dtype=wp.vec3d),
+    anchor_slack: wp.array(dtype=wp.float64),
+    quiet_steps: wp.array(dtype=wp.int32),
+    seen_x: wp.array(dtype=wp.vec3d),
+    seen_distance: wp.array(dtype=wp.float64),
+    fix_up: int,
+    smallest_gap: wp.array(dtype=wp.float64),
+    force: wp.array(dtype=wp.vec3d),
+    centre_distance: wp.array(dtype=wp.float64),
+    exact: wp.array(dtype=wp.int32),
+):
+    """First pass (``fix_up`` 0): every node's force and signed centre distance,
+    exact (``exact`` 1) or, above the contact range, its certified lower bound
+    (``exact`` 0, zero force); +FAR in the catheter, in a stopped world or without
+    a wall. Second pass (``fix_up`` 1): the exact search for the bounded nodes whose
+    bound gap is below their world's ``smallest_gap``."""
+    i = wp.tid()
+    w = world_of[i]
+    mesh = meshes[w]
+    measured = free[i] != 0 and running[w] != 0 and mesh != wp.uint64(0)
+    if fix_up != 0:
+        if not measured or exact[i] != 0 or centre_distance[i] - node_radius[i] >= smallest_gap[w]:
+            return
+    signed = FAR_MM
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    is_exact = 1
+    if measured:
+        p = x[i]
+        if fix_up == 0:
+            contact_range = node_radius[i] + c0
+            bound = distance_lower_bound(p, inside[i], quiet_steps[i], anchor[i], anchor_slack[i], seen_x[i],
+                                         seen_distance[i], fields[w], origins[w], grad_tolerance, contact_range,
+                                         margin)
+            if bound > contact_range:
+                signed = bound
+                is_exact = 0
+        if is_exact != 0:
+            in_lumen = sided_skip != 0 and inside[i] > 0 and wp.length(p - seen_x[i]) < seen_distance[i] - margin
+            signed, f = exact_wall_terms(mesh, vertices, faces, owners, face_first[w], origins[w], p,
+                                         node_radius[i], p0, c0, u_linear, margin, in_lumen)
+    force[i] = contact_share[i] * f
+    centre_distance[i] = signed
+    exact[i] = is_exact
+
+
+@wp.kernel
+def reset_smallest_gap(smallest_gap: wp.array(dtype=wp.float64)):
+    smallest_gap[wp.tid()] = FAR_MM
+
+
+@wp.kernel
+def smallest_exact_gap(free: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
+                       node_radius: wp.array(dtype=wp.float64), centre_distance: wp.array(dtype=wp.float64),
+                       exact: wp.array(dtype=wp.int32), smallest_gap: wp.array(dtype=wp.float64)):
+    """Per world, the smallest wall gap (mm) of its free nodes measured exactly (a min: order-free)."""
+    i = wp.tid()
+    if free[i] != 0 and exact[i] != 0:
+        wp.atomic_min(smallest_gap, world_of[i], centre_distance[i] - node_radius[i])
