@@ -288,7 +288,9 @@ class Solver:
         self._wall_side.fill_(-1)
         # per node, 1 where the frame measurement's wall_distance is exact, 0 where a bound (measure_contacts)
         self.wall_distance_exact = wp.ones(n, dtype=wp.int32, device=dev)
-        self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)  # mm, per world
+        # mm, per world: the smallest exact wall gap and the smallest bound of the others (measure_contacts)
+        self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
+        self._smallest_bound_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -416,21 +418,25 @@ class Solver:
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
 
-        def measure(fix_up: int) -> None:
+        def measure(stage: int) -> None:
             wp.launch(wall_measure.measure_wall, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh,
                 m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
                 self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
-                self._wall_seen_mm, fix_up, self._smallest_wall_gap, self.wall_force, self.wall_distance,
-                self.wall_distance_exact])
+                self._wall_seen_mm, stage, *smallest, self.wall_force, self.wall_distance, self.wall_distance_exact])
 
-        measure(0)
-        wp.launch(wall_measure.reset_smallest_gap, m.world_count, device=dev, inputs=[self._smallest_wall_gap])
-        wp.launch(wall_measure.smallest_exact_gap, n, device=dev, inputs=[
-            state.free, m.world_of, m.node_radius, self.wall_distance, self.wall_distance_exact,
-            self._smallest_wall_gap])
-        measure(1)
+        def reduce() -> None:
+            wp.launch(wall_measure.smallest_gaps, n, device=dev, inputs=[
+                state.free, m.world_of, m.node_radius, self.wall_distance, self.wall_distance_exact, *smallest])
+
+        smallest = (self._smallest_wall_gap, self._smallest_bound_gap)
+        measure(wall_measure.FIRST)
+        wp.launch(wall_measure.reset_smallest_gaps, m.world_count, device=dev, inputs=[*smallest])
+        reduce()
+        measure(wall_measure.SEED)  # a world with bounds only: its smallest bound's node, exactly
+        reduce()
+        measure(wall_measure.FIX_UP)
 
     def measure_contacts(self, state: State, running: wp.array) -> None:
         """:meth:`compute_contacts` as a frame's measurement (replayed, :meth:`_replayed`):

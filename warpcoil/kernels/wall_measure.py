@@ -18,8 +18,12 @@ pass's wall state is only read: a measurement does not steer the run.
 
 import warp as wp
 
-from .contact import (FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude, field_sample, wall_feature_sum,
-                      wall_query)
+from .contact import (ANCHOR_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude, field_sample,
+                      wall_feature_sum, wall_query)
+
+FIRST = wp.constant(0)  # measure_wall's stages
+SEED = wp.constant(1)
+FIX_UP = wp.constant(2)
 
 
 @wp.func
@@ -50,6 +54,16 @@ def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
     elif face != NO_FACE:
         f = contact_force_magnitude(signed - radius, p0, c0, u_linear) * inward
     return signed, f
+
+
+@wp.func
+def no_face_within(mesh: wp.uint64, origin: wp.vec3d, p: wp.vec3d, reach: wp.float64) -> bool:
+    """Whether the BVH finds no face within ``reach`` (mm) of p: then every face is at
+    least reach − ANCHOR_MARGIN_MM away (≫ the float32 query's error). Unsigned and
+    bounded: cheap even deep in the sac, where an unlimited search prunes little."""
+    local = p - origin
+    local32 = wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2]))
+    return not wp.mesh_query_point_no_sign(mesh, local32, wp.float32(reach)).result
 
 
 @wp.func
@@ -100,36 +114,49 @@ def measure_wall(
     quiet_steps: wp.array(dtype=wp.int32),
     seen_x: wp.array(dtype=wp.vec3d),
     seen_distance: wp.array(dtype=wp.float64),
-    fix_up: int,
+    stage: int,
     smallest_gap: wp.array(dtype=wp.float64),
+    smallest_bound: wp.array(dtype=wp.float64),
     force: wp.array(dtype=wp.vec3d),
     centre_distance: wp.array(dtype=wp.float64),
     exact: wp.array(dtype=wp.int32),
 ):
-    """First pass (``fix_up`` 0): every node's force and signed centre distance,
-    exact (``exact`` 1) or, above the contact range, its certified lower bound
-    (``exact`` 0, zero force); +FAR in the catheter, in a stopped world or without
-    a wall. Second pass (``fix_up`` 1): the exact search for the bounded nodes whose
-    bound gap is below their world's ``smallest_gap``."""
+    """``stage`` FIRST: every node's force and signed centre distance, exact
+    (``exact`` 1) or, above the contact range, its certified lower bound (``exact``
+    0, zero force); +FAR in the catheter, in a stopped world or without a wall.
+    SEED (in a world with no exact node): the exact search for the nodes of the
+    smallest bound gap (``smallest_bound``), so the world has an exact gap.
+    FIX_UP: the bounded nodes whose bound gap is below the world's smallest exact
+    gap (``smallest_gap``) and that have a face within that gap, searched exactly."""
     i = wp.tid()
     w = world_of[i]
     mesh = meshes[w]
     measured = free[i] != 0 and running[w] != 0 and mesh != wp.uint64(0)
-    if fix_up != 0:
+    if stage != FIRST:
         if not measured or exact[i] != 0 or centre_distance[i] - node_radius[i] >= smallest_gap[w]:
+            return
+        if stage == SEED and (smallest_gap[w] < FAR_MM or centre_distance[i] - node_radius[i] > smallest_bound[w]):
             return
     signed = FAR_MM
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     is_exact = 1
     if measured:
         p = x[i]
-        if fix_up == 0:
-            contact_range = node_radius[i] + c0
+        contact_range = node_radius[i] + c0
+        if stage == FIRST:
             bound = distance_lower_bound(p, inside[i], quiet_steps[i], anchor[i], anchor_slack[i], seen_x[i],
                                          seen_distance[i], fields[w], origins[w], grad_tolerance, contact_range,
                                          margin)
+            reach = contact_range + wp.float64(2.0) * ANCHOR_MARGIN_MM
+            if bound <= contact_range and bound > wp.float64(0.0) and no_face_within(mesh, origins[w], p, reach):
+                bound = reach - ANCHOR_MARGIN_MM  # in the lumen (bound > 0) and no face within reach
             if bound > contact_range:
                 signed = bound
+                is_exact = 0
+        elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
+            reach = smallest_gap[w] + node_radius[i] + wp.float64(2.0) * ANCHOR_MARGIN_MM
+            if no_face_within(mesh, origins[w], p, reach):
+                signed = wp.max(centre_distance[i], reach - ANCHOR_MARGIN_MM)
                 is_exact = 0
         if is_exact != 0:
             in_lumen = sided_skip != 0 and inside[i] > 0 and wp.length(p - seen_x[i]) < seen_distance[i] - margin
@@ -141,15 +168,22 @@ def measure_wall(
 
 
 @wp.kernel
-def reset_smallest_gap(smallest_gap: wp.array(dtype=wp.float64)):
-    smallest_gap[wp.tid()] = FAR_MM
+def reset_smallest_gaps(smallest_gap: wp.array(dtype=wp.float64), smallest_bound: wp.array(dtype=wp.float64)):
+    w = wp.tid()
+    smallest_gap[w] = FAR_MM
+    smallest_bound[w] = FAR_MM
 
 
 @wp.kernel
-def smallest_exact_gap(free: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
-                       node_radius: wp.array(dtype=wp.float64), centre_distance: wp.array(dtype=wp.float64),
-                       exact: wp.array(dtype=wp.int32), smallest_gap: wp.array(dtype=wp.float64)):
-    """Per world, the smallest wall gap (mm) of its free nodes measured exactly (a min: order-free)."""
+def smallest_gaps(free: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
+                  node_radius: wp.array(dtype=wp.float64), centre_distance: wp.array(dtype=wp.float64),
+                  exact: wp.array(dtype=wp.int32), smallest_gap: wp.array(dtype=wp.float64),
+                  smallest_bound: wp.array(dtype=wp.float64)):
+    """Per world, the smallest wall gap (mm) of its free nodes measured exactly, and
+    the smallest bound gap of the others (mins: order-free, deterministic)."""
     i = wp.tid()
-    if free[i] != 0 and exact[i] != 0:
-        wp.atomic_min(smallest_gap, world_of[i], centre_distance[i] - node_radius[i])
+    if free[i] != 0:
+        if exact[i] != 0:
+            wp.atomic_min(smallest_gap, world_of[i], centre_distance[i] - node_radius[i])
+        else:
+            wp.atomic_min(smallest_bound, world_of[i], centre_distance[i] - node_radius[i])
