@@ -18,8 +18,8 @@ pass's wall state is only read: a measurement does not steer the run.
 
 import warp as wp
 
-from .contact import (ANCHOR_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude, field_sample,
-                      wall_feature_sum, wall_query)
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude,
+                      field_sample, wall_feature_sum, wall_query)
 
 FIRST = wp.constant(0)  # measure_wall's stages
 SEED = wp.constant(1)
@@ -30,18 +30,12 @@ FIX_UP = wp.constant(2)
 def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
                      owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, p: wp.vec3d,
                      radius: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
-                     anchor_margin: wp.float64, in_lumen: bool):
+                     anchor_margin: wp.float64):
     """(signed centre distance mm, wall force µN before the contact share) of a node
-    sphere at ``p``, as wall_contact's unlimited search gives them: with ``in_lumen``
-    (certified), the feature sum alone when it finds a face within the contact range;
-    otherwise the signed BVH query, then the feature sum in the lumen within range,
-    or the law along the closest face's inward normal outside it."""
+    sphere at ``p``, as wall_contact's unlimited full search gives them: the signed
+    BVH query, then in the lumen within range the feature sum, outside the lumen the
+    law along the closest face's inward normal."""
     contact_range = radius + c0
-    if in_lumen:
-        summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius, p0, c0,
-                                              u_linear, 0)
-        if nearest < contact_range:
-            return nearest, summed
     face, signed, inward = wall_query(mesh, vertices, faces, face_first, origin, p, FAR_MM)
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     if face != NO_FACE and signed > wp.float64(0.0):
@@ -143,25 +137,37 @@ def measure_wall(
     if measured:
         p = x[i]
         contact_range = node_radius[i] + c0
+        searched = False  # force and distance known without the full search
         if stage == FIRST:
             bound = distance_lower_bound(p, inside[i], quiet_steps[i], anchor[i], anchor_slack[i], seen_x[i],
                                          seen_distance[i], fields[w], origins[w], grad_tolerance, contact_range,
                                          margin)
-            reach = contact_range + wp.float64(2.0) * ANCHOR_MARGIN_MM
-            if bound <= contact_range and bound > wp.float64(0.0) and no_face_within(mesh, origins[w], p, reach):
-                bound = reach - ANCHOR_MARGIN_MM  # in the lumen (bound > 0) and no face within reach
             if bound > contact_range:
                 signed = bound
                 is_exact = 0
+                searched = True
+            elif bound > wp.float64(0.0) and sided_skip != 0:  # in the lumen: the feature sum may do (wall_contact)
+                summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], p - origins[w],
+                                                      node_radius[i], p0, c0, u_linear, 0)
+                # no face within its reach (d/2 + c0 + BOX_MARGIN_MM) was nearer than ``nearest``
+                beyond = wp.min(nearest, contact_range + BOX_MARGIN_MM - ANCHOR_MARGIN_MM)
+                if nearest < contact_range:
+                    signed = nearest
+                    f = summed
+                    searched = True
+                elif beyond > contact_range:
+                    signed = beyond
+                    is_exact = 0
+                    searched = True
         elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
             reach = smallest_gap[w] + node_radius[i] + wp.float64(2.0) * ANCHOR_MARGIN_MM
             if no_face_within(mesh, origins[w], p, reach):
                 signed = wp.max(centre_distance[i], reach - ANCHOR_MARGIN_MM)
                 is_exact = 0
-        if is_exact != 0:
-            in_lumen = sided_skip != 0 and inside[i] > 0 and wp.length(p - seen_x[i]) < seen_distance[i] - margin
+                searched = True
+        if not searched:
             signed, f = exact_wall_terms(mesh, vertices, faces, owners, face_first[w], origins[w], p,
-                                         node_radius[i], p0, c0, u_linear, margin, in_lumen)
+                                         node_radius[i], p0, c0, u_linear, margin)
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
     exact[i] = is_exact
