@@ -135,7 +135,7 @@ def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
     s = solver
     s.measure_contacts(state, running)
     arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
-    return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
+    return Snapshot(state.time_s, *(s.host(a).copy() for a in arrays))
 
 def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot, energies: dict,
                   push: tuple[float, float, float]) -> Frame:
