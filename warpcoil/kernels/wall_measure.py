@@ -1,19 +1,22 @@
 """A frame's wall measurement: every free node's wall force (µN) and signed centre
-distance (mm, > 0 in the lumen), exact where a frame reports them, without searching
-the BVH from nodes that a certificate already puts out of contact.
+distance (mm, > 0 in the lumen), exact wherever a frame reports them, without an
+unlimited BVH search from nodes a certificate already puts out of contact.
 
 The exact search (:func:`exact_wall_terms`) is the full search of
 :func:`warpcoil.kernels.contact.wall_contact` with no search limit: from a node deep
 in the sac every face is nearly equidistant and the BVH prunes little, which made
-it most of a frame's measurement. A node whose lower bound L on its signed distance
-(:func:`distance_lower_bound`: the step pass's anchor or last full search, or the
-trusted narrow-band field; each 1-Lipschitz) is above its contact range d/2 + c0
-has exactly zero force, is in the lumen and is no wall contact; its distance is
-then reported as L (``exact`` 0). Only the world's smallest wall gap needs such a
-node's value: a second pass (:func:`measure_wall` with ``fix_up``) searches, in
-full, the bounded nodes whose L − d/2 lies below the smallest exact gap of their
-world (:func:`smallest_exact_gap`), so that minimum is the exact one. The step
-pass's wall state is only read: a measurement does not steer the run.
+it most of a frame's measurement. Stage FIRST: a node whose lower bound L of its
+signed distance (:func:`distance_lower_bound`: the step pass's anchor or last full
+search, or the trusted narrow-band field; each 1-Lipschitz) is above its contact
+range d/2 + c0, or that is certified in the lumen with no face within the feature
+sum's reach, has exactly zero force, is in the lumen and is no wall contact; its
+distance is reported as that bound (``exact`` 0). Only the world's smallest wall gap
+needs a bounded node's value: stage FIX_UP searches in full the bounded nodes whose
+bound gap lies below the world's smallest exact gap (:func:`smallest_gaps`) and that
+have a face that near (:func:`face_distance_within`), after stage SEED has searched
+the smallest bound's node of a world with no exact node; so the minimum is exact.
+What a full search notes for the steps (side, anchor, last search) is noted as
+wall_contact notes it; a bounded node is re-anchored at its bound.
 """
 
 import warp as wp
@@ -51,13 +54,23 @@ def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
 
 
 @wp.func
-def no_face_within(mesh: wp.uint64, origin: wp.vec3d, p: wp.vec3d, reach: wp.float64) -> bool:
-    """Whether the BVH finds no face within ``reach`` (mm) of p: then every face is at
-    least reach − ANCHOR_MARGIN_MM away (≫ the float32 query's error). Unsigned and
-    bounded: cheap even deep in the sac, where an unlimited search prunes little."""
+def face_distance_within(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                         face_first: int, origin: wp.vec3d, p: wp.vec3d, reach: wp.float64) -> wp.float64:
+    """Distance (mm, float64) from p to the closest face the BVH finds within ``reach``,
+    or ``reach`` when it finds none: unsigned and bounded, so cheap even deep in the
+    sac, where an unlimited search prunes little. The true distance is at least this
+    less ANCHOR_MARGIN_MM (≫ the float32 query's error in picking the face)."""
     local = p - origin
     local32 = wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2]))
-    return not wp.mesh_query_point_no_sign(mesh, local32, wp.float32(reach)).result
+    q = wp.mesh_query_point_no_sign(mesh, local32, wp.float32(reach))
+    if not q.result:
+        return reach
+    base = 3 * (face_first + q.face)
+    u = wp.float64(q.u)
+    v = wp.float64(q.v)
+    closest = u * vertices[faces[base]] + v * vertices[faces[base + 1]] + (wp.float64(1.0) - u - v) * vertices[
+        faces[base + 2]]
+    return wp.min(wp.length(local - closest), reach)
 
 
 @wp.func
@@ -79,6 +92,17 @@ def distance_lower_bound(p: wp.vec3d, inside: int, quiet: int, anchor: wp.vec3d,
         if trusted:
             bound = wp.max(bound, sampled - margin)
     return bound
+
+
+@wp.func
+def set_anchor(i: int, p: wp.vec3d, slack: wp.float64, inside: wp.array(dtype=wp.int32),
+               anchor: wp.array(dtype=wp.vec3d), anchor_slack: wp.array(dtype=wp.float64),
+               quiet_steps: wp.array(dtype=wp.int32)):
+    """Anchor node i at p, in the lumen with ``slack`` (mm) beyond its contact range (wall_contact's anchor)."""
+    inside[i] = 1
+    anchor[i] = p
+    anchor_slack[i] = slack
+    quiet_steps[i] = 0
 
 
 @wp.kernel
@@ -155,19 +179,30 @@ def measure_wall(
                     signed = nearest
                     f = summed
                     searched = True
+                    seen_x[i] = p  # in the lumen at that distance (as wall_contact renews it)
+                    seen_distance[i] = nearest
                 elif beyond > contact_range:
                     signed = beyond
                     is_exact = 0
                     searched = True
+            if is_exact == 0:  # re-anchored here at its bound (the steps search it again after 0.9 of that)
+                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
         elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
             reach = smallest_gap[w] + node_radius[i] + wp.float64(2.0) * ANCHOR_MARGIN_MM
-            if no_face_within(mesh, origins[w], p, reach):
+            if face_distance_within(mesh, vertices, faces, face_first[w], origins[w], p, reach) >= reach:
                 signed = wp.max(centre_distance[i], reach - ANCHOR_MARGIN_MM)
                 is_exact = 0
                 searched = True
         if not searched:
             signed, f = exact_wall_terms(mesh, vertices, faces, owners, face_first[w], origins[w], p,
                                          node_radius[i], p0, c0, u_linear, margin)
+            # what wall_contact's full search notes: the side, an anchor beyond the contact range, the search
+            inside[i] = wp.where(signed > wp.float64(0.0), 1, 0)
+            quiet_steps[i] = NO_ANCHOR
+            if signed > contact_range:
+                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
+            seen_x[i] = p
+            seen_distance[i] = wp.max(signed, wp.float64(0.0))
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
     exact[i] = is_exact
