@@ -414,8 +414,9 @@ class Solver:
         """The frame measurement's wall pass (kernels/wall_measure.py): force and signed
         centre distance of every free node, exact where the node may be in contact or
         outside the lumen and for each world's smallest gap, elsewhere a certified lower
-        bound above the contact range (``wall_distance_exact`` 0). Reads the step
-        pass's wall state, writes none of it."""
+        bound above the contact range (``wall_distance_exact`` 0). Notes for the steps
+        what wall_contact's full search notes for the nodes it searches; re-anchors a
+        bounded node at its bound (docs/FORMULATION.md, "The frame's wall measurement")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
 
@@ -636,8 +637,9 @@ class Solver:
         energy put in so far, by packing and pushing) kinetic + elastic energy
         above twice that budget — damping only removes energy, so more than was
         put in means the integration is unstable — or (with ``wall_distance_mm``:
-        every node's exact signed centre distance to its wall, > 0 in the lumen, as
-        ``take_snapshot`` measures it) a free node's centre past the wall: the
+        every node's signed centre distance to its wall, > 0 in the lumen, as
+        ``take_snapshot`` measures it: exact where it is below the contact range, a
+        lower bound above it elsewhere) a free node's centre past the wall: the
         contact law stops every node at a gap above −d/2 long before, so a centre
         outside means a step moved the node through the contact range c0 without
         feeling it (a step too long for its speed)."""
