@@ -129,8 +129,9 @@ def test_the_second_run_of_a_scene_loads_its_field_and_repeats_the_first(tmp_pat
     """The CLI as a user runs it, twice, with a fresh field cache: the first run
     builds and stores the field, the second loads it and writes the same results."""
     scene = (ROOT / "scenes" / "seed_sphere.toml").read_text()
+    assert 'wall_query = "sdf"' in scene  # the seed scene samples the wall from the field
     scene = scene.replace("length_mm = 60.0", "length_mm = 12.0").replace(
-        "[simulation]", '[contact]\nwall_query = "sdf"\nwall_voxel_mm = 0.08\n\n[simulation]')
+        'wall_query = "sdf"', 'wall_query = "sdf"\nwall_voxel_mm = 0.08')
     (tmp_path / "seed_sdf.toml").write_text(scene)
     env = dict(os.environ, **{FIELD_CACHE_ENV: str(tmp_path / "fields"), "PYTHONPATH": str(ROOT)})
     results = []
