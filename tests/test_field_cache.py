@@ -107,6 +107,18 @@ def test_a_damaged_cache_file_is_rebuilt_and_replaced(cache, damage):
     assert_same_samples(wall, built, rebuilt)
 
 
+def test_a_writer_leaves_only_whole_files_and_old_temporaries_are_removed(cache):
+    cache.mkdir(parents=True)
+    old, fresh = cache / "killed.1.tmp", cache / "writing.2.tmp"
+    old.write_bytes(b"half")
+    fresh.write_bytes(b"half")
+    os.utime(old, (0.0, 0.0))  # left by a writer killed long ago; the fresh one may still be renamed
+    field_of(sphere_wall())
+    assert fresh.exists() and not old.exists() and len(list(cache.glob("*.tmp"))) == 1
+    (path,) = cache.glob("*.nvdb")
+    assert load_volume(path, wp.get_device("cpu")) is not None
+
+
 def test_the_disabled_cache_builds_every_time_and_writes_nothing(tmp_path, monkeypatch):
     monkeypatch.setenv(FIELD_CACHE_ENV, "off")
     monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))  # where the default folder would be

@@ -14,7 +14,8 @@ removes its own ``wp_*`` folders). ``WARPCOIL_FIELD_CACHE=off`` disables it.
 Each file is the volume's ``.nvdb`` bytes followed by :data:`TRAILER` and their
 SHA-256 (Warp's reader ignores bytes past the grid), written to a temporary file and
 renamed into place, so parallel jobs (``warpcoil sweep --jobs N``) never read a
-half-written file. A file that is short, corrupt or unreadable is rebuilt and replaced.
+half-written file (a temporary left by a killed writer is removed an hour later). A
+file that is short, corrupt or unreadable is rebuilt and replaced.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ FIELD_FORMAT_VERSION = 1  # bump when build_wall_field writes different voxels f
 FIELD_CACHE_ENV = "WARPCOIL_FIELD_CACHE"
 DISABLED_VALUES = ("off", "0", "false", "no", "none")
 TRAILER = b"WARPCOIL-SHA256:"
+STALE_TEMPORARY_S = 3600.0  # a temporary file this old was left by a killed writer: removed at the next write
 
 
 def field_cache_dir() -> Path | None:
@@ -82,6 +84,7 @@ def save_volume(volume: wp.Volume, path: Path) -> bool:
     (with a warning) when the folder cannot be written — the run goes on uncached."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(path.parent)
         handle, temporary = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp", dir=path.parent)
         os.close(handle)
     except OSError as error:
@@ -101,6 +104,17 @@ def save_volume(volume: wp.Volume, path: Path) -> bool:
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def remove_stale_temporaries(folder: Path) -> None:
+    """Remove temporary files older than STALE_TEMPORARY_S (a writer killed before its rename)."""
+    now = time.time()
+    for temporary in folder.glob("*.tmp"):
+        try:
+            if now - temporary.stat().st_mtime > STALE_TEMPORARY_S:
+                temporary.unlink()
+        except OSError:  # another job removed or renamed it first
+            pass
 
 
 def cached_wall_field(wall, band_mm: float, voxel_mm: float, crease_mm: float, region: tuple | None):
