@@ -319,3 +319,13 @@ def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
     assert world_steps(given.model, given.scenes)[0][4:] == (0.0, 0.0)
     assert given.run().settle_dt_s is None
     assert given.solver.dt_s == push_dt
+
+
+def test_a_free_release_comes_to_rest_in_the_helix_at_a_fine_enough_push_step():
+    """At 100 mm/s the default push step (0.8 c0) comes to rest tangled from every
+    perturbation tried (docs/FORMULATION.md, "the free release that comes to rest tangled");
+    at 0.4 c0 per push step it reaches the rest helix, also with the catheter turned 0.01°."""
+    for catheter in (None, validation.tilted_catheter(0.01, 90.0)):
+        rows = validation.free_release(push_speed_mm_s=100.0, integrator="implicit", catheter=catheter,
+                                       advance_per_c0=0.4)
+        assert all(r.passed for r in rows), validation.format_table(rows)

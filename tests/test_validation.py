@@ -77,6 +77,32 @@ def test_free_release_from_catheter_forms_the_helix():
     assert_rows_pass(validation.free_release())
 
 
+def test_a_tilted_catheter_packs_the_coil_as_a_rigid_rotation():
+    """The bench's free-release perturbation (a catheter turned by 0.01°) changes only
+    round-off: the packed coil lies along the turned axis at the same arc positions and
+    stores the same bending and twist energy."""
+    from warpcoil.model import ModelBuilder
+    from warpcoil.solver import Solver
+    from warpcoil.state import packed_state
+
+    def packed(catheter):
+        builder = ModelBuilder(catheter=catheter)
+        builder.add_coil(validation._helix_spec(None, dict(validation.HELIX, length_mm=6.0)))
+        model = builder.finalize()
+        state = packed_state(model)
+        return state.x.numpy(), Solver(model).check_health(state)
+
+    catheter = validation.tilted_catheter(30.0, 60.0)
+    direction = np.array(catheter.direction)
+    assert np.degrees(np.arccos(direction[2])) == pytest.approx(30.0, abs=1e-12)
+    assert np.degrees(np.arctan2(direction[1], direction[0])) == pytest.approx(60.0, abs=1e-12)
+    (x0, e0), (x1, e1) = packed(validation.tilted_catheter()), packed(catheter)
+    np.testing.assert_allclose(x1 @ direction, x0[:, 2], atol=1e-12)  # same distances along the catheter
+    np.testing.assert_allclose(np.linalg.norm(np.cross(x1, direction), axis=1), 0.0, atol=1e-12)  # on its axis
+    for key in ("bend_nJ", "twist_nJ"):
+        assert e0[key] > 0.0 and e1[key] == pytest.approx(e0[key], rel=1e-9)
+
+
 def test_undamped_energy_is_conserved():
     assert_rows_pass(validation.energy_conservation())
 

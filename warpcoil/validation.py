@@ -384,18 +384,31 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DE
                                          integrator=integrator))
 
 
+def tilted_catheter(tilt_deg: float = 0.0, azimuth_deg: float = 0.0) -> CatheterSpec:
+    """The straight catheter at the origin, its direction turned from +z by ``tilt_deg``
+    towards the azimuth ``azimuth_deg`` (from +x, about z): in free space a rigid rotation
+    of the problem, so a tiny tilt changes only round-off (a perturbation of the path)."""
+    tilt, azimuth = math.radians(tilt_deg), math.radians(azimuth_deg)
+    return CatheterSpec(direction=(math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth),
+                                   math.cos(tilt)))
+
+
 def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float | None, mass_scale: float,
-              helix: dict, damping_uN_per_mm: float = 5.0, integrator: str = "symplectic") -> np.ndarray:
+              helix: dict, damping_uN_per_mm: float = 5.0, integrator: str = "symplectic",
+              catheter: CatheterSpec | None = None, advance_per_c0: float | None = None) -> np.ndarray:
     """Rest positions of a helical coil packed in a straight catheter and pushed out into
-    empty space (``integrator`` "implicit": at its default step for this push speed)."""
+    empty space (``integrator`` "implicit": at its default step for this push speed, or at
+    the step that advances the pusher ``advance_per_c0`` × the contact onset c0)."""
     spec = _helix_spec(segment_length_mm, helix)
     settings = SimulationSettings(damping_uN_per_mm=damping_uN_per_mm, push_speed_mm_s=push_speed_mm_s,
                                   mass_scale=mass_scale)
-    builder = ModelBuilder(catheter=CatheterSpec(), settings=settings)
+    builder = ModelBuilder(catheter=catheter or CatheterSpec(), settings=settings)
     builder.add_coil(spec)
     model = builder.finalize()
     control = Control.create(model, active_coil=0, push_speed_mm_s=push_speed_mm_s)
     dt = implicit_step_s(model, push_speed_mm_s) if integrator == "implicit" else None
+    if integrator == "implicit" and advance_per_c0 is not None:
+        dt = advance_per_c0 * model.contact.c0_mm / push_speed_mm_s
     stepper = Stepper(make_solver(model, integrator, dt, dt_safety=dt_safety), packed_state(model), control,
                       chunk=1000 if integrator == "symplectic" else 20)
     coil_length = float(model.arc_s.numpy()[-1])
@@ -407,11 +420,14 @@ def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float
 
 def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
                  segment_length_mm: float | None = None, mass_scale: float = 1.0,
-                 integrator: str = "symplectic") -> list[CaseResult]:
-    """The helical coil packed in a straight catheter and pushed out into empty space."""
+                 integrator: str = "symplectic", catheter: CatheterSpec | None = None,
+                 advance_per_c0: float | None = None) -> list[CaseResult]:
+    """The helical coil packed in a straight catheter (``catheter``: default along +z;
+    :func:`tilted_catheter` perturbs it) and pushed out into empty space (implicit:
+    ``advance_per_c0`` sets its push step, default the integrator's default)."""
     label = "free release" if integrator == "symplectic" else f"free release, {integrator} default step"
     return _helix_rows(label, _released(push_speed_mm_s, dt_safety, segment_length_mm, mass_scale, HELIX,
-                                        integrator=integrator))
+                                        integrator=integrator, catheter=catheter, advance_per_c0=advance_per_c0))
 
 
 TIGHT_STRETCH = 2.0  # the tight helix is released from twice its pitch: turns 0.31 mm apart, in order
