@@ -16,8 +16,8 @@ For linearly implicit Euler on a linear system M Δv = dt (−K x' − C v') the
 exactly numerical = ½ Δvᵀ M Δv + ½ Δxᵀ K Δx ≥ 0 (:func:`backward_euler_oscillator`):
 per unit time ≈ ½ dt ω² × (a mode's energy), first order in dt once dt ω ≪ 1, and all
 of a mode's energy when dt ω ≳ 1. The trapezoid terms are second order. Not booked: the
-fold force (a coil's contact with its own near neighbours, elastic.fold_force), which
-the free release's coil does not reach.
+fold force (a coil's contact with its own near neighbours, elastic.fold_force): its work
+on the free nodes counts as numerical dissipation.
 """
 
 from __future__ import annotations
@@ -74,7 +74,6 @@ class DissipationMeter:
         m = solver.model
         self._a, self._b = state, new_state_like(m)
         self._b.copy_from(state)
-        self._mass = 1.0 / m.inv_mass.numpy()
         self._damping_c = m.damping_c.numpy()
         self._damping_k = float(m.damping_k)
         self._twist_damping = m.twist_damping.numpy()
