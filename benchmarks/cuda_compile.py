@@ -25,7 +25,7 @@ import warp as wp
 KERNEL_MODULES = (
     "warpcoil.kernels.contact", "warpcoil.kernels.devices", "warpcoil.kernels.elastic",
     "warpcoil.kernels.friction", "warpcoil.kernels.implicit", "warpcoil.kernels.integrate",
-    "warpcoil.kernels.wall_field", "warpcoil.geometry", "warpcoil.porous", "warpcoil.preflight",
+    "warpcoil.kernels.wall_field", "warpcoil.kernels.wall_measure", "warpcoil.geometry", "warpcoil.porous", "warpcoil.preflight",
     "warpcoil.bench.steps",
 )
 

@@ -394,7 +394,7 @@ class Ensemble:
             if interrupted[0]:
                 self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
                 break
-            snapshot.copy_from(self.stepper.state)
+            self.solver.copy_state(snapshot, self.stepper.state)
             if self._settling:
                 self._settle_chunk([m for m in self.members if m.result is None and m not in rerun])
             else:

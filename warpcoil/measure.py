@@ -118,7 +118,11 @@ class RunResult:
 
 @dataclass
 class Snapshot:
-    """Host copies of the solver arrays a frame's measurement reads (all worlds)."""
+    """Host copies of the solver arrays a frame's measurement reads (all worlds).
+    ``wall_distance``: each node's signed centre distance (mm, > 0 in the lumen), exact
+    where the node is within its contact range or past the wall and for each world's
+    smallest gap; elsewhere a certified lower bound above the contact range
+    (Solver.measure_contacts)."""
 
     time_s: float
     x: np.ndarray
@@ -131,11 +135,11 @@ class Snapshot:
 
 
 def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
-    """Host copies of what a frame's measurement reads, with exact wall distances (all worlds)."""
+    """Host copies of what a frame's measurement reads (all worlds)."""
     s = solver
     s.measure_contacts(state, running)
     arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
-    return Snapshot(state.time_s, *(a.numpy().copy() for a in arrays))
+    return Snapshot(state.time_s, *(s.host(a).copy() for a in arrays))
 
 def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot, energies: dict,
                   push: tuple[float, float, float]) -> Frame:

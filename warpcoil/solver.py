@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from .kernels import contact, devices, elastic, friction, integrate
+from .kernels import contact, devices, elastic, friction, integrate, wall_measure
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .state import State, new_state_like
@@ -216,7 +216,7 @@ class Solver:
 
     integrator = "symplectic"
     record_touching = False  # note each edge's touching partners in the contact pass (the implicit step reads them)
-    kernel_modules = (contact, devices, elastic, friction, integrate)  # loaded before a graph capture
+    kernel_modules = (contact, devices, elastic, friction, integrate, wall_measure)  # loaded before a graph capture
 
     def __init__(self, model: Model, dt_s: float | None = None, dt_safety: float = DEFAULT_DT_SAFETY,
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
@@ -286,6 +286,11 @@ class Solver:
         self._wall_slack = zeros(wp.float64)
         self._wall_seen_x, self._wall_seen_mm = zeros(wp.vec3d), zeros(wp.float64)  # last full search in the lumen
         self._wall_side.fill_(-1)
+        # per node, 1 where the frame measurement's wall_distance is exact, 0 where a bound (measure_contacts)
+        self.wall_distance_exact = wp.ones(n, dtype=wp.int32, device=dev)
+        # mm, per world: the smallest exact wall gap and the smallest bound of the others (measure_contacts)
+        self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
+        self._smallest_bound_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -318,6 +323,7 @@ class Solver:
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
         self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
+        self._views: dict = {}  # id(array) → (array, its numpy view): host()
 
     # --- one step ----------------------------------------------------------
     def _launch_midpoints(self, state: State) -> None:
@@ -339,17 +345,20 @@ class Solver:
         self.grid_builds += 1
 
     def compute_contacts(self, state: State, wall_search_mm: float | None = None,
-                         running: wp.array | None = None) -> None:
+                         running: wp.array | None = None, wall_measure: bool = False) -> None:
         """Wall and coil–coil contact forces into ``contact_force`` (µN), with the
         per-node wall distance and the per-edge smallest coil gap and touching pairs
         (each pair counted from both edges). ``wall_search_mm``: how far beyond the
         contact range the wall is searched (default the solver's; a large value
-        gives exact distances for every node, for measurements). ``running``:
-        the worlds to compute (default all)."""
+        gives exact distances for every node). ``running``: the worlds to compute
+        (default all). ``wall_measure``: the wall part is a frame's measurement
+        (:meth:`_launch_wall_measure`) instead."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         running = self._running_all if running is None else running
-        if self.has_wall:
+        if self.has_wall and wall_measure:
+            self._launch_wall_measure(state, running)
+        elif self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
                 state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh, m.wall_face_first,
                 m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
@@ -401,14 +410,44 @@ class Solver:
             else:
                 wp.copy(self.contact_force, self.device_force)
 
+    def _launch_wall_measure(self, state: State, running: wp.array) -> None:
+        """The frame measurement's wall pass (kernels/wall_measure.py): force and signed
+        centre distance of every free node, exact where the node may be in contact or
+        outside the lumen and for each world's smallest gap, elsewhere a certified lower
+        bound above the contact range (``wall_distance_exact`` 0). Notes for the steps
+        what wall_contact's full search notes for the nodes it searches; re-anchors a
+        bounded node at its bound (docs/FORMULATION.md, "The frame's wall measurement")."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
+
+        def measure(stage: int) -> None:
+            wp.launch(wall_measure.measure_wall, n, device=dev, inputs=[
+                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh,
+                m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
+                self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
+                self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
+                self._wall_seen_mm, stage, *smallest, self.wall_force, self.wall_distance, self.wall_distance_exact])
+
+        def reduce() -> None:
+            wp.launch(wall_measure.smallest_gaps, n, device=dev, inputs=[
+                state.free, m.world_of, m.node_radius, self.wall_distance, self.wall_distance_exact, *smallest])
+
+        smallest = (self._smallest_wall_gap, self._smallest_bound_gap)
+        measure(wall_measure.FIRST)
+        wp.launch(wall_measure.reset_smallest_gaps, m.world_count, device=dev, inputs=[*smallest])
+        reduce()
+        measure(wall_measure.SEED)  # a world with bounds only: its smallest bound's node, exactly
+        reduce()
+        measure(wall_measure.FIX_UP)
+
     def measure_contacts(self, state: State, running: wp.array) -> None:
-        """:meth:`compute_contacts` with exact wall distances for every node (the frame
-        measurement's pass; replayed, :meth:`_replayed`)."""
-        far = float(contact.FAR_MM)
+        """:meth:`compute_contacts` as a frame's measurement (replayed, :meth:`_replayed`):
+        the coil–coil pass as a step has it, the wall by :meth:`_launch_wall_measure`."""
         if ("contacts", id(state), id(running)) not in self._graphs:
             self.allocate_neighbour_grid(state)  # no allocation inside the capture
+            wp.load_module(wall_measure, device=self.model.device)
         self._replayed("contacts", state, running,
-                       lambda: self.compute_contacts(state, wall_search_mm=far, running=running))
+                       lambda: self.compute_contacts(state, running=running, wall_measure=True))
 
     def _replayed(self, name: str, state: State, extra, launches) -> None:
         """Run ``launches()`` (kernel launches on ``state`` and ``extra``) from a graph
@@ -432,6 +471,23 @@ class Solver:
                 self._graphs.pop(next(iter(self._graphs)))
             self._graphs[key] = (state, extra, capture.graph)
         wp.capture_launch(self._graphs[key][2])
+
+    def host(self, array: wp.array) -> np.ndarray:
+        """``array.numpy()``: on the CPU a view of the array's memory, kept per array
+        (a frame reads ~20 arrays; making each view costs a few µs), elsewhere a copy.
+        Read it before the array changes; copy what must outlive that."""
+        if not array.device.is_cpu:
+            return array.numpy()
+        held = self._views.get(id(array))
+        if held is None or held[0] is not array:
+            held = self._views[id(array)] = (array, array.numpy())
+        return held[1]
+
+    def copy_state(self, target: State, source: State) -> None:
+        """``target.copy_from(source)`` replayed from a captured graph (:meth:`_replayed`;
+        eight copies each frame, ~6 µs each from Python on the CPU)."""
+        self._replayed("copy", target, source, lambda: target.copy_from(source))
+        target.time_s, target.history_dt_s = source.time_s, source.history_dt_s
 
     def compute_forces(self, state: State, running: wp.array | None = None) -> None:
         """Node forces (µN), edge torques (µN·mm) and push shares at ``state``."""
@@ -519,12 +575,13 @@ class Solver:
             self._launch_elastic_energies(state)
 
         self._replayed("energies", state, None, launches)
-        per_node = {"kinetic_nJ": self._kinetic.numpy(), "stretch_nJ": self._stretch_e.numpy(),
-                    "bend_nJ": self._bend_e.numpy(), "twist_nJ": self._twist_e.numpy()}
+        host = self.host
+        per_node = {"kinetic_nJ": host(self._kinetic), "stretch_nJ": host(self._stretch_e),
+                    "bend_nJ": host(self._bend_e), "twist_nJ": host(self._twist_e)}
         worlds = [m.world_nodes(w) for w in range(m.world_count)]
         energies = {k: np.array([v[sl].sum() for sl in worlds]) for k, v in per_node.items()}
-        x = state.x.numpy()
-        unhealthy = self._unhealthy.numpy()
+        x = host(state.x)
+        unhealthy = host(self._unhealthy)
         bad = np.array([unhealthy[sl].sum() + (~np.isfinite(x[sl])).any(axis=1).sum() for sl in worlds])
         return energies, bad
 
@@ -564,8 +621,12 @@ class Solver:
         """Per world, over the steps since the last call (the solver counts them):
         the push force's signed mean, peak compressive value and RMS (µN,
         compressive > 0); restarts the accumulation."""
-        acc = self.push_accumulator.numpy().copy()  # a CPU array's numpy() is a view
-        self.push_accumulator.zero_()
+        view = self.host(self.push_accumulator)
+        acc = view.copy()
+        if self.model.device.is_cpu:
+            view.fill(0.0)  # (the view is the array)
+        else:
+            self.push_accumulator.zero_()
         steps = np.maximum(acc[:, 3], 1.0)
         return PushForce(acc[:, 0] / steps, acc[:, 1], np.sqrt(acc[:, 2] / steps))
 
@@ -576,8 +637,9 @@ class Solver:
         energy put in so far, by packing and pushing) kinetic + elastic energy
         above twice that budget — damping only removes energy, so more than was
         put in means the integration is unstable — or (with ``wall_distance_mm``:
-        every node's exact signed centre distance to its wall, > 0 in the lumen, as
-        ``take_snapshot`` measures it) a free node's centre past the wall: the
+        every node's signed centre distance to its wall, > 0 in the lumen, as
+        ``take_snapshot`` measures it: exact where it is below the contact range, a
+        lower bound above it elsewhere) a free node's centre past the wall: the
         contact law stops every node at a gap above −d/2 long before, so a centre
         outside means a step moved the node through the contact range c0 without
         feeling it (a step too long for its speed)."""
@@ -605,7 +667,7 @@ class Solver:
         m = self.model
         if wall_distance_mm is None or not self.has_wall:
             return [None] * m.world_count
-        outside = (state.free.numpy() == 1) & (wall_distance_mm < 0.0)
+        outside = (self.host(state.free) == 1) & (wall_distance_mm < 0.0)
         escaped: list[tuple[int, float] | None] = []
         for w in range(m.world_count):
             sl = m.world_nodes(w)

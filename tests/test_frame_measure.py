@@ -1,0 +1,144 @@
+"""A frame's wall measurement (Solver.measure_contacts, kernels/wall_measure.py)
+against the full exact pass it replaces (compute_contacts searching every node
+without limit), node by node on real deployment states: the seed sphere (BVH and
+field steps), a patient sac and the faceted sac. Where the measurement reports a
+node exactly, force and distance are the full pass's bit for bit; elsewhere the
+force is zero in both and the distance a true lower bound above the contact range;
+what a frame reports (smallest gap, contacts, largest force, nodes past the wall)
+is the same to the last bit, and a whole run's frames are too."""
+
+import math
+import types
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+import warpcoil as wc
+from warpcoil.deploy import Anatomy, Deployment, Ensemble
+from warpcoil.kernels import contact
+from warpcoil.scene import load_scene
+from warpcoil.coil import CoilSpec
+from warpcoil.settings import CatheterSpec, OutputSettings, Scene, SimulationSettings
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+NO_OUTPUT = {"output.usd": False, "output.png": False}
+
+
+def small_seed(wall_query: str) -> Scene:
+    """20 mm of a 2 mm coil into a 2.5 mm sphere (the accuracy benchmark's small seed case)."""
+    scene = load_scene(SCENES / "seed_sphere.toml", {**NO_OUTPUT, "contact.wall_query": wall_query})
+    return replace(scene, coils=(replace(scene.coils[0], length_mm=20.0, loop_diameter_mm=2.0),),
+                   wall=replace(scene.wall, sphere_diameter_mm=2.5),
+                   catheter=replace(scene.catheter, tip_mm=(0.0, 0.0, -0.95)))
+
+
+class FullPass:
+    """The measurement as it was: every free node searched in full, without limit."""
+
+    def __init__(self, solver: wc.Solver):
+        self.reference = wc.Solver(solver.model, dt_s=solver.dt_s, allow_unstable_dt=True, coil_contact=False,
+                                   wall_sided_skip=False)
+        self.solver = solver
+
+    def __call__(self, state, running) -> tuple[np.ndarray, np.ndarray]:
+        ref = self.reference
+        ref.contact_u_linear = self.solver.contact_u_linear  # (the run's step, halved or settling)
+        ref.compute_contacts(state, wall_search_mm=float(contact.FAR_MM), running=running)
+        return ref.wall_force.numpy().copy(), ref.wall_distance.numpy().copy()
+
+
+def check_frames(run: Ensemble, every: int = 3) -> dict:
+    """Run ``run``, comparing every ``every``-th frame's wall measurement with the full
+    pass node by node; returns counts of the nodes compared."""
+    full = FullPass(run.solver)
+    model, solver = run.model, run.solver
+    radius = model.node_radius.numpy()
+    c0 = model.contact.c0_mm
+    seen = {"frames": 0, "exact": 0, "bounded": 0, "touching": 0, "apart": 0}
+
+    def on_frame(member, frame, state):
+        if len(member.frames) % every:
+            return
+        force, distance, exact = (solver.wall_force.numpy().copy(), solver.wall_distance.numpy().copy(),
+                                  solver.wall_distance_exact.numpy() == 1)
+        ref_force, ref_distance = full(state, run.control.running)
+        free = state.free.numpy()[member.nodes] == 1
+        if not free.any():
+            return
+        sl, r = member.nodes, radius[member.nodes]
+        ex, d, f = exact[sl][free], distance[sl][free], force[sl][free]
+        rd, rf = ref_distance[sl][free], ref_force[sl][free]
+        assert np.array_equal(d[ex], rd[ex]) and np.array_equal(f[ex], rf[ex])
+        bounded = ~ex
+        assert np.all(f[bounded] == 0.0) and np.all(rf[bounded] == 0.0)
+        assert np.all(d[bounded] > (r[free] + c0)[bounded]) and np.all(d[bounded] <= rd[bounded])
+        gap, ref_gap = d - r[free], rd - r[free]
+        assert gap.min() == ref_gap.min() == frame.min_wall_gap_mm
+        assert np.array_equal(gap < c0, ref_gap < c0) and np.array_equal(d < 0.0, rd < 0.0)
+        assert np.linalg.norm(f, axis=1).max() == np.linalg.norm(rf, axis=1).max()
+        seen["frames"] += 1
+        seen["exact"] += int(ex.sum())
+        seen["bounded"] += int(bounded.sum())
+        seen["touching"] += int((ref_gap < c0).sum())
+        seen["apart"] += int(not (ref_gap < c0).any() and bounded.any())  # the minimum from bounds (SEED, FIX_UP)
+
+    Ensemble.run(run, on_frame)  # (a Deployment's run passes no member)
+    return seen
+
+
+def assert_compared(seen: dict) -> None:
+    assert seen["frames"] >= 5 and seen["touching"] > 0  # real contact states were compared
+    assert seen["bounded"] > 0  # and the measurement skipped searches
+
+
+def test_seed_sphere_with_field_steps_node_by_node():
+    seen = check_frames(Deployment(small_seed("sdf")))
+    assert_compared(seen)
+    assert seen["apart"] > 0  # frames with no node in contact: the smallest gap found past the bounds
+
+
+def test_seed_sphere_with_bvh_steps_node_by_node():
+    seen = check_frames(Deployment(small_seed("bvh")))
+    assert_compared(seen)
+    assert seen["apart"] > 0
+
+
+def test_patient_sac_node_by_node():
+    scene = load_scene(SCENES / "aneurisk_C0001.toml", {**NO_OUTPUT, "simulation.max_time_s": 0.15})
+    scene = replace(scene, coils=scene.coils[:1])
+    assert_compared(check_frames(Deployment(scene), every=1))
+
+
+def test_faceted_sac_node_by_node():
+    from warpcoil.faceted_sac import catheter_tip, lobulated_sac
+
+    length, packing = 20.0, 0.25
+    wall = lobulated_sac(math.pi * (0.2921 / 2.0) ** 2 * length / packing, seed=1)
+    coil = CoilSpec(wire_diameter_mm=0.2921, length_mm=length, loop_diameter_mm=3.0)
+    catheter = CatheterSpec(tip_mm=catheter_tip(wall, 1), direction=(0.0, 0.0, 1.0))
+    scene = Scene(coils=(coil,), catheter=catheter, output=OutputSettings(usd=False),
+                  simulation=SimulationSettings(max_time_s=0.25))
+    assert_compared(check_frames(Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])))
+
+
+def test_a_run_reports_the_same_frames_as_with_the_full_pass():
+    """The whole small seed run (field steps), frames and result, bit for bit, with the
+    measurement as it was: every node searched in full (which also re-anchored the
+    step's wall search each frame; the step's forces do not depend on that)."""
+    def full_pass_measure(self, state, running):
+        far = float(contact.FAR_MM)
+        self.compute_contacts(state, wall_search_mm=far, running=running)
+
+    results = []
+    for full in (False, True):
+        run = Deployment(small_seed("sdf"))
+        if full:
+            run.solver.measure_contacts = types.MethodType(full_pass_measure, run.solver)
+        results.append(run.run())
+    new, old = results
+    assert len(new.frames) == len(old.frames) > 20
+    assert new.frames == old.frames
+    summary = lambda r: {k: v for k, v in r.summary().items() if k != "wall_time_s"}  # noqa: E731
+    assert summary(new) == summary(old)
+    assert all(np.array_equal(a, b) for a, b in zip(new.positions_mm, old.positions_mm))

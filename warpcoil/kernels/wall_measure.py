@@ -1,0 +1,230 @@
+"""A frame's wall measurement: every free node's wall force (µN) and signed centre
+distance (mm, > 0 in the lumen), exact wherever a frame reports them, without an
+unlimited BVH search from nodes a certificate already puts out of contact.
+
+The exact search (:func:`exact_wall_terms`) is the full search of
+:func:`warpcoil.kernels.contact.wall_contact` with no search limit: from a node deep
+in the sac every face is nearly equidistant and the BVH prunes little, which made
+it most of a frame's measurement. Stage FIRST: a node whose lower bound L of its
+signed distance (:func:`distance_lower_bound`: the step pass's anchor or last full
+search, or the trusted narrow-band field; each 1-Lipschitz) is above its contact
+range d/2 + c0, or that is certified in the lumen with no face within the feature
+sum's reach, has exactly zero force, is in the lumen and is no wall contact; its
+distance is reported as that bound (``exact`` 0). Only the world's smallest wall gap
+needs a bounded node's value: stage FIX_UP searches in full the bounded nodes whose
+bound gap lies below the world's smallest exact gap (:func:`smallest_gaps`) and that
+have a face that near (:func:`face_distance_within`), after stage SEED has searched
+the smallest bound's node of a world with no exact node; so the minimum is exact.
+What a full search notes for the steps (side, anchor, last search) is noted as
+wall_contact notes it; a bounded node is re-anchored at its bound.
+"""
+
+import warp as wp
+
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude,
+                      field_sample, wall_feature_sum, wall_query)
+
+FIRST = wp.constant(0)  # measure_wall's stages
+SEED = wp.constant(1)
+FIX_UP = wp.constant(2)
+
+
+@wp.func
+def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, p: wp.vec3d,
+                     radius: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                     anchor_margin: wp.float64):
+    """(signed centre distance mm, wall force µN before the contact share) of a node
+    sphere at ``p``, as wall_contact's unlimited full search gives them: the signed
+    BVH query, then in the lumen within range the feature sum, outside the lumen the
+    law along the closest face's inward normal."""
+    contact_range = radius + c0
+    face, signed, inward = wall_query(mesh, vertices, faces, face_first, origin, p, FAR_MM)
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if face != NO_FACE and signed > wp.float64(0.0):
+        if signed < contact_range + anchor_margin:
+            summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius, p0,
+                                                  c0, u_linear, 0)
+            if nearest < contact_range:
+                f = summed
+                signed = nearest
+    elif face != NO_FACE:
+        f = contact_force_magnitude(signed - radius, p0, c0, u_linear) * inward
+    return signed, f
+
+
+@wp.func
+def face_distance_within(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                         face_first: int, origin: wp.vec3d, p: wp.vec3d, reach: wp.float64) -> wp.float64:
+    """Distance (mm, float64) from p to the closest face the BVH finds within ``reach``,
+    or ``reach`` when it finds none: unsigned and bounded, so cheap even deep in the
+    sac, where an unlimited search prunes little. The true distance is at least this
+    less ANCHOR_MARGIN_MM (≫ the float32 query's error in picking the face)."""
+    local = p - origin
+    local32 = wp.vec3f(wp.float32(local[0]), wp.float32(local[1]), wp.float32(local[2]))
+    q = wp.mesh_query_point_no_sign(mesh, local32, wp.float32(reach))
+    if not q.result:
+        return reach
+    base = 3 * (face_first + q.face)
+    u = wp.float64(q.u)
+    v = wp.float64(q.v)
+    closest = u * vertices[faces[base]] + v * vertices[faces[base + 1]] + (wp.float64(1.0) - u - v) * vertices[
+        faces[base + 2]]
+    return wp.min(wp.length(local - closest), reach)
+
+
+@wp.func
+def distance_lower_bound(p: wp.vec3d, inside: int, quiet: int, anchor: wp.vec3d, anchor_slack: wp.float64,
+                         seen_x: wp.vec3d, seen_distance: wp.float64, field: wp.uint64, origin: wp.vec3d,
+                         grad_tolerance: wp.float64, contact_range: wp.float64, margin: wp.float64) -> wp.float64:
+    """A lower bound (mm) of the signed centre distance at ``p`` (−FAR_MM: none), from
+    the step pass's wall state, each bound 1-Lipschitz in p: an anchor (in the lumen
+    at ≥ contact range + slack), the last full search in the lumen (``seen_x`` at
+    ``seen_distance``), and the trusted field (within ``margin`` of the distance: it
+    is at least its error bound plus the BVH's float32 margin)."""
+    bound = -FAR_MM
+    if inside == 1 and quiet != NO_ANCHOR:
+        bound = contact_range + anchor_slack - wp.length(p - anchor) - margin
+    if seen_distance > wp.float64(0.0):
+        bound = wp.max(bound, seen_distance - wp.length(p - seen_x) - margin)
+    if field != wp.uint64(0):
+        trusted, sampled, normal = field_sample(field, p - origin, grad_tolerance)
+        if trusted:
+            bound = wp.max(bound, sampled - margin)
+    return bound
+
+
+@wp.func
+def set_anchor(i: int, p: wp.vec3d, slack: wp.float64, inside: wp.array(dtype=wp.int32),
+               anchor: wp.array(dtype=wp.vec3d), anchor_slack: wp.array(dtype=wp.float64),
+               quiet_steps: wp.array(dtype=wp.int32)):
+    """Anchor node i at p, in the lumen with ``slack`` (mm) beyond its contact range (wall_contact's anchor)."""
+    inside[i] = 1
+    anchor[i] = p
+    anchor_slack[i] = slack
+    quiet_steps[i] = 0
+
+
+@wp.kernel
+def measure_wall(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    owners: wp.array(dtype=wp.int32),
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    fields: wp.array(dtype=wp.uint64),
+    grad_tolerance: wp.float64,
+    margin: wp.float64,
+    sided_skip: int,
+    inside: wp.array(dtype=wp.int32),
+    anchor: wp.array(dtype=wp.vec3d),
+    anchor_slack: wp.array(dtype=wp.float64),
+    quiet_steps: wp.array(dtype=wp.int32),
+    seen_x: wp.array(dtype=wp.vec3d),
+    seen_distance: wp.array(dtype=wp.float64),
+    stage: int,
+    smallest_gap: wp.array(dtype=wp.float64),
+    smallest_bound: wp.array(dtype=wp.float64),
+    force: wp.array(dtype=wp.vec3d),
+    centre_distance: wp.array(dtype=wp.float64),
+    exact: wp.array(dtype=wp.int32),
+):
+    """``stage`` FIRST: every node's force and signed centre distance, exact
+    (``exact`` 1) or, above the contact range, its certified lower bound (``exact``
+    0, zero force); +FAR in the catheter, in a stopped world or without a wall.
+    SEED (in a world with no exact node): the exact search for the nodes of the
+    smallest bound gap (``smallest_bound``), so the world has an exact gap.
+    FIX_UP: the bounded nodes whose bound gap is below the world's smallest exact
+    gap (``smallest_gap``) and that have a face within that gap, searched exactly."""
+    i = wp.tid()
+    w = world_of[i]
+    mesh = meshes[w]
+    measured = free[i] != 0 and running[w] != 0 and mesh != wp.uint64(0)
+    if stage != FIRST:
+        if not measured or exact[i] != 0 or centre_distance[i] - node_radius[i] >= smallest_gap[w]:
+            return
+        if stage == SEED and (smallest_gap[w] < FAR_MM or centre_distance[i] - node_radius[i] > smallest_bound[w]):
+            return
+    signed = FAR_MM
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    is_exact = 1
+    if measured:
+        p = x[i]
+        contact_range = node_radius[i] + c0
+        searched = False  # force and distance known without the full search
+        if stage == FIRST:
+            bound = distance_lower_bound(p, inside[i], quiet_steps[i], anchor[i], anchor_slack[i], seen_x[i],
+                                         seen_distance[i], fields[w], origins[w], grad_tolerance, contact_range,
+                                         margin)
+            if bound > contact_range:
+                signed = bound
+                is_exact = 0
+                searched = True
+            elif bound > wp.float64(0.0) and sided_skip != 0:  # in the lumen: the feature sum may do (wall_contact)
+                summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first[w], p - origins[w],
+                                                      node_radius[i], p0, c0, u_linear, 0)
+                # no face within its reach (d/2 + c0 + BOX_MARGIN_MM) was nearer than ``nearest``
+                beyond = wp.min(nearest, contact_range + BOX_MARGIN_MM - ANCHOR_MARGIN_MM)
+                if nearest < contact_range:
+                    signed = nearest
+                    f = summed
+                    searched = True
+                    seen_x[i] = p  # in the lumen at that distance (as wall_contact renews it)
+                    seen_distance[i] = nearest
+                elif beyond > contact_range:
+                    signed = beyond
+                    is_exact = 0
+                    searched = True
+            if is_exact == 0:  # re-anchored here at its bound (the steps search it again after 0.9 of that)
+                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
+        elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
+            reach = smallest_gap[w] + node_radius[i] + wp.float64(2.0) * ANCHOR_MARGIN_MM
+            if face_distance_within(mesh, vertices, faces, face_first[w], origins[w], p, reach) >= reach:
+                signed = wp.max(centre_distance[i], reach - ANCHOR_MARGIN_MM)
+                is_exact = 0
+                searched = True
+        if not searched:
+            signed, f = exact_wall_terms(mesh, vertices, faces, owners, face_first[w], origins[w], p,
+                                         node_radius[i], p0, c0, u_linear, margin)
+            # what wall_contact's full search notes: the side, an anchor beyond the contact range, the search
+            inside[i] = wp.where(signed > wp.float64(0.0), 1, 0)
+            quiet_steps[i] = NO_ANCHOR
+            if signed > contact_range:
+                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
+            seen_x[i] = p
+            seen_distance[i] = wp.max(signed, wp.float64(0.0))
+    force[i] = contact_share[i] * f
+    centre_distance[i] = signed
+    exact[i] = is_exact
+
+
+@wp.kernel
+def reset_smallest_gaps(smallest_gap: wp.array(dtype=wp.float64), smallest_bound: wp.array(dtype=wp.float64)):
+    w = wp.tid()
+    smallest_gap[w] = FAR_MM
+    smallest_bound[w] = FAR_MM
+
+
+@wp.kernel
+def smallest_gaps(free: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.int32),
+                  node_radius: wp.array(dtype=wp.float64), centre_distance: wp.array(dtype=wp.float64),
+                  exact: wp.array(dtype=wp.int32), smallest_gap: wp.array(dtype=wp.float64),
+                  smallest_bound: wp.array(dtype=wp.float64)):
+    """Per world, the smallest wall gap (mm) of its free nodes measured exactly, and
+    the smallest bound gap of the others (mins: order-free, deterministic)."""
+    i = wp.tid()
+    if free[i] != 0:
+        if exact[i] != 0:
+            wp.atomic_min(smallest_gap, world_of[i], centre_distance[i] - node_radius[i])
+        else:
+            wp.atomic_min(smallest_bound, world_of[i], centre_distance[i] - node_radius[i])
