@@ -16,6 +16,7 @@ from warpcoil.deploy import build_model
 from warpcoil.kernels import integrate
 from warpcoil.model import WallModel
 from warpcoil.scene import load_scene
+from warpcoil.settings import ContactSettings
 from warpcoil.wall_field import GRAD_TOLERANCE, band_points, build_wall_field, field_error, field_error_bound_mm
 from warpcoil.kernels import wall_field as field_kernels
 
@@ -113,7 +114,8 @@ def test_the_scene_key_chooses_the_wall_query_and_names_a_bad_value():
     field_run = Deployment(load_scene(SEED, {"contact.wall_query": "sdf", "contact.wall_voxel_mm": 0.08}))
     field = field_run.solver.wall_fields[0]
     assert field is not None and field.voxel_mm == 0.08 and field.voxels > 0
-    assert Deployment(load_scene(SEED)).solver.wall_fields == [None]  # default: the exact BVH
+    assert ContactSettings().wall_query == "bvh"  # default: the exact BVH (the seed scene chooses the field)
+    assert Deployment(load_scene(SEED, {"contact.wall_query": "bvh"})).solver.wall_fields == [None]
     try:
         load_scene(SEED, {"contact.wall_query": "octree"})
     except SceneError as error:
@@ -126,7 +128,7 @@ def small_seed_scene():
     """The accuracy benchmark's small seed case (20 mm of a 2 mm coil in a 2.5 mm sphere), implicit step."""
     from dataclasses import replace
 
-    scene = load_scene(SEED, {"output.usd": False, "output.png": False})
+    scene = load_scene(SEED, {"output.usd": False, "output.png": False, "contact.wall_query": "bvh"})
     return replace(scene, coils=(replace(scene.coils[0], length_mm=20.0, loop_diameter_mm=2.0),),
                    wall=replace(scene.wall, sphere_diameter_mm=2.5),
                    catheter=replace(scene.catheter, tip_mm=(0.0, 0.0, -0.95)))

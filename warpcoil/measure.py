@@ -107,6 +107,7 @@ class RunResult:
     positions_mm: list[np.ndarray] = field(default_factory=list, repr=False)  # final, per coil
     packing_density_in_sac: float | None = None  # π(d/2)² (deployed − herniated length) / sac volume
     device: dict | None = None  # assist device: kind, geometry, state over time (warpcoil.devices.device_report)
+    wall_field: dict | None = None  # wall_query "sdf": voxel_mm, voxels, build_s (s) and from_cache (field_cache.py)
 
     def summary(self) -> dict:
         """The JSON-ready scalars (no frames or positions)."""
@@ -226,7 +227,15 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         packing_density_in_sac=(sum(math.pi * (c["wire_diameter_mm"] / 2.0) ** 2 * max(
             c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
             if sac_volume else None),
-        device=device_report(member.scene, member.anatomy, frames, member.deflate_from_s))
+        device=device_report(member.scene, member.anatomy, frames, member.deflate_from_s),
+        wall_field=_field_report(solver.wall_fields[member.world]))
+
+
+def _field_report(field) -> dict | None:
+    """result.json's ``wall_field``: the field's voxel (mm), size, build or load time (s), origin."""
+    if field is None:
+        return None
+    return {"voxel_mm": field.voxel_mm, "voxels": field.voxels, "build_s": field.build_s, "from_cache": field.from_cache}
 
 def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.ndarray) -> dict | None:
     """Regional densities of the final coils (only where a neck defines the sac)."""

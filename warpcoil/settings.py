@@ -131,7 +131,7 @@ class ContactSettings:
     friction_coil: float = 0.0
     friction_catheter: float = 0.0
     friction_speed_mm_s: float = 0.01
-    wall_query: str = "bvh"  # "sdf": −22 % per seed-case step, but +67 % steps to rest on C0003 (BENCHMARKS)
+    wall_query: str = "bvh"  # "sdf": ~−25 % per seed run (implicit), even or slower on patient sacs (FORMULATION)
     wall_voxel_mm: float = 0.04  # = wall_field.DEFAULT_VOXEL_MM
 
     @property

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .field_cache import cached_wall_field
 from .kernels import wall_field as kernels
 
 DEFAULT_VOXEL_MM = 0.04  # distance error ≤ 1.2 µm (0.04 c0) on the seed sphere, measured by field_error (tests)
@@ -37,7 +38,8 @@ INNER_MM_VOXELS = 2.0  # the band reaches this many voxels beyond the wall (node
 @dataclass
 class WallField:
     """A wall's narrow-band field: the volume (float32, wall frame, NaN outside
-    the band), its voxel size and band, and what building it cost."""
+    the band), its voxel size and band, and what building it cost (s; loading it
+    when it came from the on-disk cache, field_cache.py)."""
 
     volume: wp.Volume
     voxel_mm: float
@@ -45,6 +47,7 @@ class WallField:
     inner_mm: float
     voxels: int
     build_s: float
+    from_cache: bool = False
 
     @property
     def id(self) -> int:
@@ -109,10 +112,11 @@ def field_error_bound_mm(voxel_mm: float) -> float:
 
 def wall_field_for(wall, band_mm: float, voxel_mm: float, region: tuple) -> WallField:
     """The field of ``wall`` with this band, voxel and region, built once (solvers,
-    step halvings and ensemble members that share them share it)."""
+    step halvings and ensemble members that share them share it) and kept on disk
+    for later processes (field_cache.py)."""
     key = (round(float(band_mm), 9), round(float(voxel_mm), 9), tuple(np.round(region[0], 9)), round(region[1], 9))
     if key not in wall.fields:
-        wall.fields[key] = build_wall_field(wall, band_mm, voxel_mm, region=region)
+        wall.fields[key] = cached_wall_field(wall, band_mm, voxel_mm, DEFAULT_CREASE_MM, region)
     return wall.fields[key]
 
 

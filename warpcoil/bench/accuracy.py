@@ -26,7 +26,9 @@ default release (and the implicit step at 50, 100 and 200 mm/s) is rerun with th
 turned by 0.01°, and the detail says in how many runs it came to rest in the helix (the
 implicit default at 100 and 150 mm/s: none; at 0.4 c0 per push step: all; docs/FORMULATION.md
 "the free release that comes to rest tangled"). The deployment reference is the finest
-setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d.
+setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d, with the exact
+wall (BVH) whatever the seed scene's ``wall_query``; the implicit default step also
+runs with the other wall query (the scene's against the BVH or the wall field).
 Float64 only (the kernels are written in float64; float32 is not offered).
 """
 
@@ -251,8 +253,9 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
 
     sac_radius = base.wall.sphere_diameter_mm / 2.0
     c0 = base.contact.c0_mm if base.contact.c0_mm is not None else 0.1 * coil.wire_diameter_mm  # as the model has it
-    # the finest setting swept: the smallest step and slowest push, true inertia, l0 = d
+    # the finest setting swept: the smallest step and slowest push, true inertia, l0 = d, the exact wall (BVH)
     finest = variant(dt_safety=0.25, mass_scale=1.0, push=50.0)
+    finest = replace(finest, contact=replace(finest.contact, wall_query="bvh"))
     reference, _, _ = deploy_shape(finest, loop_mm, sac_radius)
     # the chaotic spread: the same finest setting with the catheter turned by 0.01°
     turned = replace(finest, catheter=replace(finest.catheter, direction=(math.sin(math.radians(0.01)), 0.0,
@@ -269,6 +272,10 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         f"implicit, default step (θ {IMPLICIT_THETA:g}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
         f"the settling step, ≤ {IMPLICIT_SETTLE_DT_MAX_S * 1e3:g} ms)": (variant(integrator="implicit"), None),
     }
+    other_query = "bvh" if base.contact.wall_query == "sdf" else "sdf"  # the scene's wall query against the other
+    implicit_other = variant(integrator="implicit")
+    settings[f"implicit, default step, wall_query {other_query}"] = (
+        replace(implicit_other, contact=replace(implicit_other.contact, wall_query=other_query)), None)
     # the push step on the front, kept after the push: the linearly implicit Euler step (θ 1) and the θ-method
     # with less numerical damping (θ THETA_LOW; it does not settle at the settling step)
     for theta in (1.0, THETA_LOW):

@@ -43,7 +43,7 @@ SETTINGS = (  # cumulative: each row adds one change to the one before
     ("before: skin 0.05 mm, wall BVH", dict(neighbour_skin_mm=0.05, wall_query="bvh", wall_sided_skip=False)),
     ("+ neighbour skin 0.2 mm", dict(neighbour_skin_mm=0.2, wall_query="bvh", wall_sided_skip=False)),
     ("+ signed wall query skipped in the lumen", dict(neighbour_skin_mm=0.2, wall_query="bvh")),
-    ("+ wall field (opt-in)", dict(neighbour_skin_mm=0.2, wall_query="sdf")),
+    ("+ wall field (the seed scene's setting)", dict(neighbour_skin_mm=0.2, wall_query="sdf")),
 )
 WINDOW_MM = 15.0  # the profile's first and last stretch of the push
 
