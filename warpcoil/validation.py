@@ -551,6 +551,13 @@ def settle() -> list[CaseResult]:
     return settle_cases()
 
 
+def dissipation() -> list[CaseResult]:
+    """The numerical-dissipation ledger: a damped oscillator's analytic balance and a free coil's
+    order in dt (validation_dissipation.py)."""
+    from .validation_dissipation import dissipation_cases
+    return dissipation_cases()
+
+
 def contact_share() -> list[CaseResult]:
     """Contact weighted by each node's share of the coil: a coil on a floor presses evenly (validation_contact.py)."""
     from .validation_contact import contact_share_cases
@@ -887,6 +894,7 @@ CASES = {
     "implicit-wall": implicit_wall,
     "bdf2": bdf2,
     "settle": settle,
+    "dissipation": dissipation,
 }
 
 

@@ -1,0 +1,84 @@
+"""The numerical-dissipation ledger (warpcoil/dissipation.py): backward Euler's energy balance
+on a damped oscillator (analytic), and the implicit step's books on a free coil."""
+
+import math
+
+import numpy as np
+import pytest
+
+from warpcoil import preshape
+from warpcoil.coil import CoilSpec
+from warpcoil.dissipation import DissipationMeter, backward_euler_oscillator
+from warpcoil.implicit import make_solver
+from warpcoil.model import ModelBuilder
+from warpcoil.settings import CatheterSpec, SimulationSettings
+from warpcoil.solver import Control
+from warpcoil.state import packed_state, state_from_positions
+from warpcoil.validation import REFERENCE_D_MM
+from warpcoil.validation_dissipation import OSCILLATOR, _oscillator_physical, observed_order
+
+
+@pytest.mark.parametrize("damping", [0.0, 10.0])
+def test_backward_euler_loses_half_dv_m_dv_plus_half_dx_k_dx(damping):
+    """E0 − E_N − Σ dt c v'² = Σ ½ m Δv² + ½ k Δx² (linear spring: exact)."""
+    params = dict(OSCILLATOR, damping_uN_s_mm=damping)
+    balance, analytic = backward_euler_oscillator(**params, dt_s=1e-3, steps=200)
+    assert analytic > 0.0
+    assert balance == pytest.approx(analytic, rel=1e-10)
+
+
+def test_oscillator_ratio_falls_at_first_order():
+    """numerical / physical over one period ∝ dt (dt ω = 0.1, 0.05, 0.025)."""
+    period = 2.0 * math.pi / 100.0
+    ratios = []
+    for dt in (1e-3, 5e-4, 2.5e-4):
+        steps = round(period / dt)
+        balance, _ = backward_euler_oscillator(**OSCILLATOR, dt_s=dt, steps=steps)
+        ratios.append(balance / _oscillator_physical(dt, steps))
+    orders = [observed_order(a, b) for a, b in zip(ratios, ratios[1:])]
+    assert orders == pytest.approx([1.0, 1.0], abs=0.03)
+
+
+def _helix_model(length_mm: float, catheter: bool = False):
+    spec = CoilSpec(wire_diameter_mm=REFERENCE_D_MM, shape="helix", length_mm=length_mm, loop_diameter_mm=3.0,
+                    pitch_mm=0.6)
+    builder = ModelBuilder(catheter=CatheterSpec() if catheter else None, settings=SimulationSettings())
+    builder.add_coil(spec)
+    return builder.finalize(), spec
+
+
+def test_free_coil_books_close_and_the_ratio_falls_with_the_step():
+    """A free coil (no pusher): the steps' ledgers sum to E0 − E_N − physical (the solver's own
+    energies), every step dissipates (≥ 0), and the ratio numerical/physical halves with dt."""
+    model, spec = _helix_model(6.0)
+    start = preshape.helix(3.0, 1.02 * 0.6, 6.0, spec.l0)
+    ratios = []
+    for dt in (2e-5, 1e-5):
+        meter = DissipationMeter(make_solver(model, "implicit", dt), state_from_positions(model, start),
+                                 Control.create(model))
+        meter.step()  # the first step flags the nodes free
+        e0 = sum(meter.solver.energies(meter.state).values())
+        numerical0, physical0 = meter.totals.numerical_nJ, meter.totals.physical_nJ
+        steps = [meter.step() for _ in range(round(2e-3 / dt))]
+        e1 = sum(meter.solver.energies(meter.state).values())
+        numerical, physical = meter.totals.numerical_nJ - numerical0, meter.totals.physical_nJ - physical0
+        assert numerical == pytest.approx(e0 - e1 - physical, rel=1e-9, abs=1e-12)
+        assert min(s.numerical_nJ for s in steps) > -1e-3 * max(s.numerical_nJ for s in steps)
+        ratios.append(numerical / physical)
+    assert 0.6 < observed_order(*ratios) < 1.3
+
+
+def test_pushed_coil_pusher_work_balances_the_books():
+    """Pushed out of a catheter, the pusher's work enters the books: Σ ledgers = W − ΔE − physical
+    and the released helix's stored energy is taken up (ΔE_elastic < 0)."""
+    model, _ = _helix_model(2.0, catheter=True)
+    control = Control.create(model, active_coil=0, push_speed_mm_s=100.0)
+    meter = DissipationMeter(make_solver(model, "implicit", 0.8 * model.contact.c0_mm / 100.0), packed_state(model),
+                             control)
+    ledgers = [meter.step() for _ in range(60)]
+    elastic = sum(s.elastic_nJ for s in ledgers)
+    assert elastic < 0.0
+    total = sum(s.pusher_nJ - s.kinetic_nJ - s.elastic_nJ - s.contact_nJ - s.physical_nJ for s in ledgers)
+    assert meter.totals.numerical_nJ == pytest.approx(total, rel=1e-12)
+    assert meter.totals.pusher_work_nJ == pytest.approx(sum(s.pusher_nJ for s in ledgers), rel=1e-12)
+    assert np.isfinite(meter.totals.ratio)
