@@ -16,7 +16,8 @@ import trimesh
 import warp as wp
 
 from warpcoil import _warp  # noqa: F401  (Warp initialised, kernel cache chosen)
-from warpcoil.field_cache import FIELD_CACHE_ENV, cached_wall_field, field_cache_dir, field_key, load_volume
+from warpcoil.field_cache import (FIELD_CACHE_ENV, TEMPORARY_PREFIX, cached_wall_field, field_cache_dir, field_key,
+                                  load_volume)
 from warpcoil.kernels import wall_field as field_kernels
 from warpcoil.model import WallModel
 from warpcoil.wall_field import DEFAULT_CREASE_MM, GRAD_TOLERANCE, band_points
@@ -109,12 +110,14 @@ def test_a_damaged_cache_file_is_rebuilt_and_replaced(cache, damage):
 
 def test_a_writer_leaves_only_whole_files_and_old_temporaries_are_removed(cache):
     cache.mkdir(parents=True)
-    old, fresh = cache / "killed.1.tmp", cache / "writing.2.tmp"
-    old.write_bytes(b"half")
-    fresh.write_bytes(b"half")
+    old, fresh = cache / f"{TEMPORARY_PREFIX}killed.1.tmp", cache / f"{TEMPORARY_PREFIX}writing.2.tmp"
+    others = cache / "another_program.tmp"  # the folder may be shared: not ours, never removed
+    for f in (old, fresh, others):
+        f.write_bytes(b"half")
     os.utime(old, (0.0, 0.0))  # left by a writer killed long ago; the fresh one may still be renamed
+    os.utime(others, (0.0, 0.0))
     field_of(sphere_wall())
-    assert fresh.exists() and not old.exists() and len(list(cache.glob("*.tmp"))) == 1
+    assert fresh.exists() and others.exists() and not old.exists() and len(list(cache.glob("*.tmp"))) == 2
     (path,) = cache.glob("*.nvdb")
     assert load_volume(path, wp.get_device("cpu")) is not None
 

@@ -144,3 +144,37 @@ def test_a_run_reports_the_same_frames_as_with_the_full_pass():
     assert summary(new) == summary(old)
     assert new.wall_field["voxels"] == old.wall_field["voxels"] > 0
     assert all(np.array_equal(a, b) for a, b in zip(new.positions_mm, old.positions_mm))
+
+
+def test_a_node_thrown_past_the_wall_between_step_passes_is_measured_outside():
+    """A step pass whose short search finds no wall re-anchors a node in the lumen where it
+    stands; a node thrown 1.2 mm outward (0.5–1 mm past the 1.25 mm sphere) in one step must
+    still be measured outside, exactly, as the full pass measures it (the past-the-wall check)."""
+    run = Deployment(small_seed("bvh"))
+    solver, full = run.solver, FullPass(run.solver)
+    found = {}
+
+    class Done(Exception):
+        pass
+
+    def on_frame(member, frame, state):
+        if len(member.frames) < 8:
+            return
+        free = np.flatnonzero(state.free.numpy() == 1)
+        i = int(free[len(free) // 2])
+        solver.compute_contacts(state, running=run.control.running)  # a step pass where it is
+        x = state.x.numpy()
+        x[i] = x[i] * (1.0 + 1.2 / np.linalg.norm(x[i]))  # (a host view: moves the node itself)
+        solver.compute_contacts(state, running=run.control.running)  # the next step's pass
+        solver.measure_contacts(state, run.control.running)
+        found["measured"] = float(solver.wall_distance.numpy()[i])
+        found["exact"] = int(solver.wall_distance_exact.numpy()[i])
+        found["full"] = float(full(state, run.control.running)[1][i])
+        raise Done
+
+    try:
+        Ensemble.run(run, on_frame)
+    except Done:
+        pass
+    assert found["full"] < -0.4  # the node is well past the wall
+    assert found["exact"] == 1 and found["measured"] == found["full"]

@@ -1,8 +1,8 @@
 """On-disk cache of built wall fields (NanoVDB files), like Warp's kernel cache.
 
 A wall field depends only on the wall (vertices, faces, origin), its band, voxel,
-crease threshold and region, and on how it is built (:data:`FIELD_FORMAT_VERSION`,
-bumped whenever ``wall_field.build_wall_field`` changes what it writes). Its file
+crease threshold and region, and on how it is built (the source of wall_field.py and
+its kernels, hashed, and :data:`FIELD_FORMAT_VERSION` for what the source does not show). Its file
 is named by a SHA-256 of all of them (and the Warp version and device kind, since a
 float32 voxel built on CUDA may round differently from one built on the CPU), so a
 changed input never finds a stale file.
@@ -20,6 +20,7 @@ file that is short, corrupt or unreadable is rebuilt and replaced.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import struct
@@ -32,6 +33,7 @@ import numpy as np
 import warp as wp
 
 FIELD_FORMAT_VERSION = 1  # bump when build_wall_field writes different voxels for the same inputs
+TEMPORARY_PREFIX = ".warpcoil-field-"  # a writer's temporary file, renamed when complete
 FIELD_CACHE_ENV = "WARPCOIL_FIELD_CACHE"
 DISABLED_VALUES = ("off", "0", "false", "no", "none")
 TRAILER = b"WARPCOIL-SHA256:"
@@ -53,6 +55,7 @@ def field_key(wall, band_mm: float, voxel_mm: float, crease_mm: float, region: t
     digest = hashlib.sha256()
     digest.update(f"warpcoil-field v{FIELD_FORMAT_VERSION} warp {wp.__version__} "
                   f"{'cuda' if wall.vertices.device.is_cuda else 'cpu'}".encode())
+    digest.update(_build_code_digest())  # a change to the build's code never serves an old field
     digest.update(np.ascontiguousarray(wall.vertices_mm, dtype=np.float64).tobytes())
     digest.update(np.ascontiguousarray(wall.faces_np, dtype=np.int32).tobytes())
     digest.update(np.ascontiguousarray(wall.origin, dtype=np.float64).tobytes())
@@ -62,6 +65,15 @@ def field_key(wall, band_mm: float, voxel_mm: float, crease_mm: float, region: t
     else:
         digest.update(np.ascontiguousarray(region[0], dtype=np.float64).tobytes() + struct.pack("<d", float(region[1])))
     return digest.hexdigest()
+
+
+@functools.cache
+def _build_code_digest() -> bytes:
+    """SHA-256 of the source that builds a field (wall_field.py and its kernels)."""
+    from . import wall_field
+    from .kernels import wall_field as kernels
+
+    return hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (wall_field, kernels))).digest()
 
 
 def load_volume(path: Path, device) -> wp.Volume | None:
@@ -85,7 +97,8 @@ def save_volume(volume: wp.Volume, path: Path) -> bool:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(path.parent)
-        handle, temporary = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp", dir=path.parent)
+        handle, temporary = tempfile.mkstemp(prefix=TEMPORARY_PREFIX + path.stem + ".", suffix=".tmp",
+                                             dir=path.parent)
         os.close(handle)
     except OSError as error:
         warnings.warn(f"wall field cache {path.parent} not writable ({error}); set {FIELD_CACHE_ENV} to a "
@@ -109,7 +122,7 @@ def save_volume(volume: wp.Volume, path: Path) -> bool:
 def remove_stale_temporaries(folder: Path) -> None:
     """Remove temporary files older than STALE_TEMPORARY_S (a writer killed before its rename)."""
     now = time.time()
-    for temporary in folder.glob("*.tmp"):
+    for temporary in folder.glob(TEMPORARY_PREFIX + "*.tmp"):  # ours only: the folder may be shared
         try:
             if now - temporary.stat().st_mtime > STALE_TEMPORARY_S:
                 temporary.unlink()

@@ -288,6 +288,9 @@ class Solver:
         self._wall_side.fill_(-1)
         # per node, 1 where the frame measurement's wall_distance is exact, 0 where a bound (measure_contacts)
         self.wall_distance_exact = wp.ones(n, dtype=wp.int32, device=dev)
+        # per node, the frame measurement's own last search in the lumen: at x_ref the signed
+        # distance is ≥ the value (mm; ≤ 0: none) — its bounds never rest on the steps' anchors
+        self._measure_ref_x, self._measure_ref_mm = zeros(wp.vec3d), zeros(wp.float64)
         # mm, per world: the smallest exact wall gap and the smallest bound of the others (measure_contacts)
         self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         self._smallest_bound_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
@@ -426,7 +429,8 @@ class Solver:
                 m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
                 self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
-                self._wall_seen_mm, stage, *smallest, self.wall_force, self.wall_distance, self.wall_distance_exact])
+                self._wall_seen_mm, self._measure_ref_x, self._measure_ref_mm, stage, *smallest, self.wall_force,
+                self.wall_distance, self.wall_distance_exact])
 
         def reduce() -> None:
             wp.launch(wall_measure.smallest_gaps, n, device=dev, inputs=[

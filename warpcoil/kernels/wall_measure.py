@@ -6,8 +6,8 @@ The exact search (:func:`exact_wall_terms`) is the full search of
 :func:`warpcoil.kernels.contact.wall_contact` with no search limit: from a node deep
 in the sac every face is nearly equidistant and the BVH prunes little, which made
 it most of a frame's measurement. Stage FIRST: a node whose lower bound L of its
-signed distance (:func:`distance_lower_bound`: the step pass's anchor or last full
-search, or the trusted narrow-band field; each 1-Lipschitz) is above its contact
+signed distance (:func:`distance_lower_bound`: the measurement's own last search
+in the lumen, or the trusted narrow-band field; each 1-Lipschitz) is above its contact
 range d/2 + c0, or that is certified in the lumen with no face within the feature
 sum's reach, has exactly zero force, is in the lumen and is no wall contact; its
 distance is reported as that bound (``exact`` 0). Only the world's smallest wall gap
@@ -74,19 +74,18 @@ def face_distance_within(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), fa
 
 
 @wp.func
-def distance_lower_bound(p: wp.vec3d, inside: int, quiet: int, anchor: wp.vec3d, anchor_slack: wp.float64,
-                         seen_x: wp.vec3d, seen_distance: wp.float64, field: wp.uint64, origin: wp.vec3d,
-                         grad_tolerance: wp.float64, contact_range: wp.float64, margin: wp.float64) -> wp.float64:
-    """A lower bound (mm) of the signed centre distance at ``p`` (−FAR_MM: none), from
-    the step pass's wall state, each bound 1-Lipschitz in p: an anchor (in the lumen
-    at ≥ contact range + slack), the last full search in the lumen (``seen_x`` at
-    ``seen_distance``), and the trusted field (within ``margin`` of the distance: it
-    is at least its error bound plus the BVH's float32 margin)."""
+def distance_lower_bound(p: wp.vec3d, reference_x: wp.vec3d, reference_distance: wp.float64, field: wp.uint64,
+                         origin: wp.vec3d, grad_tolerance: wp.float64, margin: wp.float64) -> wp.float64:
+    """A lower bound (mm) of the signed centre distance at ``p`` (−FAR_MM: none), each
+    1-Lipschitz in p and independent of the steps' assumptions: the measurement's own
+    last search in the lumen (``reference_x`` at ≥ ``reference_distance`` > 0: the wall
+    is fixed, so it stays a fact of the geometry) and the trusted field (within
+    ``margin`` of the distance: at least its error bound plus the BVH's float32 margin).
+    Not the steps' anchors: a step that throws a node past the wall between two of its
+    short searches anchors it in the lumen, which this measurement must not inherit."""
     bound = -FAR_MM
-    if inside == 1 and quiet != NO_ANCHOR:
-        bound = contact_range + anchor_slack - wp.length(p - anchor) - margin
-    if seen_distance > wp.float64(0.0):
-        bound = wp.max(bound, seen_distance - wp.length(p - seen_x) - margin)
+    if reference_distance > wp.float64(0.0):
+        bound = reference_distance - wp.length(p - reference_x) - margin
     if field != wp.uint64(0):
         trusted, sampled, normal = field_sample(field, p - origin, grad_tolerance)
         if trusted:
@@ -132,6 +131,8 @@ def measure_wall(
     quiet_steps: wp.array(dtype=wp.int32),
     seen_x: wp.array(dtype=wp.vec3d),
     seen_distance: wp.array(dtype=wp.float64),
+    reference_x: wp.array(dtype=wp.vec3d),
+    reference_distance: wp.array(dtype=wp.float64),
     stage: int,
     smallest_gap: wp.array(dtype=wp.float64),
     smallest_bound: wp.array(dtype=wp.float64),
@@ -163,9 +164,8 @@ def measure_wall(
         contact_range = node_radius[i] + c0
         searched = False  # force and distance known without the full search
         if stage == FIRST:
-            bound = distance_lower_bound(p, inside[i], quiet_steps[i], anchor[i], anchor_slack[i], seen_x[i],
-                                         seen_distance[i], fields[w], origins[w], grad_tolerance, contact_range,
-                                         margin)
+            bound = distance_lower_bound(p, reference_x[i], reference_distance[i], fields[w], origins[w],
+                                         grad_tolerance, margin)
             if bound > contact_range:
                 signed = bound
                 is_exact = 0
@@ -185,6 +185,9 @@ def measure_wall(
                     signed = beyond
                     is_exact = 0
                     searched = True
+                if searched:  # in the lumen (certified by the bound) at that distance or beyond
+                    reference_x[i] = p
+                    reference_distance[i] = signed
             if is_exact == 0:  # re-anchored here at its bound (the steps search it again after 0.9 of that)
                 set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
         elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
@@ -203,6 +206,8 @@ def measure_wall(
                 set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
             seen_x[i] = p
             seen_distance[i] = wp.max(signed, wp.float64(0.0))
+            reference_x[i] = p
+            reference_distance[i] = wp.where(signed > wp.float64(0.0), signed, -FAR_MM)
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
     exact[i] = is_exact
