@@ -31,8 +31,8 @@ from .contact import (
     contact_force_magnitude,
     contact_stiffness,
     field_sample,
+    fixed_outer,
     from_fixed,
-    to_fixed,
     vec3l,
 )
 from .rod import F64_0, F64_1
@@ -82,8 +82,7 @@ def feature_excess(p_end: wp.vec3d, closest: wp.vec3d, p: wp.vec3d, radius: wp.f
         h_end = dist - radius
         k = chord_excess(h_end - wp.dot(n, p_end - p), h_end, p0, c0, u_linear)
         if k > F64_0:
-            diagonal = to_fixed(k * wp.vec3d(n[0] * n[0], n[1] * n[1], n[2] * n[2]))
-            upper = to_fixed(k * wp.vec3d(n[0] * n[1], n[0] * n[2], n[1] * n[2]))
+            diagonal, upper = fixed_outer(k, n)
     return diagonal, upper
 
 

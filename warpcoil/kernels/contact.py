@@ -296,6 +296,13 @@ def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
 
 
 @wp.func
+def fixed_outer(k: wp.float64, n: wp.vec3d):
+    """k n nᵀ (µN/mm) in fixed point: its diagonal (xx, yy, zz) and upper (xy, xz, yz) entries."""
+    return (to_fixed(k * wp.vec3d(n[0] * n[0], n[1] * n[1], n[2] * n[2])),
+            to_fixed(k * wp.vec3d(n[0] * n[1], n[0] * n[2], n[1] * n[2])))
+
+
+@wp.func
 def feature_stiffness(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
                       u_linear: wp.float64):
     """−∂F/∂p of :func:`feature_force` along its normal, k(h) n nᵀ (µN/mm; the turn of n
@@ -306,9 +313,7 @@ def feature_stiffness(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp
     upper = vec3l()
     if dist < radius + c0 and dist > wp.float64(1.0e-12):
         n = delta / dist
-        k = contact_stiffness(dist - radius, p0, c0, u_linear)
-        diagonal = to_fixed(k * wp.vec3d(n[0] * n[0], n[1] * n[1], n[2] * n[2]))
-        upper = to_fixed(k * wp.vec3d(n[0] * n[1], n[0] * n[2], n[1] * n[2]))
+        diagonal, upper = fixed_outer(contact_stiffness(dist - radius, p0, c0, u_linear), n)
     return diagonal, upper
 
 
@@ -342,6 +347,35 @@ def field_sample(volume: wp.uint64, local: wp.vec3d, grad_tolerance: wp.float64)
     if trusted:
         n = n / size
     return trusted, wp.float64(d), n
+
+
+@wp.func
+def wall_search(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, p: wp.vec3d,
+                radius: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                anchor_margin: wp.float64, reach: wp.float64, with_stiffness: int):
+    """The BVH search of a node sphere at ``p`` within ``reach`` of its contact range:
+    (face or NO_FACE, the signed query distance mm, the signed centre distance mm, the
+    wall force µN before the contact share, the feature sum's stiffness µN/mm, 1 where
+    the force is the feature sum's). In the lumen within range: the feature sum, its
+    exact distance; outside the lumen: the law along the closest face's inward normal."""
+    contact_range = radius + c0
+    face, dist, inward = wall_query(mesh, vertices, faces, face_first, origin, p, reach)
+    signed = dist
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    k_sum = wp.mat33d()
+    from_sum = 0
+    if face != NO_FACE and dist > wp.float64(0.0):
+        if dist < contact_range + anchor_margin:
+            summed, nearest, k_sum = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius,
+                                                      p0, c0, u_linear, with_stiffness)
+            if nearest < contact_range:
+                f = summed
+                from_sum = 1
+                signed = nearest
+    elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
+        f = contact_force_magnitude(dist - radius, p0, c0, u_linear) * inward
+    return face, dist, signed, f, k_sum, from_sum
 
 
 @wp.kernel
@@ -464,26 +498,17 @@ def wall_contact(
             searches[i] = searches[i] + 1
             if side < 0:
                 reach = FAR_MM
-            face, dist, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], x[i], reach)
-            signed = dist
+            face, dist, signed, f, k_sum, by_sum = wall_search(mesh, vertices, faces, owners, face_first[w],
+                                                               origins[w], x[i], node_radius[i], p0, c0, u_linear,
+                                                               anchor_margin, reach, with_stiffness)
+            from_sum = by_sum != 0
             if face == NO_FACE:
                 if side == 0:
                     signed = -reach
-            elif signed > wp.float64(0.0):
+            elif dist > wp.float64(0.0):
                 inside[i] = 1
             else:
                 inside[i] = 0
-            if face != NO_FACE and signed > wp.float64(0.0):
-                if signed < contact_range + anchor_margin:
-                    summed, nearest, k_sum = wall_feature_sum(mesh, vertices, faces, owners, face_first[w],
-                                                              x[i] - origins[w], node_radius[i], p0, c0, u_linear,
-                                                              with_stiffness)
-                    if nearest < contact_range:
-                        f = summed
-                        from_sum = True
-                        signed = nearest
-            elif face != NO_FACE:  # outside the lumen: pushed back along the closest face's normal
-                f = contact_force_magnitude(signed - node_radius[i], p0, c0, u_linear) * inward
             slack = signed - contact_range
             if inside[i] == 1 and slack > wp.float64(0.0):
                 anchor[i] = x[i]

@@ -2,8 +2,8 @@
 distance (mm, > 0 in the lumen), exact wherever a frame reports them, without an
 unlimited BVH search from nodes a certificate already puts out of contact.
 
-The exact search (:func:`exact_wall_terms`) is the full search of
-:func:`warpcoil.kernels.contact.wall_contact` with no search limit: from a node deep
+The exact search is :func:`warpcoil.kernels.contact.wall_search`, wall_contact's full
+search, with no search limit: from a node deep
 in the sac every face is nearly equidistant and the BVH prunes little, which made
 it most of a frame's measurement. Stage FIRST: a node whose lower bound L of its
 signed distance (:func:`distance_lower_bound`: the measurement's own last search
@@ -21,36 +21,12 @@ wall_contact notes it; a bounded node is re-anchored at its bound.
 
 import warp as wp
 
-from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, contact_force_magnitude,
-                      field_sample, wall_feature_sum, wall_query)
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, field_sample, wall_feature_sum,
+                      wall_search)
 
 FIRST = wp.constant(0)  # measure_wall's stages
 SEED = wp.constant(1)
 FIX_UP = wp.constant(2)
-
-
-@wp.func
-def exact_wall_terms(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
-                     owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, p: wp.vec3d,
-                     radius: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
-                     anchor_margin: wp.float64):
-    """(signed centre distance mm, wall force µN before the contact share) of a node
-    sphere at ``p``, as wall_contact's unlimited full search gives them: the signed
-    BVH query, then in the lumen within range the feature sum, outside the lumen the
-    law along the closest face's inward normal."""
-    contact_range = radius + c0
-    face, signed, inward = wall_query(mesh, vertices, faces, face_first, origin, p, FAR_MM)
-    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    if face != NO_FACE and signed > wp.float64(0.0):
-        if signed < contact_range + anchor_margin:
-            summed, nearest, k = wall_feature_sum(mesh, vertices, faces, owners, face_first, p - origin, radius, p0,
-                                                  c0, u_linear, 0)
-            if nearest < contact_range:
-                f = summed
-                signed = nearest
-    elif face != NO_FACE:
-        f = contact_force_magnitude(signed - radius, p0, c0, u_linear) * inward
-    return signed, f
 
 
 @wp.func
@@ -197,8 +173,9 @@ def measure_wall(
                 is_exact = 0
                 searched = True
         if not searched:
-            signed, f = exact_wall_terms(mesh, vertices, faces, owners, face_first[w], origins[w], p,
-                                         node_radius[i], p0, c0, u_linear, margin)
+            face, dist, signed, f, k_sum, by_sum = wall_search(mesh, vertices, faces, owners, face_first[w],
+                                                               origins[w], p, node_radius[i], p0, c0, u_linear,
+                                                               margin, FAR_MM, 0)
             # what wall_contact's full search notes: the side, an anchor beyond the contact range, the search
             inside[i] = wp.where(signed > wp.float64(0.0), 1, 0)
             quiet_steps[i] = NO_ANCHOR
