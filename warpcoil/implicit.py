@@ -195,9 +195,9 @@ class ImplicitSolver(Solver):
         if method == "bdf2" and theta != 1.0:
             raise ValueError(f"theta applies to the θ-method only; BDF2 needs theta = 1, got {theta}")
         self.method = method
-        if near_theta is not None and not (theta <= near_theta <= 1.0 and method == "theta"):
-            raise ValueError(f"near_theta must be in [theta, 1] = [{theta}, 1] and method 'theta', got {near_theta} "
-                             f"with {method!r}")
+        if near_theta is not None and not (0.5 < near_theta <= 1.0 and method == "theta"):
+            raise ValueError(f"near_theta applies to the θ-method and must be in (0.5, 1] (taken as at least θ), got "
+                             f"{near_theta} with method {method!r}")
         self.near_theta = None if near_theta is None else float(near_theta)
         self.proximity_margin_mm = float(proximity_margin_c0) * model.contact.c0_mm
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
@@ -339,19 +339,19 @@ class ImplicitSolver(Solver):
         contact pass has just measured (kernels/node_theta.py)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         reach = m.contact.c0_mm + self.proximity_margin_mm  # the contact range and a margin
+        near = max(self.near_theta, self.theta)  # θ = 1 (the settling step, Ensemble._settle_step): Euler everywhere
         wp.launch(node_theta.proximity_theta, n, device=dev, inputs=[
             state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
-            int(self.coil_contact), reach, dt, self.theta, self.near_theta, self.node_theta])
+            int(self.coil_contact), reach, dt, self.theta, near, self.node_theta])
         if self.has_stent:
             wp.launch(node_theta.strut_proximity, n, device=dev, inputs=[
                 state_in.x, state_in.v, state_in.free, m.has_next, m.world_of, m.node_radius, self._strut_grid.id,
-                m.strut_start, m.strut_end, m.strut_radius_mm, self._strut_query_mm, reach, dt, self.near_theta,
-                self.node_theta])
+                m.strut_start, m.strut_end, m.strut_radius_mm, self._strut_query_mm, reach, dt, near, self.node_theta])
         if self.has_balloon:
             wp.launch(node_theta.balloon_proximity, n, device=dev, inputs=[
                 state_in.x, state_in.v, state_in.free, m.world_of, m.node_radius, m.balloon_stations,
-                m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, reach, dt,
-                self.near_theta, self.node_theta])
+                m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, reach, dt, near,
+                self.node_theta])
 
     def _finish_positions(self, state_in: State, state_out: State, control: Control, v_new: wp.array, dt: float,
                           dt_m: float, bdf2: bool, gated: bool = False, solved_is_u: bool = True) -> None:
