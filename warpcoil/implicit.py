@@ -25,6 +25,10 @@ x₋₁, v₋₁ carried in the State, an Euler start on a new or changed step):
 third-order slow-mode damping, but the push force stays Euler's (docs/FORMULATION.md
 "Implicit step: BDF2"), so it is an option, not the default.
 
+``near_theta``: the proximity-gated θ, θ_i = near_theta for a node that could reach an obstacle
+within the step, θ elsewhere (kernels/node_theta.py); an option, not the default (docs/FORMULATION.md
+"Implicit step: proximity-gated θ").
+
 ``contact_stiffness="chord"``: each contact's stiffness along its normal is the law's chord
 between the step start and a predicted end (``chord_end``: the damped free flight, or the
 tangent step's solution), where steeper than the tangent (kernels/chord.py): a contact that
@@ -88,7 +92,8 @@ IMPLICIT_THETA = 1.0
 # proximity-gated θ (a solver option, near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
 # every node whose wall, stent strut, balloon or other coil edge lies within the contact range c0 plus a margin
 # PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py; docs/FORMULATION.md "Implicit step:
-# proximity-gated θ"). None: every node at θ
+# proximity-gated θ"). None: every node at θ (the default: with θ 0.7 it keeps θ 0.7's push force and free release
+# but presses 0.039 mm into thin stent struts, > c0, as the deepest entry is contact a step does not see)
 IMPLICIT_NEAR_THETA: float | None = None
 PROXIMITY_MARGIN_C0 = 2.0
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
