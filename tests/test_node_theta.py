@@ -162,3 +162,18 @@ def test_validate_node_theta_rows():
     gated = next(r for r in rows if "every node gated: amplitude" in r.case)
     free = next(r for r in rows if "no node gated" in r.case)
     assert free.result < gated.result < 0.0270  # θ 0.7 < gated < Euler at the same step
+
+
+def test_gated_ensemble_members_equal_their_single_runs():
+    """Two sphere deployments in one ensemble with the gated θ equal their single runs
+    bit for bit (each node's gate reads only its own world's distances)."""
+    from warpcoil.deploy import Ensemble
+
+    from test_ensemble import assert_same_run
+    from test_implicit import implicit_scene
+
+    options = {"theta": 0.7, "near_theta": 1.0}
+    scenes = [implicit_scene(angle_deg=0.0), implicit_scene(angle_deg=20.0, sac_diameter_mm=4.0)]
+    results = Ensemble(scenes, solver_options=options).run()
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s, solver_options=options).run(), member)
