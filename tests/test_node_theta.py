@@ -24,14 +24,17 @@ from test_implicit_devices import ASSISTED, STENT
 R_SAC, DT = 1.5, 2.0e-4  # mm, s
 
 
-@pytest.mark.parametrize("theta", [0.7, 1.0])
-def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Path, theta: float):
+FRICTION = "[contact]\nfriction_wall = 0.3\nfriction_coil = 0.2\n"
+
+
+@pytest.mark.parametrize("theta, friction", [(0.7, False), (1.0, False), (0.7, True)])
+def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Path, theta: float, friction: bool):
     """A helix pushed past stent struts into a sphere (wall, coil and strut gates all
-    evaluated), every θ_i = θ: positions, steps and push force equal the θ-method's
-    (θ = 1: linearly implicit Euler's) bit for bit; the settling (θ = 1) on the gated
-    path equals Euler's."""
+    evaluated; with friction, the positions recomputed from the frictional velocities),
+    every θ_i = θ: positions, steps and push force equal the θ-method's (θ = 1: linearly
+    implicit Euler's) bit for bit; the settling (θ = 1) on the gated path equals Euler's."""
     path = tmp_path / "s.toml"
-    path.write_text(ASSISTED.format(integrator="implicit") + STENT)
+    path.write_text(ASSISTED.format(integrator="implicit") + STENT + (FRICTION if friction else ""))
     runs = []
     for options in ({"theta": theta}, {"theta": theta, "near_theta": theta}):
         deployment = Deployment(load_scene(path), solver_options=options)
