@@ -94,6 +94,9 @@ IMPLICIT_THETA = 1.0
 # PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py; docs/FORMULATION.md "Implicit step:
 # proximity-gated θ"). None: every node at θ (the default: with θ 0.7 it keeps θ 0.7's push force and free release
 # but presses 0.039 mm into thin stent struts, > c0, as the deepest entry is contact a step does not see)
+# With contact_stiffness "chord" it passes the hard checks at 0.8 c0 per push step, but the 60 mm seed's push force is
+# 0.28 F0 off (> 0.25) at 1.3x Euler's run time; at 1.0–1.6 c0 it tangles free releases or presses C0020 deeper
+# (docs/FORMULATION.md "Implicit step: gated + chord as the default?")
 IMPLICIT_NEAR_THETA: float | None = None
 PROXIMITY_MARGIN_C0 = 2.0
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
