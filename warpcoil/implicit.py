@@ -3,7 +3,9 @@ Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
 not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
-reference's; only the update differs (kernels/implicit.py): per world,
+reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
+at the θ-method's evaluation point: Solver._accumulate_push_force); only the update differs
+(kernels/implicit.py): per world,
 
     (M + θ dt B + θ² dt² H) v' = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
     x' = x + dt ((1 − θ) v + θ v')

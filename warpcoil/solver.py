@@ -49,7 +49,9 @@ class SimulationUnstable(RuntimeError):
 class PushForce(NamedTuple):
     """The pusher's force over some steps, per world (µN, compressive > 0): the
     push force of a step is the coil's internal force along the catheter axis
-    at the tip (MODEL.md). ``mean_uN``: signed mean over the steps;
+    at the tip (MODEL.md), P_n at the step's start; for the θ-method with θ < 1 the step's
+    reading is (1 − θ) P_{n−1} + θ P_n (docs/FORMULATION.md "Implicit step: the θ-method's push
+    force reading"). ``mean_uN``: signed mean over the steps;
     ``peak_uN``: largest compressive step value (≥ 0); ``rms_uN``: root mean
     square over the steps."""
 
