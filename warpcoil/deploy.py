@@ -24,7 +24,8 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import implicit_step_s, make_solver, settle_finest_level, settle_level, settle_stalled, settle_step_s
+from .implicit import (DETACH_WHIP_S, detach_level, detach_tail_speed, implicit_step_s, make_solver,
+                       settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -60,7 +61,8 @@ class Member:
 
     def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, host: dict[str, np.ndarray],
                  stored_energy_nJ: float, step_bound_s: float):
-        """``host``: the model's arc_s, inv_mass, node_radius and rest_length, read once for all members."""
+        """``host``: the model's arc_s, inv_mass, node_radius, rest_length, k_bend, rest_K0 and
+        rest_K1, read once for all members."""
         sim = scene.simulation
         self.world = self.index = world
         self.scene, self.anatomy, self.step_bound_s = scene, anatomy, step_bound_s
@@ -96,6 +98,12 @@ class Member:
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
         self.settle_finest = False  # its kinetic energy stalled at a longer step: the finest from then on
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
+        self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
+        self.detach_until_s = -math.inf  # frames starting before this run at the detachment step ...
+        self.detach_speed_mm_s = 0.0  # ... of this tail speed (the last coil to detach)
+        self.tail_speed_mm_s = [detach_tail_speed(host, model.coil_first[c], model.coil_last[c])
+                                for c in range(self.coils.start, self.coils.stop)]  # per coil (implicit.detach_level)
+        self.detach_steps = 0  # steps the detachment step added (included in steps)
         self.result: RunResult | None = None
 
     def energy_budget_nJ(self, advance: np.ndarray, free: np.ndarray, push_force_uN: float) -> float:
@@ -142,6 +150,8 @@ class Ensemble:
         self._settling = False  # every member steps at its own settling step (_settle_chunk)
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
         self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
+        self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
+        self.detach_rule = detach_level  # (tail speed mm/s, push step s, c0 mm) → steps per push step
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -155,7 +165,7 @@ class Ensemble:
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
-                                                                       "rest_length")}
+                                                                       "rest_length", "k_bend", "rest_K0", "rest_K1")}
         self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
@@ -205,6 +215,7 @@ class Ensemble:
         start.copy_from(snapshot)
         self.solver = solver
         self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
+        self._fine = {}  # (their solver and state were the old ones)
 
     def _settle_step(self) -> None:
         """Every coil is out (at the push's scheduled end, the same for every member): from
@@ -252,6 +263,67 @@ class Ensemble:
             self.control.running.assign(mask)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
+    def _detaching(self, member: Member, advance: np.ndarray, start_s: float, frame_s: float) -> bool:
+        """Whether the member's frame about to run (from ``start_s``, ``frame_s`` long) is a
+        detachment frame: its active coil's last node is released in it (the advance reaches
+        the coil's length, kernels/integrate.hold_node; then member.detach_until_s is set to
+        that moment + DETACH_WHIP_S, member.detach_speed_mm_s to that coil's tail speed), or it
+        starts before member.detach_until_s."""
+        if member.active >= 0:
+            speed = member.scene.simulation.push_speed_mm_s
+            release_s = start_s + (member.coil_lengths_mm[member.active]
+                                   - advance[member.coils.start + member.active]) / max(speed, 1e-12)
+            if release_s <= (start_s + frame_s) * (1.0 + 1e-12):
+                member.detach_until_s = release_s + DETACH_WHIP_S
+                member.detach_speed_mm_s = member.tail_speed_mm_s[member.active]
+                return True
+        return start_s < member.detach_until_s
+
+    def _push_chunk(self, live: list[Member]) -> None:
+        """One push frame. The implicit step is sized for the pusher; a coil's tail leaving
+        the catheter whips toward its pre-shape several times faster: a member in a
+        detachment frame (:meth:`_detaching`) takes it at push step / k (``detach_rule``,
+        k whole: the frame's length and the pusher's advance per frame unchanged); the
+        members of each k advance together, the others held (as :meth:`_settle_chunk`:
+        each equals its single run)."""
+        state, frame_steps, dt = self.stepper.state, self.stepper.chunk, self.solver.dt_s
+        if self.integrator == "implicit":
+            advance = state.advance.numpy()
+            c0 = self.model.contact.c0_mm
+            for m in live:
+                m.detach_level = (self.detach_rule(m.detach_speed_mm_s, dt, c0)
+                                  if self._detaching(m, advance, state.time_s, frame_steps * dt) else 1)
+        levels = sorted({m.detach_level for m in live}) or [1]
+        if levels == [1]:
+            self.stepper.run_chunk()
+            return
+        start = state.time_s
+        for k in levels:
+            if len(levels) > 1:
+                self._run_only([m for m in live if m.detach_level == k])
+            state.time_s = start
+            if k == 1:
+                self.stepper.run_chunk()
+                continue
+            if k not in self._fine:
+                self._fine[k] = Stepper(self.solver, state, self.control, chunk=k * frame_steps, graph_steps_max=2)
+            self.solver.dt_s = dt / k
+            try:
+                self._fine[k].run_chunk()
+            finally:
+                self.solver.dt_s = dt
+        if len(levels) > 1:
+            self._run_only(live)
+        if 1 not in levels:
+            self.stepper.steps += frame_steps  # (the push's step count; each member adds its own extra steps)
+        state.time_s = start + frame_steps * dt
+
+    def _run_only(self, members: list[Member]) -> None:
+        """Only ``members``' worlds step (Control.running); the others are held."""
+        mask = np.zeros(self.model.world_count, dtype=np.int32)
+        mask[[m.world for m in members]] = 1
+        self.control.running.assign(mask)
+
     def _restore(self, member: Member, snapshot: State) -> None:
         """Put a stopped member's nodes back to the frame's start (finite values)."""
         state, sl, coils = self.stepper.state, member.nodes, slice(member.coils.start, member.coils.stop)
@@ -267,7 +339,8 @@ class Ensemble:
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
         if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
-        member.steps = self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
+        member.steps = (self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
+                        + member.detach_steps)
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
                                    snap, self.step_reductions)
         if self._push_dt_s is not None:  # settled at longer steps: dt_s stays the push's, settle_dt_s the last
@@ -275,6 +348,7 @@ class Ensemble:
             settle_dt = (self.solver.dt_s if not self._settling else  # (None: ended before its first settling frame)
                          frame_s / (2 * member.settle_level) if member.settle_level else None)
             member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=settle_dt)
+        member.result = replace(member.result, detach_steps=member.detach_steps)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
@@ -395,10 +469,11 @@ class Ensemble:
                 self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
                 break
             self.solver.copy_state(snapshot, self.stepper.state)
-            if self._settling:
+            settling = self._settling
+            if settling:
                 self._settle_chunk([m for m in self.members if m.result is None and m not in rerun])
             else:
-                self.stepper.run_chunk()
+                self._push_chunk([m for m in self.members if m.result is None and m not in rerun])
             state = self.stepper.state
             push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
@@ -425,6 +500,9 @@ class Ensemble:
             for member in running:
                 if member in unstable:
                     continue
+                if not settling:  # the frame's steps beyond the push step's (kept only for a healthy frame)
+                    member.detach_steps += (member.detach_level - 1) * self.stepper.chunk
+                member.detach_level = 1
                 frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)

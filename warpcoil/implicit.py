@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import warp as wp
 
 from .devices import ImplicitDeviceStiffness
@@ -74,6 +75,17 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # the run (docs/FORMULATION.md "Implicit step: the settling step")
 SETTLE_STALL_S = 0.5
 SETTLE_STALL_DROP = 0.1
+# detachment step: a push frame in which a coil's tail leaves the catheter, and those up to DETACH_WHIP_S after
+# its last node's release (the whip's measured duration: 10–15 ms on C0031 and the seed case), run at dt / k,
+# k whole: the fewest steps that move the tail, at the speed its stored bending energy would give it
+# (detach_tail_speed: an upper bound, 1.2× the measured peak on C0031, 4× on the seed case), at most
+# DETACH_ADVANCE_PER_C0 · c0 per step; capped at DETACH_LEVEL_MAX. C0031's deepest overlap converged (within
+# 0.1 c0 of k = 8's) from k = 3 on, where the bound moves the tail 5.7 c0 per step (docs/FORMULATION.md
+# "The detachment step")
+DETACH_WHIP_S = 0.015
+DETACH_TAIL_MM = 3.0  # the tail: the coil's last this much (mm) of arc
+DETACH_ADVANCE_PER_C0 = 8.0
+DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -148,6 +160,28 @@ def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> in
         return finest
     wanted = math.ceil(frame_interval_s * speed_mm_s / (2.0 * SETTLE_ADVANCE_PER_C0 * c0_mm) - 1e-9)
     return min(max(wanted, coarsest), finest)
+
+
+def detach_level(tail_speed_mm_s: float, dt_s: float, c0_mm: float) -> int:
+    """Steps per push step in a detachment frame (1: none added): the fewest that move a
+    tail at ``tail_speed_mm_s`` (mm/s) at most DETACH_ADVANCE_PER_C0 · ``c0_mm`` per step of
+    ``dt_s`` / k, at most DETACH_LEVEL_MAX."""
+    wanted = math.ceil(tail_speed_mm_s * dt_s / (DETACH_ADVANCE_PER_C0 * c0_mm) - 1e-9)
+    return min(max(wanted, 1), DETACH_LEVEL_MAX)
+
+
+def detach_tail_speed(host: dict[str, np.ndarray], first: int, last: int) -> float:
+    """The speed (mm/s) the tail (the last DETACH_TAIL_MM of arc) of the coil of nodes
+    ``first``..``last`` reaches if each node's bending energy in the straight catheter,
+    ½ k_b |K̄|² (kernels/elastic: ¼ k_b per rest curvature angle K̄ of its two edges' frames),
+    all turned into its kinetic energy: the largest sqrt(2 W_j / m_j) over the tail's nodes;
+    ≈ κ̄ sqrt(EI / λ) on a uniform coil (rest curvature κ̄, bending stiffness EI, line density
+    λ). ``host``: the model's arc_s, k_bend, rest_K0, rest_K1 and inv_mass as numpy arrays."""
+    arc = host["arc_s"][first:last + 1]
+    tail = slice(first + int(np.searchsorted(arc, arc[-1] - DETACH_TAIL_MM)), last + 1)
+    k0, k1 = host["rest_K0"][tail], host["rest_K1"][tail]
+    energy_nJ = 0.25 * host["k_bend"][tail] * ((k0 ** 2).sum(axis=1) + (k1 ** 2).sum(axis=1))
+    return float(np.sqrt(2.0 * energy_nJ * host["inv_mass"][tail]).max())
 
 
 class ImplicitSolver(Solver):
