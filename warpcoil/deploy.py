@@ -24,7 +24,7 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import (DETACH_WHIP_S, detach_level, detach_tail_speed, implicit_step_s, make_solver,
+from .implicit import (DETACH_WHIP_S, detach_level, implicit_step_s, make_solver,
                        settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
@@ -61,8 +61,7 @@ class Member:
 
     def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, host: dict[str, np.ndarray],
                  stored_energy_nJ: float, step_bound_s: float):
-        """``host``: the model's arc_s, inv_mass, node_radius, rest_length, k_bend, rest_K0 and
-        rest_K1, read once for all members."""
+        """``host``: the model's arc_s, inv_mass, node_radius and rest_length, read once for all members."""
         sim = scene.simulation
         self.world = self.index = world
         self.scene, self.anatomy, self.step_bound_s = scene, anatomy, step_bound_s
@@ -99,10 +98,7 @@ class Member:
         self.settle_finest = False  # its kinetic energy stalled at a longer step: the finest from then on
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
         self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
-        self.detach_until_s = -math.inf  # frames starting before this run at the detachment step ...
-        self.detach_speed_mm_s = 0.0  # ... of this tail speed (the last coil to detach)
-        self.tail_speed_mm_s = [detach_tail_speed(host, model.coil_first[c], model.coil_last[c])
-                                for c in range(self.coils.start, self.coils.stop)]  # per coil (implicit.detach_level)
+        self.detach_until_s = -math.inf  # frames starting before this run at the detachment step
         self.detach_steps = 0  # steps the detachment step added (included in steps)
         self.result: RunResult | None = None
 
@@ -151,7 +147,7 @@ class Ensemble:
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
         self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
         self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
-        self.detach_rule = detach_level  # (tail speed mm/s, push step s, c0 mm) → steps per push step
+        self.detach_rule = detach_level  # (push speed mm/s, push step s, c0 mm) → steps per push step
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -165,7 +161,7 @@ class Ensemble:
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
         host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
-                                                                       "rest_length", "k_bend", "rest_K0", "rest_K1")}
+                                                                       "rest_length")}
         self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
@@ -267,15 +263,13 @@ class Ensemble:
         """Whether the member's frame about to run (from ``start_s``, ``frame_s`` long) is a
         detachment frame: its active coil's last node is released in it (the advance reaches
         the coil's length, kernels/integrate.hold_node; then member.detach_until_s is set to
-        that moment + DETACH_WHIP_S, member.detach_speed_mm_s to that coil's tail speed), or it
-        starts before member.detach_until_s."""
+        that moment + DETACH_WHIP_S), or it starts before member.detach_until_s."""
         if member.active >= 0:
             speed = member.scene.simulation.push_speed_mm_s
             release_s = start_s + (member.coil_lengths_mm[member.active]
                                    - advance[member.coils.start + member.active]) / max(speed, 1e-12)
             if release_s <= (start_s + frame_s) * (1.0 + 1e-12):
                 member.detach_until_s = release_s + DETACH_WHIP_S
-                member.detach_speed_mm_s = member.tail_speed_mm_s[member.active]
                 return True
         return start_s < member.detach_until_s
 
@@ -291,7 +285,7 @@ class Ensemble:
             advance = state.advance.numpy()
             c0 = self.model.contact.c0_mm
             for m in live:
-                m.detach_level = (self.detach_rule(m.detach_speed_mm_s, dt, c0)
+                m.detach_level = (self.detach_rule(m.scene.simulation.push_speed_mm_s, dt, c0)
                                   if self._detaching(m, advance, state.time_s, frame_steps * dt) else 1)
         levels = sorted({m.detach_level for m in live}) or [1]
         if levels == [1]:

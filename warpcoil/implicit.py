@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import warp as wp
 
 from .devices import ImplicitDeviceStiffness
@@ -77,14 +76,14 @@ SETTLE_STALL_S = 0.5
 SETTLE_STALL_DROP = 0.1
 # detachment step: a push frame in which a coil's tail leaves the catheter, and those up to DETACH_WHIP_S after
 # its last node's release (the whip's measured duration: 10–15 ms on C0031 and the seed case), run at dt / k,
-# k whole: the fewest steps that move the tail, at the speed its stored bending energy would give it
-# (detach_tail_speed: an upper bound, 1.2× the measured peak on C0031, 4× on the seed case), at most
-# DETACH_ADVANCE_PER_C0 · c0 per step; capped at DETACH_LEVEL_MAX. C0031's deepest overlap converged (within
-# 0.1 c0 of k = 8's) from k = 3 on, where the bound moves the tail 5.7 c0 per step (docs/FORMULATION.md
-# "The detachment step")
+# k whole: the fewest steps in which the pusher moves at most DETACH_ADVANCE_PER_C0 · c0 per step (a quarter of
+# the default push step), so a tail whipping at up to 18× the push speed (C0031's measured peak at fine steps,
+# 1.4–1.8 m/s at 100 mm/s) moves at most 3.6 c0 per step. Measured, the deepest overlap while the tail whips
+# against k: within 0.1 c0 of k = 8's from k = 3 on (C0031), within 0.3 c0 of k = 16's from k = 4 on (a 4 mm
+# helix into a 3.5 mm sphere; k = 2 and 3 were 1.5 and 0.8 c0 deeper than the push step's, whose numerical
+# damping slows the whip) (docs/FORMULATION.md "Implicit step: the detachment step")
 DETACH_WHIP_S = 0.015
-DETACH_TAIL_MM = 3.0  # the tail: the coil's last this much (mm) of arc
-DETACH_ADVANCE_PER_C0 = 8.0
+DETACH_ADVANCE_PER_C0 = 0.2
 DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
@@ -162,26 +161,12 @@ def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> in
     return min(max(wanted, coarsest), finest)
 
 
-def detach_level(tail_speed_mm_s: float, dt_s: float, c0_mm: float) -> int:
-    """Steps per push step in a detachment frame (1: none added): the fewest that move a
-    tail at ``tail_speed_mm_s`` (mm/s) at most DETACH_ADVANCE_PER_C0 · ``c0_mm`` per step of
-    ``dt_s`` / k, at most DETACH_LEVEL_MAX."""
-    wanted = math.ceil(tail_speed_mm_s * dt_s / (DETACH_ADVANCE_PER_C0 * c0_mm) - 1e-9)
+def detach_level(push_speed_mm_s: float, dt_s: float, c0_mm: float) -> int:
+    """Steps per push step in a detachment frame (1: none added): the fewest in which the
+    pusher (``push_speed_mm_s``, mm/s) moves at most DETACH_ADVANCE_PER_C0 · ``c0_mm`` per
+    step of ``dt_s`` / k, at most DETACH_LEVEL_MAX (4 at the default push step)."""
+    wanted = math.ceil(push_speed_mm_s * dt_s / (DETACH_ADVANCE_PER_C0 * c0_mm) - 1e-9)
     return min(max(wanted, 1), DETACH_LEVEL_MAX)
-
-
-def detach_tail_speed(host: dict[str, np.ndarray], first: int, last: int) -> float:
-    """The speed (mm/s) the tail (the last DETACH_TAIL_MM of arc) of the coil of nodes
-    ``first``..``last`` reaches if each node's bending energy in the straight catheter,
-    ½ k_b |K̄|² (kernels/elastic: ¼ k_b per rest curvature angle K̄ of its two edges' frames),
-    all turned into its kinetic energy: the largest sqrt(2 W_j / m_j) over the tail's nodes;
-    ≈ κ̄ sqrt(EI / λ) on a uniform coil (rest curvature κ̄, bending stiffness EI, line density
-    λ). ``host``: the model's arc_s, k_bend, rest_K0, rest_K1 and inv_mass as numpy arrays."""
-    arc = host["arc_s"][first:last + 1]
-    tail = slice(first + int(np.searchsorted(arc, arc[-1] - DETACH_TAIL_MM)), last + 1)
-    k0, k1 = host["rest_K0"][tail], host["rest_K1"][tail]
-    energy_nJ = 0.25 * host["k_bend"][tail] * ((k0 ** 2).sum(axis=1) + (k1 ** 2).sum(axis=1))
-    return float(np.sqrt(2.0 * energy_nJ * host["inv_mass"][tail]).max())
 
 
 class ImplicitSolver(Solver):
