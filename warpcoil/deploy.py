@@ -266,10 +266,9 @@ class Ensemble:
         that moment + DETACH_WHIP_S), or it starts before member.detach_until_s."""
         if member.active >= 0:
             speed = member.scene.simulation.push_speed_mm_s
-            release_s = start_s + (member.coil_lengths_mm[member.active]
-                                   - advance[member.coils.start + member.active]) / max(speed, 1e-12)
-            if release_s <= (start_s + frame_s) * (1.0 + 1e-12):
-                member.detach_until_s = release_s + DETACH_WHIP_S
+            left_mm = member.coil_lengths_mm[member.active] - advance[member.coils.start + member.active]
+            if left_mm <= speed * frame_s * (1.0 + 1e-9):
+                member.detach_until_s = start_s + left_mm / speed + DETACH_WHIP_S
                 return True
         return start_s < member.detach_until_s
 
