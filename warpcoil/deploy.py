@@ -243,9 +243,7 @@ class Ensemble:
         start = state.time_s
         for k in levels:
             if len(levels) > 1:
-                mask = np.zeros(self.model.world_count, dtype=np.int32)
-                mask[[m.world for m in live if m.settle_level == k]] = 1
-                self.control.running.assign(mask)
+                self._run_only([m for m in live if m.settle_level == k])
             if k not in self._levels:
                 self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
             self.solver.dt_s = frame_s / (2 * k)
@@ -254,9 +252,7 @@ class Ensemble:
             for m in live:
                 m.settle_steps += 2 * k if m.settle_level == k else 0
         if len(levels) > 1:
-            mask = np.zeros(self.model.world_count, dtype=np.int32)
-            mask[[m.world for m in live]] = 1
-            self.control.running.assign(mask)
+            self._run_only(live)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
     def _detaching(self, member: Member, advance: np.ndarray, start_s: float, frame_s: float) -> bool:
