@@ -13,7 +13,7 @@ Per step n → n+1 of one world (energies nJ, forces µN, positions mm):
                 at the new velocities, MODEL.md)
 
 For linearly implicit Euler on a linear system M Δv = dt (−K x' − C v') the balance is
-exactly numerical = ½ Δvᵀ M Δv + ½ Δxᵀ K Δx ≥ 0 (:func:`backward_euler_oscillator`):
+exactly numerical = ½ Δvᵀ M Δv + ½ Δxᵀ K Δx ≥ 0 (validation_dissipation.chain_rows):
 per unit time ≈ ½ dt ω² × (a mode's energy), first order in dt once dt ω ≪ 1, and all
 of a mode's energy when dt ω ≳ 1. The trapezoid terms are second order. Not booked: the
 fold force (a coil's contact with its own near neighbours, elastic.fold_force): its work
@@ -117,20 +117,3 @@ class DissipationMeter:
                                         t.numerical_nJ + one.numerical_nJ, t.steps + 1)
         return one
 
-
-def backward_euler_oscillator(mass_g: float, stiffness_uN_mm: float, damping_uN_s_mm: float, x0_mm: float,
-                              v0_mm_s: float, dt_s: float, steps: int) -> tuple[float, float]:
-    """Backward Euler on m ẍ = −k x − c ẋ: (numerical dissipation from the energy balance
-    E0 − E_N − Σ dt c v'², and Σ (½ m Δv² + ½ k Δx²)), both nJ. Equal to round-off."""
-    x, v = x0_mm, v0_mm_s
-    energy = lambda x, v: 0.5 * mass_g * v * v + 0.5 * stiffness_uN_mm * x * x  # noqa: E731
-    e0, physical, analytic = energy(x, v), 0.0, 0.0
-    for _ in range(steps):
-        # (m + dt c + dt² k) v' = m v − dt k x
-        v1 = (mass_g * v - dt_s * stiffness_uN_mm * x) / (mass_g + dt_s * damping_uN_s_mm
-                                                          + dt_s * dt_s * stiffness_uN_mm)
-        x1 = x + dt_s * v1
-        physical += dt_s * damping_uN_s_mm * v1 * v1
-        analytic += 0.5 * mass_g * (v1 - v) ** 2 + 0.5 * stiffness_uN_mm * (x1 - x) ** 2
-        x, v = x1, v1
-    return e0 - energy(x, v) - physical, analytic

@@ -559,8 +559,8 @@ def detach() -> list[CaseResult]:
 
 
 def dissipation() -> list[CaseResult]:
-    """The numerical-dissipation ledger: a damped oscillator's analytic balance and a free coil's
-    order in dt (validation_dissipation.py)."""
+    """The numerical-dissipation ledger run on the solver: a linear chain's analytic loss and
+    ratio order, and a free coil's order in dt (validation_dissipation.py)."""
     from .validation_dissipation import dissipation_cases
     return dissipation_cases()
 

@@ -1,24 +1,28 @@
-"""Validation of the numerical-dissipation ledger (dissipation.py): the energy balance of
-backward Euler on a damped oscillator against its analytic ½ m Δv² + ½ k Δx², and the
-ratio numerical / physical dissipation of a released coil's implicit step falling at
-order 1 with the step (docs/FORMULATION.md "Implicit step: numerical dissipation")."""
+"""Validation of the numerical-dissipation ledger (dissipation.py), each row running the
+meter on the solver: on a clamped straight 3-node chain oscillating along its axis (a linear
+system: stretching only) the meter's books equal backward Euler's analytic loss
+Σ ½ Δvᵀ M Δv + ½ Δxᵀ K Δx of the trajectory, and with the model's damping its ratio
+numerical / physical falls at order 1 with the step; the same ratio on a released coil
+(docs/FORMULATION.md "Implicit step: numerical dissipation")."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from . import preshape
 from .coil import CoilSpec
-from .dissipation import DissipationMeter, backward_euler_oscillator
+from .dissipation import DissipationMeter
 from .implicit import make_solver
-from .model import ModelBuilder
+from .model import Model, ModelBuilder
 from .settings import SimulationSettings
 from .solver import Control
 from .state import state_from_positions
 from .validation import REFERENCE_D_MM, CaseResult, _row
 
-# a 1 g·mm⁻¹-scale oscillator: ω = 100 rad/s, damping ratio 0.05; steps with dt ω = 0.05 and 0.025
-OSCILLATOR = dict(mass_g=1.0, stiffness_uN_mm=1.0e4, damping_uN_s_mm=10.0, x0_mm=1.0, v0_mm_s=0.0)
+# the chain's free nodes start displaced along its axis by these amounts (mm): a slow and a fast mode
+CHAIN_START_MM = (1.0e-3, 1.5e-3)
 # a 10 mm helical coil released from its pre-shape stretched 2 % along its axis (its slow modes: a step
 # of 10–20 µs resolves them, the fastest node-scale modes it does not), 4 ms of free motion
 COIL_LENGTH_MM, COIL_STRETCH, COIL_TIME_S, COIL_STEPS_S = 10.0, 1.02, 4.0e-3, (2.0e-5, 1.0e-5)
@@ -29,33 +33,54 @@ def observed_order(ratio_coarse: float, ratio_fine: float, refinement: float = 2
     return math.log(ratio_coarse / ratio_fine) / math.log(refinement)
 
 
-def oscillator_rows() -> list[CaseResult]:
-    """Energy balance vs analytic numerical dissipation, and the ratio's order."""
-    period_s = 2.0 * math.pi / math.sqrt(OSCILLATOR["stiffness_uN_mm"] / OSCILLATOR["mass_g"])
-    ratios = []
-    rows = []
-    for dt in (5e-4, 2.5e-4):
-        steps = round(period_s / dt)
-        balance, analytic = backward_euler_oscillator(**OSCILLATOR, dt_s=dt, steps=steps)
-        physical = _oscillator_physical(dt, steps)
-        ratios.append(balance / physical)
-        if not rows:
-            rows.append(_row("backward Euler oscillator dt ω 0.05: energy balance vs Σ ½mΔv²+½kΔx² (nJ)",
-                             analytic, balance, 1e-9))
-    rows.append(_row("backward Euler oscillator: order of numerical/physical dissipation in dt", 1.0,
-                     observed_order(*ratios), 5e-2))
-    return rows
+def axial_chain(damped: bool) -> tuple[Model, np.ndarray, np.ndarray, float]:
+    """A straight 3-node coil of the reference wire clamped at node 0: (model, axial stiffness
+    matrix K of nodes 1–2 (µN/mm), their masses (g), the fastest mode's ω (rad/s)). Axial
+    motion keeps it straight, so its forces are exactly linear. ``damped``: the model's
+    damping law on, else off."""
+    l0 = REFERENCE_D_MM
+    builder = ModelBuilder(settings=SimulationSettings())
+    builder.add_coil(CoilSpec(wire_diameter_mm=REFERENCE_D_MM, length_mm=2.0 * l0),
+                     rest_centerline=np.array([[0.0, 0.0, 0.0], [l0, 0.0, 0.0], [2.0 * l0, 0.0, 0.0]]))
+    builder.clamp(0, node=0)
+    model = builder.finalize()
+    if not damped:
+        model.damping_c.zero_()
+    k0, k1 = model.k_stretch.numpy()[:2]
+    stiffness = np.array([[k0 + k1, -k1], [-k1, k1]])
+    mass = 1.0 / model.inv_mass.numpy()[1:3]
+    omega = math.sqrt(float(np.linalg.eigvals(stiffness / mass[:, None]).real.max()))
+    return model, stiffness, mass, omega
 
 
-def _oscillator_physical(dt: float, steps: int) -> float:
-    """Σ dt c v'² of the oscillator's backward Euler run (nJ)."""
-    m, k, c = OSCILLATOR["mass_g"], OSCILLATOR["stiffness_uN_mm"], OSCILLATOR["damping_uN_s_mm"]
-    x, v, physical = OSCILLATOR["x0_mm"], OSCILLATOR["v0_mm_s"], 0.0
+def chain_run(damped: bool, omega_dt: float, steps: int) -> tuple[DissipationMeter, float]:
+    """The chain stepped by the implicit step at dt = omega_dt / ω: (its meter, backward Euler's
+    analytic loss Σ ½ Δvᵀ M Δv + ½ Δxᵀ K Δx of the axial trajectory, nJ)."""
+    model, stiffness, mass, omega = axial_chain(damped)
+    start = model.rest_x.numpy().copy()
+    start[1:3, 0] += CHAIN_START_MM
+    meter = DissipationMeter(make_solver(model, "implicit", omega_dt / omega), state_from_positions(model, start),
+                             Control.create(model))
+    x, v = [start[1:3, 0]], [np.zeros(2)]
     for _ in range(steps):
-        v = (m * v - dt * k * x) / (m + dt * c + dt * dt * k)
-        x += dt * v
-        physical += dt * c * v * v
-    return physical
+        meter.step()
+        x.append(meter.state.x.numpy()[1:3, 0].copy())
+        v.append(meter.state.v.numpy()[1:3, 0].copy())  # (CPU .numpy() is a view)
+    dx, dv = np.diff(x, axis=0), np.diff(v, axis=0)
+    analytic = 0.5 * float(np.einsum("ni,ni,i->", dv, dv, mass) + np.einsum("ni,ij,nj->", dx, stiffness, dx))
+    return meter, analytic
+
+
+def chain_rows() -> list[CaseResult]:
+    """The meter against backward Euler's analytic loss (undamped), and its ratio's order (damped)."""
+    meter, analytic = chain_run(damped=False, omega_dt=0.5, steps=40)
+    rows = [_row("meter on a clamped 3-node chain oscillating along its axis, undamped, dt ω 0.5: numerical "
+                 "dissipation vs Σ ½ΔvᵀMΔv + ½ΔxᵀKΔx of its trajectory (nJ)", analytic, meter.totals.numerical_nJ, 1e-9)]
+    steps = [round(2.0 * math.pi / w) for w in (0.05, 0.025)]  # one period of the fastest mode
+    ratios = [chain_run(damped=True, omega_dt=w, steps=n)[0].totals.ratio for w, n in zip((0.05, 0.025), steps)]
+    rows.append(_row(f"meter on the damped chain: order of numerical/physical in dt (dt ω 0.05 → 0.025: "
+                     f"{ratios[0]:.3f} → {ratios[1]:.3f})", 1.0, observed_order(*ratios), 5e-2))
+    return rows
 
 
 def coil_ratio(dt_s: float) -> tuple[float, float]:
@@ -86,4 +111,4 @@ def coil_rows() -> list[CaseResult]:
 
 
 def dissipation_cases() -> list[CaseResult]:
-    return oscillator_rows() + coil_rows()
+    return chain_rows() + coil_rows()
