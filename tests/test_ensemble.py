@@ -127,7 +127,7 @@ def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch
     same frame advance apart, so each still equals its single run."""
     from dataclasses import replace
 
-    scenes = [scene(a, push_mm_s=300.0) for a in (0.0, 25.0)]
+    scenes = [scene(a, push_mm_s=600.0) for a in (0.0, 40.0)]
     scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit")) for s in scenes]
     real = Ensemble._settle_chunk
     levels: list[set[int]] = []

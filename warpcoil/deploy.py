@@ -547,8 +547,9 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     step, push time) as a single run of its scene would take them (the onset is the
     explicit step's for either integrator: both integrate the same law). The implicit
     step at its default goes on at the settling step (s) from the push time (s: when
-    every coil is out, Σ (length + COIL_GAP_MM) / push speed) once every coil is
-    detached; otherwise both are 0."""
+    every coil is out, Σ (length + COIL_GAP_MM) / push speed, and the last coil's
+    whip, DETACH_WHIP_S after its release, is over) once every coil is detached;
+    otherwise both are 0."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
@@ -566,6 +567,9 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
                 coils = model.world_coils(w)
                 push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
                                   ) / sim.push_speed_mm_s
+                # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
+                # ends first
+                push_time += max(0.0, DETACH_WHIP_S - COIL_GAP_MM / sim.push_speed_mm_s)
         else:
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
