@@ -59,7 +59,8 @@ def test_detachment_frames_are_the_release_frame_and_the_whip_after_it_with_the_
     k = detach_level(deployment.scene.simulation.push_speed_mm_s, result.dt_s, deployment.model.contact.c0_mm)
     assert k == 4
     fine = [start for start, level in levels if level > 1]
-    expected = [start for start, _ in levels if start + frame_s > release_s - 1e-9 and start < release_s + DETACH_WHIP_S]
+    expected = [start for start, _ in levels
+                if start + frame_s > release_s - 1e-9 and start < release_s + DETACH_WHIP_S]
     assert fine == pytest.approx(expected) and len(fine) >= 10
     assert all(level == k for _, level in levels if level > 1)
     assert all(level == 1 for _, level in plain_levels)
@@ -68,8 +69,8 @@ def test_detachment_frames_are_the_release_frame_and_the_whip_after_it_with_the_
     assert plain.detach_steps == 0
     # the same clock and, frame by frame up to the push's end, the same pusher advance
     push_frames = [i for i, t in enumerate(f.time_s for f in plain.frames) if t <= deployment.push_time_s]
-    assert [result.frames[i].time_s for i in push_frames] == pytest.approx([plain.frames[i].time_s for i in push_frames],
-                                                                           abs=1e-12)
+    times = [plain.frames[i].time_s for i in push_frames]
+    assert [result.frames[i].time_s for i in push_frames] == pytest.approx(times, abs=1e-12)
     assert np.allclose([advance[i] for i in push_frames], [plain_advance[i] for i in push_frames], atol=1e-9)
 
 
