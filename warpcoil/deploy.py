@@ -25,7 +25,7 @@ from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_WHIP_S, detach_level, implicit_step_s, make_solver,
-                       settle_finest_level, settle_level, settle_stalled, settle_step_s)
+                       SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -95,7 +95,8 @@ class Member:
         self.steps = 0
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
-        self.settle_finest = False  # its kinetic energy stalled at a longer step: the finest from then on
+        self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
+        self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
         self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
         self.detach_until_s = -math.inf  # frames starting before this run at the detachment step
@@ -236,8 +237,11 @@ class Ensemble:
         for m in live:
             moving = free[m.nodes]
             speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
-            m.settle_finest = m.settle_finest or settle_stalled(m.settle_kinetic_nJ, frame_s)
-            m.settle_level = (settle_finest_level(frame_s) if m.settle_finest
+            if (m.settle_refine < SETTLE_REFINE_MAX
+                    and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
+                m.settle_refine += 1
+                m.settle_stall_from = len(m.settle_kinetic_nJ)
+            m.settle_level = (settle_finest_level(frame_s) * 2 ** (m.settle_refine - 1) if m.settle_refine
                               else self.settle_rule(speed, c0, frame_s))
         levels = sorted({m.settle_level for m in live})
         start = state.time_s

@@ -74,6 +74,10 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # the run (docs/FORMULATION.md "Implicit step: the settling step")
 SETTLE_STALL_S = 0.5
 SETTLE_STALL_DROP = 0.1
+# ... and, stalled again over SETTLE_STALL_S at that step, at half of it, up to SETTLE_REFINE_MAX times in all
+# (finest / 4): C0091 tilted 0.01° ran its filling coil's free tip in place at 50 mm/s (2.3 nJ) at 2 ms from
+# 4.2 s to the 8 s timeout, and comes to rest at 1 ms (docs/SCENES.md "C0031's one deep wall overlap")
+SETTLE_REFINE_MAX = 3
 # detachment step: a push frame in which a coil's tail leaves the catheter, and those up to DETACH_WHIP_S after
 # its last node's release (the whip's measured duration: 10–15 ms on C0031 and the seed case), run at dt / k,
 # k whole: the fewest steps in which the pusher moves at most DETACH_ADVANCE_PER_C0 · c0 per step (a quarter of
