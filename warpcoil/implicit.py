@@ -25,6 +25,10 @@ x₋₁, v₋₁ carried in the State, an Euler start on a new or changed step):
 third-order slow-mode damping, but the push force stays Euler's (docs/FORMULATION.md
 "Implicit step: BDF2"), so it is an option, not the default.
 
+``near_theta``: the proximity-gated θ, θ_i = near_theta for a node that could reach an obstacle
+within the step, θ elsewhere (kernels/node_theta.py); an option, not the default (docs/FORMULATION.md
+"Implicit step: proximity-gated θ").
+
 ``contact_stiffness="chord"``: each contact's stiffness along its normal is the law's chord
 between the step start and a predicted end (``chord_end``: the damped free flight, or the
 tangent step's solution), where steeper than the tangent (kernels/chord.py): a contact that
@@ -44,6 +48,7 @@ import warp as wp
 from .devices import ImplicitDeviceStiffness
 from .kernels import chord
 from .kernels import implicit as kernels
+from .kernels import node_theta
 from .kernels import elastic, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
@@ -99,6 +104,13 @@ IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
 # 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
 # docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
+# proximity-gated θ (a solver option, near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
+# every node whose wall, stent strut, balloon or other coil edge lies within the contact range c0 plus a margin
+# PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py; docs/FORMULATION.md "Implicit step:
+# proximity-gated θ"). None: every node at θ (the default: with θ 0.7 it keeps θ 0.7's push force and free release
+# but presses 0.039 mm into thin stent struts, > c0, as the deepest entry is contact a step does not see)
+IMPLICIT_NEAR_THETA: float | None = None
+PROXIMITY_MARGIN_C0 = 2.0
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
 # default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
 # docs/FORMULATION.md "Implicit step: BDF2")
@@ -181,11 +193,12 @@ class ImplicitSolver(Solver):
 
     integrator = "implicit"
     record_touching = True
-    kernel_modules = Solver.kernel_modules + (kernels, chord)
+    kernel_modules = Solver.kernel_modules + (kernels, chord, node_theta)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
                  theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
+                 near_theta: float | None = IMPLICIT_NEAR_THETA, proximity_margin_c0: float = PROXIMITY_MARGIN_C0,
                  contact_stiffness: str = IMPLICIT_CONTACT_STIFFNESS, chord_end: str = CHORD_END, **kwargs):
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
@@ -210,6 +223,12 @@ class ImplicitSolver(Solver):
         if method == "bdf2" and theta != 1.0:
             raise ValueError(f"theta applies to the θ-method only; BDF2 needs theta = 1, got {theta}")
         self.method = method
+        if near_theta is not None and not (0.5 < near_theta <= 1.0 and method == "theta"):
+            raise ValueError(f"near_theta applies to the θ-method and must be in (0.5, 1] (taken as at least θ), got "
+                             f"{near_theta} with method {method!r}")
+        self.near_theta = None if near_theta is None else float(near_theta)
+        self.proximity_margin_mm = float(proximity_margin_c0) * model.contact.c0_mm
+        self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
@@ -274,11 +293,18 @@ class ImplicitSolver(Solver):
                     m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, self._field_ids,
                     GRAD_TOLERANCE, self._wall_side, self.wall_distance, self.wall_force, c.p0_uN, c.c0_mm,
                     self.contact_u_linear, self.wall_stiffness])
+        gated = self.near_theta is not None and not bdf2
+        if gated:
+            self._gate(state_in, dt)
         self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
             wp.launch(kernels.theta_rhs, n, device=dev, inputs=[self._rhs, self._q, theta])
+        if gated:  # rows at θ_i ≠ θ: mass M θ/θ_i (kernels/node_theta.py)
+            wp.launch(node_theta.shift_rows, n, device=dev, inputs=[
+                state_in.v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, self.node_theta, theta,
+                self._diag, self._diag_exact, self._rhs])
         if bdf2:  # BDF2's right side: the history terms (y in _z, A y in _q)
             wp.launch(kernels.bdf2_history_rate, n, device=dev, inputs=[state_in.x, state_in.x_prev, dt_m, self._z])
             wp.launch(kernels.system_product, n, device=dev, inputs=[self._z, self._rhs, 0] + self._product_args(
@@ -286,11 +312,11 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.bdf2_rhs, n, device=dev, inputs=[
                 state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt_m)
-        self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2)
+        self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt_m if bdf2 else dt)
-            if theta != 1.0 or bdf2:  # the positions from the scheme's combination of the old and new velocities
-                self._finish_positions(state_in, state_out, control, state_out.v, dt, dt_m, bdf2)
+            if theta != 1.0 or bdf2 or gated:  # the positions from the scheme's combination of the old and new velocities
+                self._finish_positions(state_in, state_out, control, state_out.v, dt, dt_m, bdf2, gated, False)
         # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
         # torque there, then the spins solved and the directors turned
         wp.launch(kernels.transport_frames, n, device=dev, inputs=[
@@ -336,11 +362,36 @@ class ImplicitSolver(Solver):
         the next step is its Euler start."""
         return self.method == "bdf2" and state.history_dt_s != self.dt_s
 
-    def _finish_positions(self, state_in: State, state_out: State, control: Control, v_new: wp.array, dt: float,
-                          dt_m: float, bdf2: bool) -> None:
-        """New velocities and positions of the unknowns: BDF2's x' = 4/3 x − 1/3 x₋₁ + h v',
-        or the θ-method's x' = x + dt ((1 − θ) v + θ v')."""
+    def _gate(self, state_in: State, dt: float) -> None:
+        """Each node's θ_i (``node_theta``) from its distances at the step start, which the
+        contact pass has just measured (kernels/node_theta.py)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
+        reach = m.contact.c0_mm + self.proximity_margin_mm  # the contact range and a margin
+        near = max(self.near_theta, self.theta)  # θ = 1 (the settling step, Ensemble._settle_step): Euler everywhere
+        wp.launch(node_theta.proximity_theta, n, device=dev, inputs=[
+            state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
+            int(self.coil_contact), reach, dt, self.theta, near, self.node_theta])
+        if self.has_stent:
+            wp.launch(node_theta.strut_proximity, n, device=dev, inputs=[
+                state_in.x, state_in.v, state_in.free, m.has_next, m.world_of, m.node_radius, self._strut_grid.id,
+                m.strut_start, m.strut_end, m.strut_radius_mm, self._strut_query_mm, reach, dt, near, self.node_theta])
+        if self.has_balloon:
+            wp.launch(node_theta.balloon_proximity, n, device=dev, inputs=[
+                state_in.x, state_in.v, state_in.free, m.world_of, m.node_radius, m.balloon_stations,
+                m.balloon_cap_radius, m.balloon_first, m.balloon_count, m.balloon_inflation, reach, dt, near,
+                self.node_theta])
+
+    def _finish_positions(self, state_in: State, state_out: State, control: Control, v_new: wp.array, dt: float,
+                          dt_m: float, bdf2: bool, gated: bool = False, solved_is_u: bool = True) -> None:
+        """New velocities and positions of the unknowns: BDF2's x' = 4/3 x − 1/3 x₋₁ + h v',
+        or the θ-method's x' = x + dt ((1 − θ) v + θ v') (``gated``: per node θ_i, ``v_new``
+        the solve's u where ``solved_is_u``, kernels/node_theta.py)."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        if gated:
+            wp.launch(node_theta.finish_nodes, n, device=dev, inputs=[
+                state_in.x, state_in.v, v_new, int(solved_is_u), state_out.free, m.fixed, m.world_of, control.running,
+                dt, self.theta, self.node_theta, state_out.x, state_out.v])
+            return
         if bdf2:
             wp.launch(kernels.finish_nodes_bdf2, n, device=dev, inputs=[
                 state_in.x, state_in.x_prev, v_new, state_out.free, m.fixed, m.world_of, control.running, dt_m,

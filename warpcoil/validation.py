@@ -395,10 +395,12 @@ def tilted_catheter(tilt_deg: float = 0.0, azimuth_deg: float = 0.0) -> Catheter
 
 def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float | None, mass_scale: float,
               helix: dict, damping_uN_per_mm: float = 5.0, integrator: str = "symplectic",
-              catheter: CatheterSpec | None = None, advance_per_c0: float | None = None) -> np.ndarray:
+              catheter: CatheterSpec | None = None, advance_per_c0: float | None = None,
+              solver_options: dict | None = None) -> np.ndarray:
     """Rest positions of a helical coil packed in a straight catheter and pushed out into
     empty space (``integrator`` "implicit": at its default step for this push speed, or at
-    the step that advances the pusher ``advance_per_c0`` × the contact onset c0)."""
+    the step that advances the pusher ``advance_per_c0`` × the contact onset c0;
+    ``solver_options``: the implicit solver's)."""
     spec = _helix_spec(segment_length_mm, helix)
     settings = SimulationSettings(damping_uN_per_mm=damping_uN_per_mm, push_speed_mm_s=push_speed_mm_s,
                                   mass_scale=mass_scale)
@@ -409,8 +411,8 @@ def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float
     dt = implicit_step_s(model, push_speed_mm_s) if integrator == "implicit" else None
     if integrator == "implicit" and advance_per_c0 is not None:
         dt = advance_per_c0 * model.contact.c0_mm / push_speed_mm_s
-    stepper = Stepper(make_solver(model, integrator, dt, dt_safety=dt_safety), packed_state(model), control,
-                      chunk=1000 if integrator == "symplectic" else 20)
+    stepper = Stepper(make_solver(model, integrator, dt, dt_safety=dt_safety, **(solver_options or {})),
+                      packed_state(model), control, chunk=1000 if integrator == "symplectic" else 20)
     coil_length = float(model.arc_s.numpy()[-1])
     while stepper.state.advance.numpy()[0] < coil_length:
         stepper.run_steps(stepper.chunk)
@@ -421,13 +423,17 @@ def _released(push_speed_mm_s: float, dt_safety: float, segment_length_mm: float
 def free_release(push_speed_mm_s: float = 100.0, dt_safety: float = DEFAULT_DT_SAFETY,
                  segment_length_mm: float | None = None, mass_scale: float = 1.0,
                  integrator: str = "symplectic", catheter: CatheterSpec | None = None,
-                 advance_per_c0: float | None = None) -> list[CaseResult]:
+                 advance_per_c0: float | None = None, solver_options: dict | None = None,
+                 label: str | None = None) -> list[CaseResult]:
     """The helical coil packed in a straight catheter (``catheter``: default along +z;
     :func:`tilted_catheter` perturbs it) and pushed out into empty space (implicit:
-    ``advance_per_c0`` sets its push step, default the integrator's default)."""
-    label = "free release" if integrator == "symplectic" else f"free release, {integrator} default step"
+    ``advance_per_c0`` sets its push step, default the integrator's default;
+    ``solver_options``: the implicit solver's)."""
+    if label is None:
+        label = "free release" if integrator == "symplectic" else f"free release, {integrator} default step"
     return _helix_rows(label, _released(push_speed_mm_s, dt_safety, segment_length_mm, mass_scale, HELIX,
-                                        integrator=integrator, catheter=catheter, advance_per_c0=advance_per_c0))
+                                        integrator=integrator, catheter=catheter, advance_per_c0=advance_per_c0,
+                                        solver_options=solver_options))
 
 
 TIGHT_STRETCH = 2.0  # the tight helix is released from twice its pitch: turns 0.31 mm apart, in order
@@ -867,6 +873,12 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
             _row(f"{label}: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
 
 
+def node_theta() -> list[CaseResult]:
+    """The proximity-gated θ: numerical damping, convergence, free release (validation_node_theta.py)."""
+    from .validation_node_theta import node_theta_cases
+    return node_theta_cases()
+
+
 def chord() -> list[CaseResult]:
     """The implicit step's chord contact stiffness: the law's secant, a thrown coil (validation_chord.py)."""
     from .validation_chord import chord_cases
@@ -910,6 +922,7 @@ CASES = {
     "detach": detach,
     "chord": chord,
     "dissipation": dissipation,
+    "node-theta": node_theta,
 }
 
 

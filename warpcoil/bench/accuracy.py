@@ -57,6 +57,8 @@ MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a
 # many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
 PUSH_FORCE_TOLERANCE_F0 = 0.25
 THETA_LOW = 0.7  # the θ-method's setting shown beside the linearly implicit Euler step (implicit.IMPLICIT_THETA)
+# the proximity-gated θ: θ_i = 1 near an obstacle, THETA_LOW elsewhere (an option; FORMULATION.md "proximity-gated θ")
+GATED_THETA = {"theta": THETA_LOW, "near_theta": 1.0}
 
 
 @dataclass
@@ -113,8 +115,8 @@ RELEASE_TILT_DEG = 0.01
 RELEASE_AZIMUTHS_DEG = (0.0, 90.0, 180.0, 270.0)
 
 
-def _release_detail(res, speed: float, integrator: str, perturbations: int, advance_per_c0: float | None = None
-                    ) -> tuple[str, str]:
+def _release_detail(res, speed: float, integrator: str, perturbations: int, advance_per_c0: float | None = None,
+                    solver_options: dict | None = None) -> tuple[str, str]:
     """(detail, not_default): the fitted helix and how many of the run and its
     ``perturbations`` tilted reruns came to rest in the helix (every row within
     tolerance); a setting that tangled in any of them is not a default candidate."""
@@ -123,7 +125,7 @@ def _release_detail(res, speed: float, integrator: str, perturbations: int, adva
         return shape, ""
     runs = [res] + [validation.free_release(push_speed_mm_s=speed, integrator=integrator,
                                             catheter=validation.tilted_catheter(RELEASE_TILT_DEG, azimuth),
-                                            advance_per_c0=advance_per_c0)
+                                            advance_per_c0=advance_per_c0, solver_options=solver_options)
                     for azimuth in RELEASE_AZIMUTHS_DEG[:perturbations]]
     helix = sum(all(r.passed for r in run) for run in runs)
     pitches = ", ".join(f"{run[1].result:.2f}" for run in runs[1:])
@@ -160,6 +162,12 @@ def release_rows(quick: bool, repeats: int) -> list[Row]:
         detail, tangled = _release_detail(res, speed, "implicit", 4, advance)
         rows.append(Row("free release", f"push {speed:g} mm/s, implicit {advance:g} c0 per push step", False, 0, t,
                         _helix_error(res), detail, not_default=tangled))
+    for speed in () if quick else (100.0, 150.0):  # the proximity-gated θ (FORMULATION.md "proximity-gated θ")
+        res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
+                                                       solver_options=GATED_THETA), repeats)
+        detail, tangled = _release_detail(res, speed, "implicit", 4, solver_options=GATED_THETA)
+        rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step, gated θ {THETA_LOW:g}", False, 0,
+                        t, _helix_error(res), detail, not_default=tangled))
     return rows
 
 
@@ -272,6 +280,10 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         f"implicit, default step (θ {IMPLICIT_THETA:g}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
         f"the settling step, ≤ {IMPLICIT_SETTLE_DT_MAX_S * 1e3:g} ms)": (variant(integrator="implicit"), None),
     }
+    settings[f"implicit, default step, gated θ {THETA_LOW:g} (θ_i 1 near an obstacle)"] = (
+        variant(integrator="implicit"), GATED_THETA)
+    settings[f"implicit, default step, gated θ {THETA_LOW:g}, chord contact stiffness"] = (
+        variant(integrator="implicit"), {**GATED_THETA, "contact_stiffness": "chord"})
     other_query = "bvh" if base.contact.wall_query == "sdf" else "sdf"  # the scene's wall query against the other
     implicit_other = variant(integrator="implicit")
     settings[f"implicit, default step, wall_query {other_query}"] = (
