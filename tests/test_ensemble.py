@@ -1,6 +1,7 @@
 """Ensembles: B deployments advanced by one set of launches give each member
 exactly the result of its single run."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -45,6 +46,18 @@ def test_members_equal_their_single_runs():
     assert not np.allclose(results[0].positions_mm[0], results[1].positions_mm[0])  # members differ
     for s, member in zip(scenes, results):
         assert_same_run(Deployment(s).run(), member)
+
+
+def test_theta_method_members_equal_their_single_runs():
+    """Implicit θ 0.7 (its push force reading keeps the previous step's per world): each
+    member's steps, positions and push force peak and RMS equal its single run's."""
+    scenes = [dataclasses.replace(s, simulation=dataclasses.replace(s.simulation, integrator="implicit"))
+              for s in (scene(0.0), scene(10.0, sac_diameter_mm=4.0))]
+    options = {"theta": 0.7}
+    results = Ensemble(scenes, solver_options=options).run()
+    assert [r.status for r in results] == ["completed"] * 2
+    for s, member in zip(scenes, results):
+        assert_same_run(Deployment(s, solver_options=options).run(), member)
 
 
 def test_a_member_that_goes_unstable_is_rerun_alone(monkeypatch):

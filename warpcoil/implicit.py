@@ -3,7 +3,9 @@ Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
 not by the stiffest spring.
 
 Forces, contact search, catheter kinematics and push accounting are the
-reference's; only the update differs (kernels/implicit.py): per world,
+reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
+at the θ-method's evaluation point: Solver._accumulate_push_force); only the update differs
+(kernels/implicit.py): per world,
 
     (M + θ dt B + θ² dt² H) v' = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
     x' = x + dt ((1 − θ) v + θ v')
@@ -328,8 +330,7 @@ class ImplicitSolver(Solver):
             self._coil_first, self._coil_last, m.coil_world, control.running, state_out.free, m.fixed, m.has_next,
             m.clamp_tangent, state_in.omega, self.grad_theta, m.inv_inertia, m.twist_damping, m.k_twist, m.k_bend,
             m.rest_K0, m.rest_K1, state_out.x, dt, self._spin_c, self._spin_d, state_out.m1, state_out.omega])
-        wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
-            self.push_share, m.world_node_range, control.running, self.push_accumulator])
+        self._accumulate_push_force(control, theta)  # θ < 1: (1 − θ) P_{n−1} + θ P_n (global θ, near_theta too)
         state_out.time_s = state_in.time_s + dt
         state_out.history_dt_s = dt if self.method == "bdf2" else 0.0
 

@@ -49,7 +49,9 @@ class SimulationUnstable(RuntimeError):
 class PushForce(NamedTuple):
     """The pusher's force over some steps, per world (µN, compressive > 0): the
     push force of a step is the coil's internal force along the catheter axis
-    at the tip (MODEL.md). ``mean_uN``: signed mean over the steps;
+    at the tip (MODEL.md), P_n at the step's start; for the θ-method with θ < 1 the step's
+    reading is (1 − θ) P_{n−1} + θ P_n (docs/FORMULATION.md "Implicit step: the θ-method's push
+    force reading"). ``mean_uN``: signed mean over the steps;
     ``peak_uN``: largest compressive step value (≥ 0); ``rms_uN``: root mean
     square over the steps."""
 
@@ -318,6 +320,8 @@ class Solver:
         self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
         # per world: Σ, max, Σ² of the step push force, and the steps counted
         self.push_accumulator = wp.zeros((model.world_count, 4), dtype=wp.float64, device=dev)
+        # per world: the previous step's push force (µN) and whether there is one (θ-method reading, θ < 1)
+        self._push_previous = wp.zeros((model.world_count, 2), dtype=wp.float64, device=dev)
         self._running_all = wp.ones(model.world_count, dtype=wp.int32, device=dev)
         cells = int(min(128, max(8, 2 * round(n ** (1.0 / 3.0)))))  # hashed grid: ~8 cells per edge
         self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
@@ -526,9 +530,21 @@ class Solver:
         wp.launch(integrate.update_frames, n, device=dev, inputs=[
             state_in.x, state_out.x, state_in.m1, state_in.omega, self.torque, state_out.free, m.fixed, m.has_next,
             m.inv_inertia, m.twist_damping, m.world_of, control.running, dt, state_out.m1, state_out.omega])
-        wp.launch(integrate.accumulate_push_force, m.world_count, device=dev, inputs=[
-            self.push_share, m.world_node_range, control.running, self.push_accumulator])
+        self._accumulate_push_force(control)
         state_out.time_s = state_in.time_s + dt
+
+    def _accumulate_push_force(self, control: Control, theta: float = 1.0) -> None:
+        """Adds this step's push force reading per running world to ``push_accumulator``:
+        P_n, the push force at the step's start (θ = 1: the reference and linearly implicit
+        Euler), or, for the θ-method with θ < 1, (1 − θ) P_{n−1} + θ P_n
+        (kernels/integrate.accumulate_blended_push_force)."""
+        m = self.model
+        if theta == 1.0:
+            wp.launch(integrate.accumulate_push_force, m.world_count, device=m.device, inputs=[
+                self.push_share, m.world_node_range, control.running, self.push_accumulator])
+            return
+        wp.launch(integrate.accumulate_blended_push_force, m.world_count, device=m.device, inputs=[
+            self.push_share, m.world_node_range, control.running, theta, self._push_previous, self.push_accumulator])
 
     def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
         """Implicit Coulomb friction on the velocities the integrator predicted

@@ -294,22 +294,58 @@ def transported_directors(
     m1[last] = d
 
 
+@wp.func
+def world_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32), w: int):
+    """World w's push force at the step's start (µN): Σ push shares of its nodes, in node order."""
+    total = wp.float64(0.0)
+    for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
+        total = total + push_share[i]
+    return total
+
+
+@wp.func
+def add_push_reading(accumulator: wp.array2d(dtype=wp.float64), w: int, reading: wp.float64):
+    """Adds a step's push force reading (µN) to accumulator[w, 0], keeps the step maximum
+    (from 0: the peak compressive force) in accumulator[w, 1], adds its square to
+    accumulator[w, 2] and counts the step in accumulator[w, 3]."""
+    accumulator[w, 0] = accumulator[w, 0] + reading
+    accumulator[w, 1] = wp.max(accumulator[w, 1], reading)
+    accumulator[w, 2] = accumulator[w, 2] + reading * reading
+    accumulator[w, 3] = accumulator[w, 3] + wp.float64(1.0)
+
+
 @wp.kernel
 def accumulate_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32),
                           running: wp.array(dtype=wp.int32), accumulator: wp.array2d(dtype=wp.float64)):
     """One thread per running world: this step's push force (µN) = Σ push shares of its
-    nodes; adds it to accumulator[w, 0], keeps the step maximum (from 0: the
-    peak compressive force) in accumulator[w, 1], adds its square to
-    accumulator[w, 2] and counts the step in accumulator[w, 3] (a fixed-order
-    sum, so the result does not depend on the device or on the other worlds; a
-    world held while others step counts nothing)."""
+    nodes, added to its accumulator (add_push_reading; a fixed-order sum, so the result
+    does not depend on the device or on the other worlds; a world held while others
+    step counts nothing)."""
     w = wp.tid()
     if running[w] == 0:
         return
-    total = wp.float64(0.0)
-    for i in range(world_node_range[w, 0], world_node_range[w, 1] + 1):
-        total = total + push_share[i]
-    accumulator[w, 0] = accumulator[w, 0] + total
-    accumulator[w, 1] = wp.max(accumulator[w, 1], total)
-    accumulator[w, 2] = accumulator[w, 2] + total * total
-    accumulator[w, 3] = accumulator[w, 3] + wp.float64(1.0)
+    add_push_reading(accumulator, w, world_push_force(push_share, world_node_range, w))
+
+
+@wp.kernel
+def accumulate_blended_push_force(push_share: wp.array(dtype=wp.float64), world_node_range: wp.array2d(dtype=wp.int32),
+                                  running: wp.array(dtype=wp.int32), theta: wp.float64,
+                                  previous: wp.array2d(dtype=wp.float64), accumulator: wp.array2d(dtype=wp.float64)):
+    """The θ-method's push force reading (θ < 1), one thread per running world: with P_n
+    this step's push force (as accumulate_push_force) and P_{n−1} the previous step's
+    (previous[w, 0], present where previous[w, 1] ≠ 0), the reading is
+    (1 − θ) P_{n−1} + θ P_n, the push force at the θ-method's evaluation point x + θ Δx
+    of the previous step: a stiff mode's step-to-step alternation (ratio −(1 − θ)/θ)
+    cancels in it. Without a previous reading (the solver's first step) it is P_n.
+    Stores P_n for the next step (docs/FORMULATION.md "Implicit step: the θ-method's
+    push force reading")."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    total = world_push_force(push_share, world_node_range, w)
+    reading = total
+    if previous[w, 1] != wp.float64(0.0):
+        reading = (wp.float64(1.0) - theta) * previous[w, 0] + theta * total
+    previous[w, 0] = total
+    previous[w, 1] = wp.float64(1.0)
+    add_push_reading(accumulator, w, reading)
