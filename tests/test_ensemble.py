@@ -140,7 +140,7 @@ def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch
     same frame advance apart, so each still equals its single run."""
     from dataclasses import replace
 
-    scenes = [scene(a, push_mm_s=300.0) for a in (0.0, 25.0)]
+    scenes = [scene(a, push_mm_s=600.0) for a in (0.0, 40.0)]
     scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit")) for s in scenes]
     real = Ensemble._settle_chunk
     levels: list[set[int]] = []
@@ -157,3 +157,36 @@ def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch
         assert member.status == "completed", member.reason
         assert_same_run(Deployment(s).run(), member)
         assert member.settle_dt_s is not None
+
+
+def test_members_detaching_at_different_frames_equal_their_single_runs(monkeypatch):
+    """Implicit default step: a member whose coil's tail leaves the catheter takes that
+    frame (and those of the whip after it) at the detachment step (deploy.Ensemble._push_chunk) while the
+    other is held at the push step; two coils each, in swapped order (the same push time),
+    so the members detach at different frames and each still equals its single run."""
+    from dataclasses import replace
+
+    def two_coils(first_mm, second_mm, angle_deg):
+        s = scene(angle_deg)
+        coil = s.coils[0]
+        return replace(s, coils=(replace(coil, length_mm=first_mm, name="first"),
+                                 replace(coil, length_mm=second_mm, name="second")),
+                       simulation=replace(s.simulation, integrator="implicit"))
+
+    scenes = [two_coils(2.0, 5.0, 0.0), two_coils(5.0, 2.0, 20.0)]
+    real = Ensemble._push_chunk
+    levels: list[tuple[int, ...]] = []
+
+    def recorded(self, live):
+        real(self, live)
+        levels.append(tuple(m.detach_level for m in live) if len(live) == 2 else ())
+
+    monkeypatch.setattr(Ensemble, "_push_chunk", recorded)
+    results = Ensemble(scenes).run()
+    mixed = [lv for lv in levels if len(set(lv)) > 1]
+    assert mixed  # frames in which one member detaches and the other is pushed at the push step
+    assert {lv.index(1) for lv in mixed} == {0, 1}  # ... each member in turn
+    for s, member in zip(scenes, results):
+        assert member.status == "completed", member.reason
+        assert member.detach_steps > 0
+        assert_same_run(Deployment(s).run(), member)

@@ -296,10 +296,10 @@ def test_a_theta_method_run_settles_with_the_euler_step():
 
 
 def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
-    """Once every coil is out (the scheduled push end) the default implicit step goes on
+    """Once every coil is out and its whip over (the scheduled push end) the default implicit step goes on
     at the settling step, the frame length kept; a step the scene gives is kept to the end."""
     from warpcoil.deploy import world_steps
-    from warpcoil.implicit import IMPLICIT_SETTLE_DT_MAX_S, settle_step_s
+    from warpcoil.implicit import DETACH_WHIP_S, IMPLICIT_SETTLE_DT_MAX_S, settle_step_s
 
     deployment = Deployment(implicit_scene())
     push_dt = deployment.solver.dt_s
@@ -311,8 +311,9 @@ def test_the_default_step_settles_at_the_settling_step_from_the_push_end():
     assert deployment.settle_dt_s <= result.settle_dt_s <= IMPLICIT_SETTLE_DT_MAX_S  # ... between finest and cap
     assert round(frame / result.settle_dt_s) % 2 == 0  # an even split of the frame
     assert result.dt_s == push_dt  # both reported
+    speed = deployment.scenes[0].simulation.push_speed_mm_s  # (the last coil's whip over: deploy.world_steps)
     assert result.simulated_time_s > deployment.push_time_s == pytest.approx(
-        (result.coil_length_mm + 1.0) / deployment.scenes[0].simulation.push_speed_mm_s)
+        (result.coil_length_mm + 1.0) / speed + max(0.0, DETACH_WHIP_S - 1.0 / speed))
     times = np.array([f.time_s for f in deployment.members[0].frames])
     assert np.allclose(np.diff(times), frame, rtol=0.25)  # about the same frames (even steps) before and after
     given = Deployment(implicit_scene(dt_s=push_dt))

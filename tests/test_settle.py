@@ -76,3 +76,40 @@ def test_a_stalled_kinetic_energy_is_told_from_a_slow_decay_and_a_creeping_plate
     assert not any(settle_stalled(plateau[:k], frame_s) for k in range(1, len(plateau) + 1))
     first = next(k for k in range(1, len(steady) + 1) if settle_stalled(steady[:k], frame_s))
     assert (first - 1) * frame_s == pytest.approx(SETTLE_STALL_S, abs=frame_s)
+
+
+def test_a_settling_that_stalls_again_goes_to_half_the_step_up_to_the_limit(monkeypatch):
+    """A member whose kinetic energy stalls (here: every SETTLE_STALL_S, as a steady oscillation
+    would) goes to the finest settling step, then, stalled again over SETTLE_STALL_S of its own
+    frames at that step, to half of it, SETTLE_REFINE_MAX times in all."""
+    from dataclasses import replace
+
+    import warpcoil.deploy as deploy
+    from warpcoil.deploy import Deployment
+    from warpcoil.implicit import SETTLE_REFINE_MAX
+
+    from test_ensemble import scene
+
+    frame_s = 0.005
+    window = math.ceil(SETTLE_STALL_S / frame_s - 1e-9)
+    monkeypatch.setattr(deploy, "settle_stalled", lambda kinetic, _frame_s: len(kinetic) > window)
+    base = scene(0.0)
+    push_s = (base.coils[0].length_mm + 1.0) / base.simulation.push_speed_mm_s
+    s = replace(base, simulation=replace(base.simulation, integrator="implicit", rest_kinetic_energy_nJ=1e-30,
+                                         max_time_s=push_s + (SETTLE_REFINE_MAX + 0.5) * SETTLE_STALL_S))
+    deployment = Deployment(s)
+    levels: list[int] = []
+    real = deployment._settle_chunk
+
+    def recorded(live):
+        real(live)
+        levels.append(deployment.members[0].settle_level)
+
+    deployment._settle_chunk = recorded
+    result = deployment.run()
+    assert result.status == "timeout"
+    finest = settle_finest_level(frame_s)
+    changes = [i for i in range(1, len(levels)) if levels[i] != levels[i - 1]]
+    assert [levels[i] for i in changes[-SETTLE_REFINE_MAX:]] == [finest * 2 ** r for r in range(SETTLE_REFINE_MAX)]
+    assert np.diff(changes[-SETTLE_REFINE_MAX:]).min() == window + 1  # each after its own window of frames
+    assert result.settle_dt_s == pytest.approx(frame_s / (2 * finest * 2 ** (SETTLE_REFINE_MAX - 1)))

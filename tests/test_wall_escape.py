@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import warpcoil as wc
-from warpcoil.deploy import Deployment, Ensemble
-from warpcoil.implicit import IMPLICIT_SETTLE_DT_MAX_S
+from warpcoil.deploy import COIL_GAP_MM, Deployment, Ensemble
+from warpcoil.implicit import DETACH_WHIP_S, IMPLICIT_SETTLE_DT_MAX_S
 from warpcoil.solver import Solver
 
 from test_ensemble import assert_same_run, scene as ensemble_scene
@@ -30,12 +30,16 @@ def released_fast(angle_deg: float) -> wc.Scene:
 @pytest.fixture
 def coarsest_settling(monkeypatch):
     """The settling step at its coarsest whatever the nodes' speed (implicit.settle_level
-    would take the finest here): the failure the health check must catch."""
+    would take the finest here), from the push's end on, before the tail's whip is over
+    (deploy.world_steps waits DETACH_WHIP_S after the last release): the failure the
+    health check must catch."""
     real = Ensemble.__init__
 
     def coarsest(self, *args, **kwargs):
         real(self, *args, **kwargs)
         self.settle_rule = lambda _speed, _c0, _frame_s: 1
+        speed = self.scenes[0].simulation.push_speed_mm_s
+        self.push_time_s -= max(0.0, DETACH_WHIP_S - COIL_GAP_MM / speed)
 
     monkeypatch.setattr(Ensemble, "__init__", coarsest)
     assert ensemble_scene().simulation.frame_interval_s / 2 == IMPLICIT_SETTLE_DT_MAX_S

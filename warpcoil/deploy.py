@@ -24,7 +24,8 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import implicit_step_s, make_solver, settle_finest_level, settle_level, settle_stalled, settle_step_s
+from .implicit import (DETACH_WHIP_S, detach_level, implicit_step_s, make_solver,
+                       SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -94,8 +95,12 @@ class Member:
         self.steps = 0
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
-        self.settle_finest = False  # its kinetic energy stalled at a longer step: the finest from then on
+        self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
+        self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
+        self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
+        self.detach_until_s = -math.inf  # frames starting before this run at the detachment step
+        self.detach_steps = 0  # steps the detachment step added (included in steps)
         self.result: RunResult | None = None
 
     def energy_budget_nJ(self, advance: np.ndarray, free: np.ndarray, push_force_uN: float) -> float:
@@ -142,6 +147,8 @@ class Ensemble:
         self._settling = False  # every member steps at its own settling step (_settle_chunk)
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
         self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
+        self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
+        self.detach_rule = detach_level  # (push speed mm/s, push step s, c0 mm) → steps per push step
         contact = self.scenes[0].contact
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
                                 **(solver_options or {})}  # benchmarks: other skins, ...
@@ -205,6 +212,7 @@ class Ensemble:
         start.copy_from(snapshot)
         self.solver = solver
         self.stepper = Stepper(solver, start, self.control, chunk=2 * self.stepper.chunk)
+        self._fine = {}  # (their solver and state were the old ones)
 
     def _settle_step(self) -> None:
         """Every coil is out (at the push's scheduled end, the same for every member): from
@@ -229,16 +237,17 @@ class Ensemble:
         for m in live:
             moving = free[m.nodes]
             speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
-            m.settle_finest = m.settle_finest or settle_stalled(m.settle_kinetic_nJ, frame_s)
-            m.settle_level = (settle_finest_level(frame_s) if m.settle_finest
+            if (m.settle_refine < SETTLE_REFINE_MAX
+                    and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
+                m.settle_refine += 1
+                m.settle_stall_from = len(m.settle_kinetic_nJ)
+            m.settle_level = (settle_finest_level(frame_s) * 2 ** (m.settle_refine - 1) if m.settle_refine
                               else self.settle_rule(speed, c0, frame_s))
         levels = sorted({m.settle_level for m in live})
         start = state.time_s
         for k in levels:
             if len(levels) > 1:
-                mask = np.zeros(self.model.world_count, dtype=np.int32)
-                mask[[m.world for m in live if m.settle_level == k]] = 1
-                self.control.running.assign(mask)
+                self._run_only([m for m in live if m.settle_level == k])
             if k not in self._levels:
                 self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
             self.solver.dt_s = frame_s / (2 * k)
@@ -247,10 +256,66 @@ class Ensemble:
             for m in live:
                 m.settle_steps += 2 * k if m.settle_level == k else 0
         if len(levels) > 1:
-            mask = np.zeros(self.model.world_count, dtype=np.int32)
-            mask[[m.world for m in live]] = 1
-            self.control.running.assign(mask)
+            self._run_only(live)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
+
+    def _detaching(self, member: Member, advance: np.ndarray, start_s: float, frame_s: float) -> bool:
+        """Whether the member's frame about to run (from ``start_s``, ``frame_s`` long) is a
+        detachment frame: its active coil's last node is released in it (the advance reaches
+        the coil's length, kernels/integrate.hold_node; then member.detach_until_s is set to
+        that moment + DETACH_WHIP_S), or it starts before member.detach_until_s."""
+        if member.active >= 0:
+            speed = member.scene.simulation.push_speed_mm_s
+            left_mm = member.coil_lengths_mm[member.active] - advance[member.coils.start + member.active]
+            if left_mm <= speed * frame_s * (1.0 + 1e-9):
+                member.detach_until_s = start_s + left_mm / speed + DETACH_WHIP_S
+                return True
+        return start_s < member.detach_until_s
+
+    def _push_chunk(self, live: list[Member]) -> None:
+        """One push frame. The implicit step is sized for the pusher; a coil's tail leaving
+        the catheter whips toward its pre-shape several times faster: a member in a
+        detachment frame (:meth:`_detaching`) takes it at push step / k (``detach_rule``,
+        k whole: the frame's length and the pusher's advance per frame unchanged); the
+        members of each k advance together, the others held (as :meth:`_settle_chunk`:
+        each equals its single run)."""
+        state, frame_steps, dt = self.stepper.state, self.stepper.chunk, self.solver.dt_s
+        if self.integrator == "implicit":
+            advance = state.advance.numpy()
+            c0 = self.model.contact.c0_mm
+            for m in live:
+                m.detach_level = (self.detach_rule(m.scene.simulation.push_speed_mm_s, dt, c0)
+                                  if self._detaching(m, advance, state.time_s, frame_steps * dt) else 1)
+        levels = sorted({m.detach_level for m in live}) or [1]
+        if levels == [1]:
+            self.stepper.run_chunk()
+            return
+        start = state.time_s
+        for k in levels:
+            if len(levels) > 1:
+                self._run_only([m for m in live if m.detach_level == k])
+            state.time_s = start
+            if k == 1:
+                self.stepper.run_chunk()
+                continue
+            if k not in self._fine:
+                self._fine[k] = Stepper(self.solver, state, self.control, chunk=k * frame_steps, graph_steps_max=2)
+            self.solver.dt_s = dt / k
+            try:
+                self._fine[k].run_chunk()
+            finally:
+                self.solver.dt_s = dt
+        if len(levels) > 1:
+            self._run_only(live)
+        if 1 not in levels:
+            self.stepper.steps += frame_steps  # (the push's step count; each member adds its own extra steps)
+        state.time_s = start + frame_steps * dt
+
+    def _run_only(self, members: list[Member]) -> None:
+        """Only ``members``' worlds step (Control.running); the others are held."""
+        mask = np.zeros(self.model.world_count, dtype=np.int32)
+        mask[[m.world for m in members]] = 1
+        self.control.running.assign(mask)
 
     def _restore(self, member: Member, snapshot: State) -> None:
         """Put a stopped member's nodes back to the frame's start (finite values)."""
@@ -267,7 +332,8 @@ class Ensemble:
     def _finish(self, member: Member, status: str, reason: str, started: float, snap: Snapshot) -> None:
         if status != COMPLETED and member.jam_reasons and member.jam_reasons[0] not in reason:
             reason = reason + "; earlier: " + "; ".join(member.jam_reasons)
-        member.steps = self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
+        member.steps = (self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
+                        + member.detach_steps)
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
                                    snap, self.step_reductions)
         if self._push_dt_s is not None:  # settled at longer steps: dt_s stays the push's, settle_dt_s the last
@@ -275,6 +341,7 @@ class Ensemble:
             settle_dt = (self.solver.dt_s if not self._settling else  # (None: ended before its first settling frame)
                          frame_s / (2 * member.settle_level) if member.settle_level else None)
             member.result = replace(member.result, dt_s=self._push_dt_s, settle_dt_s=settle_dt)
+        member.result = replace(member.result, detach_steps=member.detach_steps)
         self.control.stop(member.world)
 
     def _stalled(self, member: Member, frame: Frame, frame_s: float, advance: np.ndarray) -> str | None:
@@ -395,10 +462,11 @@ class Ensemble:
                 self._interrupt([m for m in self.members if m.result is None and m not in rerun], started)
                 break
             self.solver.copy_state(snapshot, self.stepper.state)
-            if self._settling:
+            settling = self._settling
+            if settling:
                 self._settle_chunk([m for m in self.members if m.result is None and m not in rerun])
             else:
-                self.stepper.run_chunk()
+                self._push_chunk([m for m in self.members if m.result is None and m not in rerun])
             state = self.stepper.state
             push = self.solver.take_push_force()
             running = [m for m in self.members if m.result is None and m not in rerun]
@@ -425,6 +493,9 @@ class Ensemble:
             for member in running:
                 if member in unstable:
                     continue
+                if not settling:  # the frame's steps beyond the push step's (kept only for a healthy frame)
+                    member.detach_steps += (member.detach_level - 1) * self.stepper.chunk
+                member.detach_level = 1
                 frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)
@@ -480,8 +551,9 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     step, push time) as a single run of its scene would take them (the onset is the
     explicit step's for either integrator: both integrate the same law). The implicit
     step at its default goes on at the settling step (s) from the push time (s: when
-    every coil is out, Σ (length + COIL_GAP_MM) / push speed) once every coil is
-    detached; otherwise both are 0."""
+    every coil is out, Σ (length + COIL_GAP_MM) / push speed, and the last coil's
+    whip, DETACH_WHIP_S after its release, is over) once every coil is detached;
+    otherwise both are 0."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
@@ -499,6 +571,9 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
                 coils = model.world_coils(w)
                 push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
                                   ) / sim.push_speed_mm_s
+                # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
+                # ends first
+                push_time += max(0.0, DETACH_WHIP_S - COIL_GAP_MM / sim.push_speed_mm_s)
         else:
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt

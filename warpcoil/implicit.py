@@ -81,6 +81,21 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # the run (docs/FORMULATION.md "Implicit step: the settling step")
 SETTLE_STALL_S = 0.5
 SETTLE_STALL_DROP = 0.1
+# ... and, stalled again over SETTLE_STALL_S at that step, at half of it, up to SETTLE_REFINE_MAX times in all
+# (finest / 4): C0091 tilted 0.01° ran its filling coil's free tip in place at 50 mm/s (2.3 nJ) at 2 ms from
+# 4.2 s to the 8 s timeout, and comes to rest at 1 ms (docs/SCENES.md "C0031's one deep wall overlap")
+SETTLE_REFINE_MAX = 3
+# detachment step: a push frame in which a coil's tail leaves the catheter, and those up to DETACH_WHIP_S after
+# its last node's release (the whip's measured duration: 10–15 ms on C0031 and the seed case), run at dt / k,
+# k whole: the fewest steps in which the pusher moves at most DETACH_ADVANCE_PER_C0 · c0 per step (a quarter of
+# the default push step), so a tail whipping at up to 18× the push speed (C0031's measured peak at fine steps,
+# 1.4–1.8 m/s at 100 mm/s) moves at most 3.6 c0 per step. Measured, the deepest overlap while the tail whips
+# against k: within 0.1 c0 of k = 8's from k = 3 on (C0031), within 0.3 c0 of k = 16's from k = 4 on (a 4 mm
+# helix into a 3.5 mm sphere; k = 2 and 3 were 1.5 and 0.8 c0 deeper than the push step's, whose numerical
+# damping slows the whip) (docs/FORMULATION.md "Implicit step: the detachment step")
+DETACH_WHIP_S = 0.015
+DETACH_ADVANCE_PER_C0 = 0.2
+DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
@@ -165,6 +180,14 @@ def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> in
         return finest
     wanted = math.ceil(frame_interval_s * speed_mm_s / (2.0 * SETTLE_ADVANCE_PER_C0 * c0_mm) - 1e-9)
     return min(max(wanted, coarsest), finest)
+
+
+def detach_level(push_speed_mm_s: float, dt_s: float, c0_mm: float) -> int:
+    """Steps per push step in a detachment frame (1: none added): the fewest in which the
+    pusher (``push_speed_mm_s``, mm/s) moves at most DETACH_ADVANCE_PER_C0 · ``c0_mm`` per
+    step of ``dt_s`` / k, at most DETACH_LEVEL_MAX (4 at the default push step)."""
+    wanted = math.ceil(push_speed_mm_s * dt_s / (DETACH_ADVANCE_PER_C0 * c0_mm) - 1e-9)
+    return min(max(wanted, 1), DETACH_LEVEL_MAX)
 
 
 class ImplicitSolver(Solver):

@@ -100,6 +100,7 @@ class RunResult:
     occlusion: dict | None = None  # in-silico Raymond–Roy class from the regions (warpcoil.occlusion)
     step_reductions: list[str] = field(default_factory=list)  # when and why the step was halved
     settle_dt_s: float | None = None  # implicit default: the last settling step (each frame's set by its fastest node)
+    detach_steps: int = 0  # implicit: steps the detachment frames added (in steps; docs/FORMULATION.md)
     wall_repairs: list[str] = field(default_factory=list)  # what wall intake changed (merged, removed, flipped)
     catheter_tip_mm: tuple | None = None  # the catheter as placed (placement "neck": computed)
     catheter_direction: tuple | None = None

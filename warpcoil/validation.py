@@ -557,6 +557,13 @@ def settle() -> list[CaseResult]:
     return settle_cases()
 
 
+def detach() -> list[CaseResult]:
+    """The detachment step (a coil's tail leaving the catheter at push step / k) against k = 16
+    (validation_detach.py)."""
+    from .validation_detach import detach_cases
+    return detach_cases()
+
+
 def dissipation() -> list[CaseResult]:
     """The numerical-dissipation ledger run on the solver: a linear chain's analytic loss and
     ratio order, and a free coil's order in dt (validation_dissipation.py)."""
@@ -912,6 +919,7 @@ CASES = {
     "implicit-wall": implicit_wall,
     "bdf2": bdf2,
     "settle": settle,
+    "detach": detach,
     "chord": chord,
     "dissipation": dissipation,
     "node-theta": node_theta,
