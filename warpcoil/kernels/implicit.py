@@ -158,11 +158,26 @@ def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
 
 
 @wp.func
-def pair_gap(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
-             node_radius: wp.array(dtype=wp.float64), a: int, b: int, c0: wp.float64):
+def pair_rest_offset(rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                     node_radius: wp.array(dtype=wp.float64), a: int, b: int, c0: wp.float64) -> wp.float64:
+    """Shift (mm) of a same-coil pair's gap: its rest clearance's contact.rest_offset
+    (0 for two coils; the rest shape only, so one value serves x and x_end)."""
+    if coil_of[a] != coil_of[b]:
+        return F64_0
+    ra0 = rest_x[a]
+    rb0 = rest_x[b]
+    rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
+    rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
+        - node_radius[a] - node_radius[b]
+    return rest_offset(rest_gap, c0)
+
+
+@wp.func
+def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+             node_radius: wp.array(dtype=wp.float64), a: int, b: int, offset: wp.float64):
     """Edges a and b at positions ``x``: closest-point parameters (s, t), the vector from
     b's closest point to a's (mm), its length and the gap (mm; a same-coil pair counted
-    from its rest clearance, contact.rest_offset)."""
+    from its rest clearance: ``offset``, pair_rest_offset)."""
     pa0 = x[a]
     pa1 = x[a + 1]
     pb0 = x[b]
@@ -172,12 +187,7 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil
     dist = wp.length(delta)
     gap = dist - node_radius[a] - node_radius[b]
     if coil_of[a] == coil_of[b]:
-        ra0 = rest_x[a]
-        rb0 = rest_x[b]
-        rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
-        rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
-            - node_radius[a] - node_radius[b]
-        gap = gap + rest_offset(rest_gap, c0)
+        gap = gap + offset
     return st, delta, dist, gap
 
 
@@ -220,11 +230,17 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
         if chord != 0:
             near_end = pair_in_reach(x_end, node_radius, a, b, c0, far)
         if near or near_end:
-            st, delta, dist, gap = pair_gap(x, rest_x, coil_of, node_radius, a, b, c0)
+            offset = pair_rest_offset(rest_x, coil_of, node_radius, a, b, c0)
+            st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset)
             gap_end = gap
             if chord != 0:
-                st_end, delta_end, dist_end, gap_end = pair_gap(x_end, rest_x, coil_of, node_radius, a, b, c0)
-                if not (gap < c0 and dist > wp.float64(1.0e-12)) and gap_end < c0 and dist_end > wp.float64(1.0e-12):
+                gap_end = c0  # out of reach at x_end: its gap is ≥ c0 there (no entry, the tangent)
+                st_end = st
+                delta_end = delta
+                dist_end = dist
+                if near_end:
+                    st_end, delta_end, dist_end, gap_end = pair_gap(x_end, coil_of, node_radius, a, b, offset)
+                if near_end and not (gap < c0 and dist > wp.float64(1.0e-12)) and gap_end < c0 and dist_end > wp.float64(1.0e-12):
                     st, delta, dist = st_end, delta_end, dist_end  # enters during the step
             if (gap < c0 or gap_end < c0) and dist > wp.float64(1.0e-12):
                 hit = 1
