@@ -157,15 +157,26 @@ def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
     return wp.mat33d(d[0], o[0], o[1], o[0], d[1], o[2], o[1], o[2], d[2])
 
 
+REST_BOUND_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: far above rounding of mm-scale lengths
+REACH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: the same, for pair_in_reach_at_end
+
+
 @wp.func
 def pair_rest_offset(rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                      node_radius: wp.array(dtype=wp.float64), a: int, b: int, c0: wp.float64) -> wp.float64:
     """Shift (mm) of a same-coil pair's gap: its rest clearance's contact.rest_offset
-    (0 for two coils; the rest shape only, so one value serves x and x_end)."""
+    (0 for two coils; the rest shape only, so one value serves x and x_end). 0 without
+    the closest points where the midpoints' bound on the rest clearance (apart less both
+    half-lengths and radii) exceeds c0 by ``REST_BOUND_MARGIN_MM`` (rounding cannot reach
+    it, so the value is the closest points' own 0)."""
     if coil_of[a] != coil_of[b]:
         return F64_0
     ra0 = rest_x[a]
     rb0 = rest_x[b]
+    apart = wp.length(wp.float64(0.5) * (ra0 + rest_x[a + 1] - rb0 - rest_x[b + 1]))
+    halves = wp.float64(0.5) * (wp.length(rest_x[a + 1] - ra0) + wp.length(rest_x[b + 1] - rb0))
+    if apart - halves - node_radius[a] - node_radius[b] > c0 + REST_BOUND_MARGIN_MM:
+        return F64_0
     rst = segment_closest_params(ra0, rest_x[a + 1], rb0, rest_x[b + 1])
     rest_gap = wp.length(ra0 + rst[0] * (rest_x[a + 1] - ra0) - rb0 - rst[1] * (rest_x[b + 1] - rb0)) \
         - node_radius[a] - node_radius[b]
@@ -191,15 +202,30 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
     return st, delta, dist, gap
 
 
+@wp.kernel
+def edge_ends(x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
+              node_radius: wp.array(dtype=wp.float64), end_mid: wp.array(dtype=wp.vec3d),
+              end_half: wp.array(dtype=wp.float64)):
+    """Each edge at the chord's predicted end: its midpoint (mm) and half-length plus
+    radius (mm), once per step for pair_in_reach_at_end (a coil's last node: itself, 0)."""
+    e = wp.tid()
+    if has_next[e] == 0:
+        end_mid[e] = x_end[e]
+        end_half[e] = F64_0
+        return
+    end_mid[e] = wp.float64(0.5) * (x_end[e] + x_end[e + 1])
+    end_half[e] = wp.float64(0.5) * wp.length(x_end[e + 1] - x_end[e]) + node_radius[e]
+
+
 @wp.func
-def pair_in_reach(x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
-                  c0: wp.float64, far: wp.float64) -> bool:
-    """Edges a and b at ``x`` may be within the contact range: their midpoints within
-    ``far`` and within both half-lengths, radii and c0."""
-    apart = wp.length(wp.float64(0.5) * (x[a] + x[a + 1] - x[b] - x[b + 1]))
-    reach = wp.float64(0.5) * (wp.length(x[a + 1] - x[a]) + wp.length(x[b + 1] - x[b])) + node_radius[a] \
-        + node_radius[b] + c0
-    return apart <= far and apart < reach
+def pair_in_reach_at_end(end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64), a: int, b: int,
+                         c0: wp.float64, far: wp.float64) -> bool:
+    """Edges a and b at the predicted end may be within the contact range: their
+    midpoints within ``far`` and within both half-lengths, radii and c0 (edge_ends'
+    values), widened by ``REACH_MARGIN_MM`` so that no rounding drops a pair in range
+    (a pair it adds beyond them is out of range and adds nothing)."""
+    apart = wp.length(end_mid[a] - end_mid[b])
+    return apart <= far + REACH_MARGIN_MM and apart < end_half[a] + end_half[b] + c0 + REACH_MARGIN_MM
 
 
 @wp.func
@@ -208,7 +234,7 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64, x_end: wp.array(dtype=wp.vec3d),
-                   chord: int):
+                   end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64), chord: int):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
@@ -216,7 +242,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     c0 in the rest shape start at their rest clearance (contact.rest_offset), as the
     force does. With ``chord`` the stiffness is the law's chord between the gap at x
     and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
-    x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal)."""
+    x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal);
+    ``end_mid``, ``end_half``: edge_ends at ``x_end``."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -228,7 +255,7 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
         near = apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(x[b + 1] - x[b]) + node_radius[b]
         near_end = False
         if chord != 0:
-            near_end = pair_in_reach(x_end, node_radius, a, b, c0, far)
+            near_end = pair_in_reach_at_end(end_mid, end_half, a, b, c0, far)
         if near or near_end:
             offset = pair_rest_offset(rest_x, coil_of, node_radius, a, b, c0)
             st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset)
@@ -312,6 +339,8 @@ def edge_contact_stiffness(
     pair_k: wp.array2d(dtype=wp.float64),
     pair_n: wp.array2d(dtype=wp.vec3d),
     x_end: wp.array(dtype=wp.vec3d),
+    end_mid: wp.array(dtype=wp.vec3d),
+    end_half: wp.array(dtype=wp.float64),
     chord: int,
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
@@ -345,7 +374,8 @@ def edge_contact_stiffness(
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                             reach_a, p0, c0, u_linear, radius, x_end, chord)
+                                                             reach_a, p0, c0, u_linear, radius, x_end, end_mid,
+                                                             end_half, chord)
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
             d, o = to_fixed_sym(start)
             s_diag = s_diag + d
