@@ -203,18 +203,37 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
 
 
 @wp.kernel
-def edge_ends(x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
+def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
               node_radius: wp.array(dtype=wp.float64), end_mid: wp.array(dtype=wp.vec3d),
-              end_half: wp.array(dtype=wp.float64)):
+              end_half: wp.array(dtype=wp.float64), sweep: wp.array(dtype=wp.float64)):
     """Each edge at the chord's predicted end: its midpoint (mm) and half-length plus
-    radius (mm), once per step for pair_in_reach_at_end (a coil's last node: itself, 0)."""
+    radius (mm), for pair_in_reach_at_end; and ``sweep`` (mm): the larger half-length
+    plus radius at x and x_end, plus how far the midpoint moves between them, for
+    swept_apart (a coil's last node: its position, 0, 0)."""
     e = wp.tid()
     if has_next[e] == 0:
         end_mid[e] = x_end[e]
         end_half[e] = F64_0
+        sweep[e] = F64_0
         return
-    end_mid[e] = wp.float64(0.5) * (x_end[e] + x_end[e + 1])
-    end_half[e] = wp.float64(0.5) * wp.length(x_end[e + 1] - x_end[e]) + node_radius[e]
+    m = wp.float64(0.5) * (x_end[e] + x_end[e + 1])
+    end_mid[e] = m
+    half = wp.float64(0.5) * wp.length(x_end[e + 1] - x_end[e]) + node_radius[e]
+    end_half[e] = half
+    half_x = wp.float64(0.5) * wp.length(x[e + 1] - x[e]) + node_radius[e]
+    sweep[e] = wp.max(half, half_x) + wp.length(m - wp.float64(0.5) * (x[e] + x[e + 1]))
+
+
+@wp.func
+def swept_apart(mid: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.float64), a: int, b: int,
+                c0: wp.float64) -> bool:
+    """Edges a and b (midpoints ``mid`` at x) cannot be in reach at x nor at the predicted
+    end (pair_stiffness's near and near_end both false): their midpoints farther apart
+    than both sweeps and c0, widened by 2 ``REACH_MARGIN_MM`` (no square root; the
+    triangle inequality through x_end's midpoints)."""
+    d = mid[a] - mid[b]
+    reach = sweep[a] + sweep[b] + c0 + wp.float64(2.0) * REACH_MARGIN_MM
+    return wp.dot(d, d) > reach * reach
 
 
 @wp.func
@@ -341,6 +360,7 @@ def edge_contact_stiffness(
     x_end: wp.array(dtype=wp.vec3d),
     end_mid: wp.array(dtype=wp.vec3d),
     end_half: wp.array(dtype=wp.float64),
+    sweep: wp.array(dtype=wp.float64),
     chord: int,
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
@@ -352,7 +372,8 @@ def edge_contact_stiffness(
     Each touching pair is also recorded (``record_pair``, sorted by partner) for
     the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
     every neighbour-list partner is a candidate (a pair may enter the contact range
-    on the way to the predicted end ``x_end``)."""
+    on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
+    ``end_half``, ``sweep``: edge_ends)."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -373,6 +394,8 @@ def edge_contact_stiffness(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
+            if chord != 0 and swept_apart(mid, sweep, a, b, c0):  # adds zero (pair_stiffness: neither near)
+                continue
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius, x_end, end_mid,
                                                              end_half, chord)
