@@ -399,6 +399,8 @@ def edge_contact_stiffness(
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius, x_end, end_mid,
                                                              end_half, chord)
+            if hit == 0:  # zero blocks: their fixed-point sums add 0
+                continue
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
             d, o = to_fixed_sym(start)
             s_diag = s_diag + d
