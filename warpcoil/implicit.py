@@ -244,6 +244,7 @@ class ImplicitSolver(Solver):
         self._end_mid = vecs()  # per edge at the predicted end: midpoint (mm), half-length + radius (mm)
         self._end_half = wp.zeros(n, dtype=wp.float64, device=dev)
         self._sweep = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
+        self._end_move = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -350,14 +351,15 @@ class ImplicitSolver(Solver):
         if self.coil_contact:
             if chord_on:
                 wp.launch(kernels.edge_ends, n, device=dev, inputs=[
-                    state_in.x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep])
+                    state_in.x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
+                    self._end_move])
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n, x_end, self._end_mid, self._end_half, self._sweep,
-                chord_on])
+                self._end_move, chord_on])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

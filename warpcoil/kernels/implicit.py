@@ -205,16 +205,19 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
 @wp.kernel
 def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
               node_radius: wp.array(dtype=wp.float64), end_mid: wp.array(dtype=wp.vec3d),
-              end_half: wp.array(dtype=wp.float64), sweep: wp.array(dtype=wp.float64)):
+              end_half: wp.array(dtype=wp.float64), sweep: wp.array(dtype=wp.float64),
+              end_move: wp.array(dtype=wp.float64)):
     """Each edge at the chord's predicted end: its midpoint (mm) and half-length plus
     radius (mm), for pair_in_reach_at_end; and ``sweep`` (mm): the larger half-length
     plus radius at x and x_end, plus how far the midpoint moves between them, for
-    swept_apart (a coil's last node: its position, 0, 0)."""
+    swept_apart; ``end_move`` (mm): the larger of its two nodes' moves from x to x_end, for
+    pair_stiffness (a coil's last node: its position, 0, 0, 0)."""
     e = wp.tid()
     if has_next[e] == 0:
         end_mid[e] = x_end[e]
         end_half[e] = F64_0
         sweep[e] = F64_0
+        end_move[e] = F64_0
         return
     m = wp.float64(0.5) * (x_end[e] + x_end[e + 1])
     end_mid[e] = m
@@ -222,6 +225,7 @@ def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_
     end_half[e] = half
     half_x = wp.float64(0.5) * wp.length(x[e + 1] - x[e]) + node_radius[e]
     sweep[e] = wp.max(half, half_x) + wp.length(m - wp.float64(0.5) * (x[e] + x[e + 1]))
+    end_move[e] = wp.max(wp.length(x_end[e] - x[e]), wp.length(x_end[e + 1] - x[e + 1]))
 
 
 @wp.func
@@ -253,7 +257,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64, x_end: wp.array(dtype=wp.vec3d),
-                   end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64), chord: int):
+                   end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64),
+                   end_move: wp.array(dtype=wp.float64), chord: int):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
@@ -262,7 +267,9 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     force does. With ``chord`` the stiffness is the law's chord between the gap at x
     and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
     x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal);
-    ``end_mid``, ``end_half``: edge_ends at ``x_end``."""
+    ``end_mid``, ``end_half``, ``end_move``: edge_ends. A pair whose gap at x exceeds c0 by
+    more than both edges' moves (and ``REACH_MARGIN_MM``) stays out of range at x_end (the
+    segments' distance moves no more than their nodes): no gap there is computed."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -280,6 +287,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
             st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset)
             gap_end = gap
             if chord != 0:
+                if gap >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM:
+                    near_end = False
                 gap_end = c0  # out of reach at x_end: its gap is ≥ c0 there (no entry, the tangent)
                 st_end = st
                 delta_end = delta
@@ -361,6 +370,7 @@ def edge_contact_stiffness(
     end_mid: wp.array(dtype=wp.vec3d),
     end_half: wp.array(dtype=wp.float64),
     sweep: wp.array(dtype=wp.float64),
+    end_move: wp.array(dtype=wp.float64),
     chord: int,
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
@@ -373,7 +383,7 @@ def edge_contact_stiffness(
     the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
     every neighbour-list partner is a candidate (a pair may enter the contact range
     on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
-    ``end_half``, ``sweep``: edge_ends)."""
+    ``end_half``, ``sweep``, ``end_move``: edge_ends)."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -398,7 +408,7 @@ def edge_contact_stiffness(
                 continue
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius, x_end, end_mid,
-                                                             end_half, chord)
+                                                             end_half, end_move, chord)
             if hit == 0:  # zero blocks: their fixed-point sums add 0
                 continue
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
