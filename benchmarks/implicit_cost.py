@@ -1,6 +1,7 @@
 """Cost of the implicit step: the seed case and the faceted sac, run by run and launch by launch.
 
     python -m benchmarks.implicit_cost [--repeats 3] [--out docs/bench/implicit_cost.md]
+        [--solver-options '{"theta": 0.7, "near_theta": 1.0, "contact_stiffness": "chord"}']
 
 1. ``scenes/seed_sphere.toml`` and a 60 mm coil (d 0.2921 mm) into the irregular
    faceted sac of 20 mm³ (warpcoil.faceted_sac, as ``warpcoil validate dense-pack``
@@ -29,6 +30,7 @@ contention is not). Units µs, s.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 from collections import defaultdict
@@ -86,9 +88,10 @@ def timed_run(ensemble: Ensemble) -> dict:
                 searches_per_step=float(searches.numpy().sum()) / result.steps if searches is not None else math.nan)
 
 
-def seed_states() -> dict:
-    """Host copies of the seed run's state at the three moments (with the step there)."""
-    deployment = Deployment(seed_scene())
+def seed_states(options: dict | None = None) -> dict:
+    """Host copies of the seed run's state at the three moments (with the step there);
+    ``options``: the solver's (Deployment's solver_options)."""
+    deployment = Deployment(seed_scene(), solver_options=options)
     total = float(deployment.coil_lengths_mm.sum())
     states: dict = {}
 
@@ -126,10 +129,11 @@ def replay_us(kind: str, target, args, kwargs, device, launches: int = 20, repea
     return best / launches * 1e6
 
 
-def profile(states: dict, repeats: int, steps: int = 64) -> tuple[dict, dict, dict]:
+def profile(states: dict, repeats: int, steps: int = 64, options: dict | None = None) -> tuple[dict, dict, dict]:
     """Per moment: the graph-replayed step (µs, fastest of ``repeats`` chunks), µs per
-    launch of one step replayed alone, and µs per step of each launch in sequence."""
-    deployment = Deployment(seed_scene())
+    launch of one step replayed alone, and µs per step of each launch in sequence
+    (``options``: the solver's, as seed_states had them)."""
+    deployment = Deployment(seed_scene(), solver_options=options)
     solver, control, device = deployment.solver, deployment.control, deployment.model.device
     whole, launches, sequence = {}, {}, {}
     for moment, host in states.items():
@@ -211,13 +215,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=None, help="also write the report (markdown) here")
+    parser.add_argument("--solver-options", type=json.loads, default=None,
+                        help="the seed case's solver options (JSON), e.g. the gated θ with the chord stiffness")
     args = parser.parse_args()
+    options = args.solver_options
     runs = {}
-    for name, make in (("seed case", lambda: Deployment(seed_scene())), ("faceted sac 20 mm³", faceted_sac_run)):
+    for name, make in (("seed case", lambda: Deployment(seed_scene(), solver_options=options)),
+                       ("faceted sac 20 mm³", faceted_sac_run)):
         rows = [timed_run(make()) for _ in range(args.repeats)]
         runs[name] = min(rows, key=lambda r: r["cpu_s"])
         print(name, runs[name], flush=True)
-    whole, launches, sequence = profile(seed_states(), args.repeats)
+    whole, launches, sequence = profile(seed_states(options), args.repeats, options=options)
     run_table = markdown_table(
         ["case", "status", "steps", "CPU s (fastest)", "of which steps", "of which frames", "µs per step",
          "signed BVH queries per step"],
@@ -226,7 +234,8 @@ def main() -> None:
     launch_table = moment_table("replayed alone", launches, "sum of the launches", whole)
     sequence_table = moment_table("in sequence", sequence, "sum in sequence", whole)
     text = "\n\n".join([
-        "# Cost of the implicit step", f"`python -m benchmarks.implicit_cost --repeats {args.repeats}`",
+        "# Cost of the implicit step", f"`python -m benchmarks.implicit_cost --repeats {args.repeats}"
+        + (f" --solver-options '{json.dumps(options)}'`" if options else "`"),
         f"Machine: {machine()}. Times: this process's CPU time (the machine is shared).",
         run_table, launch_table, sequence_table]) + "\n"
     print(text)
