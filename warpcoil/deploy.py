@@ -175,6 +175,7 @@ class Ensemble:
         previous one); none when no coil is left."""
         member.active = coil if coil < len(member.coils) else -1
         self.control.set_active_coil(member.active, world=member.world)
+        self.solver.forget_push_reading(member.world)
         if member.active >= 0:
             member.coil_status[coil] = "pushing"
 
