@@ -75,3 +75,25 @@ def test_blended_peak_is_eulers_while_the_step_start_force_rings(traces, name):
     rms = lambda p: np.sqrt((p**2).mean())  # noqa: E731
     assert rms(reading) < min(rms(raw), 1.1 * rms(traces["euler"][1]))
     assert abs(reading.mean() - raw.mean()) <= 0.01 * abs(raw.mean())
+
+
+def test_a_new_coils_reading_starts_unblended():
+    """When the pusher is handed to the next coil (deploy.Ensemble._activate) the previous
+    coil's last reading is forgotten: the next step reads P_n itself, then blends again."""
+    deployment = Deployment(implicit_scene(), solver_options=VARIANTS["theta"])
+    solver, control = deployment.solver, deployment.control
+    a = deployment.stepper.state
+    b = new_state_like(deployment.model)
+    b.copy_from(a)
+    solver.allocate_neighbour_grid(a)
+    solver.take_push_force()
+    raw, reading = [], []
+    for n in range(80):
+        if n == 70:
+            solver.forget_push_reading(0)
+        solver.step(a, b, control)
+        a, b = b, a
+        raw.append(np.cumsum(solver.push_share.numpy())[-1])
+        reading.append(solver.take_push_force().mean_uN[0])
+    assert reading[70] == raw[70] and abs(raw[69]) > 0.0
+    assert reading[71] == pytest.approx(0.3 * raw[70] + 0.7 * raw[71], rel=1e-12)

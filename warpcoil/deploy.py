@@ -175,6 +175,7 @@ class Ensemble:
         previous one); none when no coil is left."""
         member.active = coil if coil < len(member.coils) else -1
         self.control.set_active_coil(member.active, world=member.world)
+        self.solver.forget_push_reading(member.world)
         if member.active >= 0:
             member.coil_status[coil] = "pushing"
 
@@ -197,8 +198,9 @@ class Ensemble:
         The step bound is linear; dense contact (several deep overlaps on one node)
         can be stiffer, and then the frame is redone rather than lost. Not done for
         a run that asked for ``allow_unstable_dt``: it gets the step it asked for."""
-        done = self.members[0].settle_steps if self._settling else self.stepper.steps
-        self._steps_before += done - self.stepper.chunk  # the failed chunk is dropped
+        done, failed = ((self.members[0].settle_steps, 2 * self.members[0].settle_level) if self._settling
+                        else (self.stepper.steps, self.stepper.chunk))
+        self._steps_before += done - failed  # the failed frame's steps are dropped
         self._settling = False  # (a single run) on at the halved step to its end
         options = dict(self._solver_options)
         if self._push_dt_s is not None:  # halved while settling: on with Euler, as _settle_step switched to
@@ -280,7 +282,9 @@ class Ensemble:
         members of each k advance together, the others held (as :meth:`_settle_chunk`:
         each equals its single run)."""
         state, frame_steps, dt = self.stepper.state, self.stepper.chunk, self.solver.dt_s
-        if self.integrator == "implicit":
+        if self.integrator == "implicit" and getattr(self.solver, "method", "theta") != "bdf2":
+            # (BDF2's history flag is one per state, shared by the members: a member held while another
+            # steps finer would resume it wrongly, so a BDF2 run keeps the push step through detachment)
             advance = state.advance.numpy()
             c0 = self.model.contact.c0_mm
             for m in live:

@@ -637,6 +637,13 @@ class Solver:
                                        + 0.5 * (omega_mid**2 / inv_inertia).sum())
         return energies
 
+    def forget_push_reading(self, world: int) -> None:
+        """The θ-method's push reading of ``world`` restarts at its next step (a new coil is pushed:
+        the previous coil's last reading is not blended into it)."""
+        previous = self._push_previous.numpy()
+        previous[world] = 0.0
+        self._push_previous.assign(previous)
+
     def take_push_force(self) -> PushForce:
         """Per world, over the steps since the last call (the solver counts them):
         the push force's signed mean, peak compressive value and RMS (µN,
