@@ -23,27 +23,32 @@ def implicit_scene():
     return dataclasses.replace(s, simulation=dataclasses.replace(s.simulation, integrator="implicit"))
 
 
+def trace(options: dict, steps: int = STEPS, forget_at: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Over ``steps`` single steps: (P_n, the push force at each step's start = Σ push shares in
+    node order; the accumulator's reading of each step) (µN). ``forget_at``: the step before which
+    the solver forgets its previous reading (a new coil is pushed)."""
+    deployment = Deployment(implicit_scene(), solver_options=options)
+    solver, control = deployment.solver, deployment.control
+    a = deployment.stepper.state
+    b = new_state_like(deployment.model)
+    b.copy_from(a)
+    solver.allocate_neighbour_grid(a)
+    solver.take_push_force()
+    raw, reading = [], []
+    for n in range(steps):
+        if n == forget_at:
+            solver.forget_push_reading(0)
+        solver.step(a, b, control)
+        a, b = b, a
+        raw.append(np.cumsum(solver.push_share.numpy())[-1])  # in node order, as the kernel sums
+        reading.append(solver.take_push_force().mean_uN[0])
+    return np.array(raw), np.array(reading)
+
+
 @pytest.fixture(scope="module")
 def traces() -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per variant, over STEPS single steps: (P_n, the push force at each step's start =
-    Σ push shares in node order; the accumulator's reading of each step) (µN)."""
-    out = {}
-    for name, options in VARIANTS.items():
-        deployment = Deployment(implicit_scene(), solver_options=options)
-        solver, control = deployment.solver, deployment.control
-        a = deployment.stepper.state
-        b = new_state_like(deployment.model)
-        b.copy_from(a)
-        solver.allocate_neighbour_grid(a)
-        solver.take_push_force()
-        raw, reading = [], []
-        for _ in range(STEPS):
-            solver.step(a, b, control)
-            a, b = b, a
-            raw.append(np.cumsum(solver.push_share.numpy())[-1])  # in node order, as the kernel sums
-            reading.append(solver.take_push_force().mean_uN[0])
-        out[name] = np.array(raw), np.array(reading)
-    return out
+    """Per variant, its :func:`trace` over STEPS steps."""
+    return {name: trace(options) for name, options in VARIANTS.items()}
 
 
 def test_euler_reads_the_push_force_at_the_step_start(traces):
@@ -80,20 +85,6 @@ def test_blended_peak_is_eulers_while_the_step_start_force_rings(traces, name):
 def test_a_new_coils_reading_starts_unblended():
     """When the pusher is handed to the next coil (deploy.Ensemble._activate) the previous
     coil's last reading is forgotten: the next step reads P_n itself, then blends again."""
-    deployment = Deployment(implicit_scene(), solver_options=VARIANTS["theta"])
-    solver, control = deployment.solver, deployment.control
-    a = deployment.stepper.state
-    b = new_state_like(deployment.model)
-    b.copy_from(a)
-    solver.allocate_neighbour_grid(a)
-    solver.take_push_force()
-    raw, reading = [], []
-    for n in range(80):
-        if n == 70:
-            solver.forget_push_reading(0)
-        solver.step(a, b, control)
-        a, b = b, a
-        raw.append(np.cumsum(solver.push_share.numpy())[-1])
-        reading.append(solver.take_push_force().mean_uN[0])
-    assert reading[70] == raw[70] and abs(raw[69]) > 0.0
+    raw, reading = trace(VARIANTS["theta"], steps=80, forget_at=70)
+    assert reading[70] == raw[70] and raw[69] != raw[70]
     assert reading[71] == pytest.approx(0.3 * raw[70] + 0.7 * raw[71], rel=1e-12)

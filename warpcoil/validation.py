@@ -19,7 +19,7 @@ from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
 from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
-from .implicit import implicit_step_s, make_solver
+from .implicit import IMPLICIT_THETA, implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -760,21 +760,23 @@ def _positions_at(model, start: np.ndarray, solver: Solver, time_s: float) -> np
 
 
 def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0.025),
-                         theta: float | None = None, method: str | None = None) -> list[CaseResult]:
+                         theta: float | None = None, method: str | None = None,
+                         labelled_options: tuple[str, dict] | None = None) -> list[CaseResult]:
     """The implicit step against the reference integrator (symplectic Euler at
     0.005 × its bound) as dt shrinks: RMS node distance at ``time_s`` over the
     reference's RMS displacement, for dt = factor × the explicit bound, and the
     observed order log2(e(2 dt)/e(dt)) of the finest pair. Both steps are first
     order; the implicit one reaches its asymptotic order only once dt resolves
     the stiffest modes (ω_max dt ≪ 1): the observed order rises towards 1
-    as dt shrinks (0.697, 0.697, 0.73, 0.80 on these pairs)."""
+    as dt shrinks (0.697, 0.697, 0.73, 0.80 on these pairs). ``labelled_options``: (row label,
+    solver options) of another implicit variant, in place of ``theta`` / ``method``."""
     model, start = _relaxing_helix()
     reference = Solver(model, coil_contact=False, dt_safety=0.005)
     x_ref = _positions_at(model, start, reference, time_s)
     scale = float(np.sqrt(((x_ref - start) ** 2).sum(axis=1).mean()))
     bound = reference.bound.dt_s
     errors = []
-    label, options = _implicit_label(theta, method)
+    label, options = labelled_options or _implicit_label(theta, method)
     for f in factors:
         x = _positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False, **options),
                           time_s)
@@ -839,13 +841,13 @@ def loss_per_period(tip: np.ndarray, sample_s: float) -> tuple[float, float]:
     return 1.0 - (a1 / a0) ** (1.0 / cycles), 2.0 * math.pi * cycles / ((t1 - t0) * sample_s)
 
 
-def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: float | None = None) -> list[CaseResult]:
-    """Numerical damping of the implicit step at its default dt: undamped free
-    vibration of a 20 mm cantilever (40 segments) in its lowest bending mode,
-    amplitude lost per period (between tip maxima after the first period, when
-    the higher modes the start excites have died out) against the linear theory
-    of the θ-method, 1 − |R|^(2π/(ω dt)) with |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²)
-    (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt), ω measured (BDF2: validation_bdf2)."""
+def cantilever_vibration_loss(solver_options: dict, periods: int = 3, samples_per_period: int = 100
+                              ) -> tuple[float, float, float, float]:
+    """Undamped free vibration of a 20 mm cantilever (40 segments) started in its static
+    tip-load shape, on the implicit step at its default dt with ``solver_options``:
+    (amplitude lost per period between tip maxima after the first period, when the higher
+    modes the start excites have died out; ω measured, rad/s; dt s; the reference ω
+    3.516 √(EI/ρL⁴), rad/s)."""
     length, segments = 20.0, 40
     l0 = length / segments
     spec = CoilSpec(length_mm=length, segment_length_mm=l0)
@@ -858,7 +860,7 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
     builder.add_coil(spec, rest)
     builder.clamp(0, node=0)
     model = builder.finalize()
-    solver = _solver(model, "implicit", coil_contact=False, **({} if theta is None else {"theta": theta}))
+    solver = _solver(model, "implicit", coil_contact=False, **solver_options)
     dt = solver.dt_s
     omega_ref = 3.516 * math.sqrt(spec.EI / (spec.rho * length**4))
     chunk = 2 * max(1, round(2.0 * math.pi / omega_ref / dt / samples_per_period / 2))
@@ -866,7 +868,16 @@ def implicit_damping(periods: int = 3, samples_per_period: int = 100, theta: flo
     count = (periods + 1) * samples_per_period + samples_per_period // 2
     tip = np.array([stepper.run_chunk().x.numpy()[-1, 1] for _ in range(count)])
     loss, omega = loss_per_period(tip, chunk * dt)
-    w, th = omega * dt, solver.theta
+    return loss, omega, dt, omega_ref
+
+
+def implicit_damping(theta: float | None = None) -> list[CaseResult]:
+    """Numerical damping of the implicit step at its default dt (:func:`cantilever_vibration_loss`)
+    against the linear theory of the θ-method, 1 − |R|^(2π/(ω dt)) with
+    |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²) (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt),
+    ω measured (BDF2: validation_bdf2)."""
+    loss, omega, dt, omega_ref = cantilever_vibration_loss({} if theta is None else {"theta": theta})
+    w, th = omega * dt, IMPLICIT_THETA if theta is None else theta
     theory = 1.0 - ((1.0 + ((1.0 - th) * w) ** 2) / (1.0 + (th * w) ** 2)) ** (math.pi / w)
     label = f"implicit θ {th:g}"
     return [_row(f"{label}: lowest bending mode ω (rad/s) vs 3.516 √(EI/ρL⁴)", omega_ref, omega, 5e-2),
