@@ -245,11 +245,9 @@ class Ensemble:
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
             m.settle_level = (settle_finest_level(frame_s) * 2 ** (m.settle_refine - 1) if m.settle_refine
                               else self.settle_rule(speed, c0, frame_s))
-        levels = sorted({m.settle_level for m in live})
         start = state.time_s
-        for k in levels:
-            if len(levels) > 1:
-                self._run_only([m for m in live if m.settle_level == k])
+
+        def run_level(k: int) -> None:
             if k not in self._levels:
                 self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
             self.solver.dt_s = frame_s / (2 * k)
@@ -257,8 +255,8 @@ class Ensemble:
             self.stepper.run_chunk()
             for m in live:
                 m.settle_steps += 2 * k if m.settle_level == k else 0
-        if len(levels) > 1:
-            self._run_only(live)
+
+        self._by_level(live, lambda m: m.settle_level, run_level)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
     def _detaching(self, member: Member, advance: np.ndarray, start_s: float, frame_s: float) -> bool:
@@ -290,18 +288,12 @@ class Ensemble:
             for m in live:
                 m.detach_level = (self.detach_rule(m.scene.simulation.push_speed_mm_s, dt, c0)
                                   if self._detaching(m, advance, state.time_s, frame_steps * dt) else 1)
-        levels = sorted({m.detach_level for m in live}) or [1]
-        if levels == [1]:
-            self.stepper.run_chunk()
-            return
         start = state.time_s
-        for k in levels:
-            if len(levels) > 1:
-                self._run_only([m for m in live if m.detach_level == k])
-            state.time_s = start
+
+        def run_level(k: int) -> None:
             if k == 1:
                 self.stepper.run_chunk()
-                continue
+                return
             if k not in self._fine:
                 self._fine[k] = Stepper(self.solver, state, self.control, chunk=k * frame_steps, graph_steps_max=2)
             self.solver.dt_s = dt / k
@@ -309,11 +301,27 @@ class Ensemble:
                 self._fine[k].run_chunk()
             finally:
                 self.solver.dt_s = dt
-        if len(levels) > 1:
-            self._run_only(live)
-        if 1 not in levels:
+
+        if 1 not in self._by_level(live, lambda m: m.detach_level, run_level):
             self.stepper.steps += frame_steps  # (the push's step count; each member adds its own extra steps)
         state.time_s = start + frame_steps * dt
+
+    def _by_level(self, live: list[Member], level_of: Callable[[Member], int],
+                  run_level: Callable[[int], None]) -> list[int]:
+        """Steps the members of each level (``level_of``) together by ``run_level(level)``,
+        from the frame's start clock, the others held (Control.running): a member's steps do
+        not depend on the others', so it equals its single run. Returns the levels."""
+        state = self.stepper.state
+        levels = sorted({level_of(m) for m in live}) or [1]
+        start = state.time_s
+        for k in levels:
+            if len(levels) > 1:
+                self._run_only([m for m in live if level_of(m) == k])
+            state.time_s = start
+            run_level(k)
+        if len(levels) > 1:
+            self._run_only(live)
+        return levels
 
     def _run_only(self, members: list[Member]) -> None:
         """Only ``members``' worlds step (Control.running); the others are held."""
