@@ -250,8 +250,7 @@ class ImplicitSolver(Solver):
         self._end_move = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
         # the free-flight end is known before the contact pass, which then notes the chord candidates (Solver)
         self._noted_chord = self.chord and chord_end == "flight" and self.coil_contact
-        if self._noted_chord:
-            self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE), dtype=wp.int32, device=dev)
+        self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE if self._noted_chord else 1), dtype=wp.int32, device=dev)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -287,9 +286,9 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.edge_ends, n, device=dev, inputs=[
                 state_in.x, self._x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
                 self._end_move])
-        self._note_chord = int(noted)
+        self._note_chord = noted
         self.compute_forces(state_in, control.running)
-        self._note_chord = 0
+        self._note_chord = False
         if self.method == "bdf2":
             wp.launch(kernels.keep_history, n, device=dev, inputs=[state_in.x, state_in.v, state_out.x_prev,
                                                                   state_out.v_prev])

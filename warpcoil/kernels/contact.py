@@ -1045,20 +1045,18 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
                c0: wp.float64, u_linear: wp.float64, far: wp.float64, sum_start: wp.array(dtype=vec3l),
                sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
                contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32), record: int,
-               touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32),
-               neighbour_count: wp.array(dtype=wp.int32), note_chord: int, end_mid: wp.array(dtype=wp.vec3d),
-               end_half: wp.array(dtype=wp.float64), end_move: wp.array(dtype=wp.float64),
-               sweep: wp.array(dtype=wp.float64), chord_count: wp.array(dtype=wp.int32),
-               chord_b: wp.array2d(dtype=wp.int32)):
+               touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
     """Pair (a, b) found by edge a: evaluated here when a < b or b takes no force
     (an edge in the catheter: it runs no pass of its own), once for both sides;
     with ``record``, a pair within TOUCH_MARGIN_MM of touching is noted on both
-    sides (:func:`note_touching`); with ``note_chord``, a :func:`chord_candidate` on both
-    sides (``chord_count``, ``chord_b``). A pair left to b whose list overflowed (b's grid
-    search may miss a) overflows a's chord record: a's chord pass then walks its list."""
+    sides (:func:`note_touching`). Returns pair_forces' segment gap (−FAR_MM when not
+    evaluated), whether the pair was evaluated here, and whether b runs its own pass."""
     b_runs = edge_in_contact_pass(free, has_next, b)
+    raw = -FAR_MM
+    handled = False
     if b > a or not b_runs:
-        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw = pair_forces(
+        handled = True
+        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a = pair_forces(
             x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
             p0, c0, u_linear, far)
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
@@ -1068,13 +1066,8 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
             note_touching(a, b, touch_count, touch_b)
             if b_runs:
                 note_touching(b, a, touch_count, touch_b)
-        if note_chord != 0 and chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, far, raw, c0,
-                                               end_mid, end_half, end_move, sweep):
-            note_touching(a, b, chord_count, chord_b)
-            if b_runs:
-                note_touching(b, a, chord_count, chord_b)
-    elif note_chord != 0 and neighbour_count[b] == NO_LIST:
-        wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
+        raw = raw_a
+    return raw, handled, b_runs
 
 
 @wp.kernel
@@ -1125,13 +1118,6 @@ def edge_contact(
     record: int,
     touch_count: wp.array(dtype=wp.int32),
     touch_b: wp.array2d(dtype=wp.int32),
-    note_chord: int,
-    end_mid: wp.array(dtype=wp.vec3d),
-    end_half: wp.array(dtype=wp.float64),
-    end_move: wp.array(dtype=wp.float64),
-    sweep: wp.array(dtype=wp.float64),
-    chord_count: wp.array(dtype=wp.int32),
-    chord_b: wp.array2d(dtype=wp.int32),
 ):
     """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
     and every other edge b of the same ensemble member near it, each pair evaluated
@@ -1147,10 +1133,7 @@ def edge_contact(
     edges) are skipped. Edges in the catheter stand in for the catheter: free
     edges are pushed off them. With ``record``, each edge's partners within
     TOUCH_MARGIN_MM of touching are noted (``touch_count``, ``touch_b``) for the
-    implicit step's contact stiffness; with ``note_chord``, the pairs that may have a
-    chord stiffness (:func:`visit_pair`; ``end_mid``, ``end_half``, ``end_move``, ``sweep``:
-    kernels/implicit.edge_ends at this step's predicted end; an edge whose list
-    overflowed overflows its record)."""
+    implicit step's contact stiffness."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -1158,15 +1141,80 @@ def edge_contact(
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         listed = neighbour_count[a]
-        if note_chord != 0 and listed == NO_LIST:
-            wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
             visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
                        reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
-                       touch_count, touch_b, neighbour_count, note_chord, end_mid, end_half, end_move, sweep,
-                       chord_count, chord_b)
+                       touch_count, touch_b)
+
+
+@wp.kernel(enable_backward=False)
+def edge_contact_noting_chord(
+    x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.array(dtype=wp.float64),
+    grid_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    sum_start: wp.array(dtype=vec3l),
+    sum_end: wp.array(dtype=vec3l),
+    min_gap: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    bad: wp.array(dtype=wp.int32),
+    record: int,
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
+    end_mid: wp.array(dtype=wp.vec3d),
+    end_half: wp.array(dtype=wp.float64),
+    end_move: wp.array(dtype=wp.float64),
+    sweep: wp.array(dtype=wp.float64),
+    chord_count: wp.array(dtype=wp.int32),
+    chord_b: wp.array2d(dtype=wp.int32),
+):
+    """:func:`edge_contact`, noting on both sides each pair that may have a chord stiffness
+    in the implicit step (:func:`chord_candidate`; ``chord_count``, ``chord_b``, cleared by
+    :func:`clear_edge_sums`; ``end_mid``, ``end_half``, ``end_move``, ``sweep``:
+    kernels/implicit.edge_ends at this step's predicted end). An edge whose list overflowed,
+    or with a partner whose list overflowed that the partner's grid search evaluates (it
+    may miss the pair), overflows its record: its chord pass walks its whole list then."""
+    a = wp.tid()
+    w = world_of[a]
+    radius = query_radius[w]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
+        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
+        listed = neighbour_count[a]
+        if listed == NO_LIST:
+            wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            raw, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
+                                              mid, a, b, exclusion, reach_a, p0, c0, u_linear, radius, sum_start,
+                                              sum_end, min_gap, contacts, bad, record, touch_count, touch_b)
+            if handled:
+                if chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, radius, raw, c0,
+                                   end_mid, end_half, end_move, sweep):
+                    note_touching(a, b, chord_count, chord_b)
+                    if b_runs:
+                        note_touching(b, a, chord_count, chord_b)
+            elif neighbour_count[b] == NO_LIST:
+                wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
 
 
 @wp.kernel
