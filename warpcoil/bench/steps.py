@@ -221,7 +221,7 @@ def launch_costs(solver, state, control, steps: int, time_launch=launch_us) -> t
         solver.step(stepper.state, stepper._b, control)
     solver._conditional_rebuild = conditional
     # the implicit step's coil-contact records (touching partners, chord candidates)
-    records = [r for r in (getattr(solver, "_touch_count", None), getattr(solver, "_chord_count", None)) if r is not None]
+    records = [getattr(solver, k) for k in ("_touch_count", "_chord_count") if getattr(solver, k, None) is not None]
     noted = [r.numpy().copy() for r in records]
     times: dict[str, float] = defaultdict(float)
     for kind, target, args, kwargs in recorder.launches:

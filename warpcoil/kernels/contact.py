@@ -810,7 +810,8 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     :func:`pair_contact` from that side sums them (node–node terms enter b's side
     negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
     evaluating the pair twice; the gap is evaluated once, for both (and returned a third time as
-    the segments' own gap, before any rest clearance: −FAR_MM when not evaluated). The gap of two parts of one coil closer than c0 at
+    the segments' own gap, before any rest clearance: −FAR_MM when not evaluated). The gap of
+    two parts of one coil closer than c0 at
     rest is counted from their rest clearance (``rest_offset`` of the capsules'
     rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
     pre-shape are not touching.
