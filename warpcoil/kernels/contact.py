@@ -1191,8 +1191,10 @@ def edge_contact_noting_chord(
     in the implicit step (:func:`chord_candidate`; ``chord_count``, ``chord_b``, cleared by
     :func:`clear_edge_sums`; ``end_mid``, ``end_half``, ``end_move``, ``sweep``:
     kernels/implicit.edge_ends at this step's predicted end). An edge whose list overflowed,
-    or with a partner whose list overflowed that the partner's grid search evaluates (it
-    may miss the pair), overflows its record: its chord pass walks its whole list then."""
+    one with a partner whose list overflowed that the partner's grid search evaluates (it
+    may miss the pair), and one that such a grid search found (the grid returns whole
+    cells, which the found edge's own list may not hold) overflows its record: its chord
+    pass walks its whole list then, as without the notes."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -1213,7 +1215,10 @@ def edge_contact_noting_chord(
                                    end_mid, end_half, end_move, sweep):
                     note_touching(a, b, chord_count, chord_b)
                     if b_runs:
-                        note_touching(b, a, chord_count, chord_b)
+                        if listed == NO_LIST:  # a's grid search found b, which b's own list may not hold
+                            wp.atomic_add(chord_count, b, chord_b.shape[1] + 1)
+                        else:
+                            note_touching(b, a, chord_count, chord_b)
             elif neighbour_count[b] == NO_LIST:
                 wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
 
