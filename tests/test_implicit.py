@@ -12,7 +12,7 @@ import warpcoil as wc
 from warpcoil import validation
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment, Ensemble
-from warpcoil.implicit import EULER, ImplicitSolver, make_solver
+from warpcoil.implicit import DEFAULT_IMPLICIT_SCHEME, EULER, IMPLICIT_SCHEMES, ImplicitSolver, make_solver
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import SceneError, load_scene
 from warpcoil.settings import CatheterSpec, SimulationSettings
@@ -186,6 +186,26 @@ def test_scene_key_integrator(tmp_path: Path):
     with pytest.raises(SceneError) as caught:
         load_scene(bad)
     assert "simulation.integrator" in str(caught.value) and "bad.toml" in str(caught.value)
+
+
+def test_named_schemes_build_their_solvers_and_bdf2_takes_its_own_defaults():
+    """simulation.implicit_scheme names each of implicit.IMPLICIT_SCHEMES (the default: θ 0.65
+    gated, chord); method "bdf2" alone takes θ 1, no gate, the tangent stiffness; the θ-method's
+    options given to BDF2 are refused by name; explicit solver options override the scheme."""
+    for name, options in IMPLICIT_SCHEMES.items():
+        s = implicit_scene()
+        s = replace(s, simulation=replace(s.simulation, implicit_scheme=name))
+        scheme = Deployment(s).solver.scheme
+        assert {key: scheme[key] for key in options} == options, name
+    assert IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME] == {"method": "theta", "theta": 0.65, "near_theta": 1.0,
+                                                         "contact_stiffness": "chord"}
+    model, _ = straight_rod()
+    bdf2 = ImplicitSolver(model, dt_s=1e-4, method="bdf2")
+    assert (bdf2.theta, bdf2.near_theta, bdf2.chord) == (1.0, None, False)
+    with pytest.raises(ValueError, match="near_theta"):
+        ImplicitSolver(model, dt_s=1e-4, method="bdf2", near_theta=1.0)
+    s = replace(implicit_scene(), simulation=replace(implicit_scene().simulation, implicit_scheme="euler"))
+    assert Deployment(s, solver_options={"theta": 0.7}).solver.scheme["theta"] == 0.7
 
 
 def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
