@@ -12,7 +12,8 @@ import warpcoil as wc
 from warpcoil import validation
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment, Ensemble
-from warpcoil.implicit import DEFAULT_IMPLICIT_SCHEME, EULER, IMPLICIT_SCHEMES, ImplicitSolver, make_solver
+from warpcoil.implicit import (DEFAULT_IMPLICIT_SCHEME, EULER, IMPLICIT_DT_MAX_S, IMPLICIT_SCHEMES, ImplicitSolver,
+                               make_solver)
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import SceneError, load_scene
 from warpcoil.settings import CatheterSpec, SimulationSettings
@@ -120,11 +121,20 @@ def test_stable_far_beyond_the_explicit_bound():
     assert energies[-1] < 1e-3 * energies[0]
 
 
-def test_converges_to_the_reference_at_first_order():
-    rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025))
+@pytest.mark.parametrize("theta", [None, 1.0])
+def test_converges_to_the_reference_at_first_order(theta):
+    """The default scheme (θ 0.65; no obstacle, so no node gated) and linearly implicit Euler
+    against the reference as dt shrinks: first order at the finest pair. Euler's order still
+    rises towards 1 across these steps (0.73 → 0.80); the default's is already near 1 there
+    (0.91 → 0.93: within 0.1 of 1), so the "rises" row is Euler's (the full sweep of
+    `warpcoil validate implicit` shows the default rising from its coarser steps)."""
+    rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025), theta=theta)
+    if theta is None:
+        rows = [r for r in rows if "rises" not in r.case]
+        assert abs(rows[-1].result - 1.0) < 0.1
     failed = [r for r in rows if not r.passed]
     assert not failed, validation.format_table(failed)
-    errors = [r.result for r in rows[:-2]]
+    errors = [r.result for r in rows if "rel. RMS" in r.case]
     assert errors[0] > errors[1] > errors[2]
 
 
@@ -285,13 +295,16 @@ def test_a_pushed_world_takes_the_push_iterations_and_a_settling_world_all_of_th
 
 def test_push_force_of_a_steady_push_is_the_damping_the_free_part_meets_at_any_step():
     """Pushed straight out, the free part moves with the pusher: the push force balances
-    its damping. The implicit step gives that at large steps as the reference does
-    (damping applied after the solve gave a spurious compression growing as dt²)."""
+    its damping. Linearly implicit Euler gives that at large steps as the reference does
+    (damping applied after the solve gave a spurious compression growing as dt²); the default
+    scheme over its push steps (≤ IMPLICIT_DT_MAX_S: at 2 ms, 7 c0 a step, each released node's
+    stiff transient rings at −(1 − θ)/θ = −0.54 a step and the reading is 7 % high)."""
     push, damping = free_space_push_force("symplectic")
     assert push == pytest.approx(damping, rel=0.05)
-    for dt in (1.0e-4, 5.0e-4, 2.0e-3):
-        push, damping = free_space_push_force("implicit", dt)
-        assert push == pytest.approx(damping, rel=0.05), dt
+    for options, steps in ((EULER, (1.0e-4, 5.0e-4, 2.0e-3)), ({}, (1.0e-4, IMPLICIT_DT_MAX_S))):
+        for dt in steps:
+            push, damping = free_space_push_force("implicit", dt, **options)
+            assert push == pytest.approx(damping, rel=0.05), (options, dt)
 
 
 @pytest.mark.parametrize("integrator, options", [("symplectic", {}), ("implicit", {}), ("implicit", {"theta": 0.7})])
