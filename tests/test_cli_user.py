@@ -427,11 +427,13 @@ def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_pat
 def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path, key, expected):
     """integrator = "implicit": the default scheme (θ 0.65 gated, chord) or, named, linearly
     implicit Euler (the default before); result.json's "scheme" says which ran the push."""
-    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'})
+    lines = f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": lines})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
     assert code == 0, err
     assert out.startswith("completed: ")
-    assert json.loads((tmp_path / "run" / "result.json").read_text())["scheme"] == {"integrator": "implicit", **expected}
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["scheme"] == {"integrator": "implicit", **expected}
 
 
 @pytest.mark.parametrize("lines, message", [

@@ -135,7 +135,8 @@ def test_members_with_their_own_step_bound_and_search_radius():
 
 
 def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch):
-    """Implicit default step (400 mm/s: at 600 the default scheme's members settle at one step in every shared frame): after the push each member steps at the settling step its
+    """Implicit default step (400 mm/s: at 600 the default scheme's members settle at one
+    step in every shared frame): after the push each member steps at the settling step its
     own fastest node sets (implicit.settle_level); members at different steps in the
     same frame advance apart, so each still equals its single run."""
     from dataclasses import replace

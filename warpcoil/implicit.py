@@ -145,6 +145,7 @@ IMPLICIT_CONTACT_STIFFNESS = "chord"
 CHORD_ENDS = ("flight", "solve")
 CHORD_END = "flight"
 CHORD_END_CG_ITERATIONS = 1  # conjugate-gradient iterations of the "solve" end's first solve (a predictor)
+PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 # the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "gated_chord" the
 # defaults above, "euler" linearly implicit Euler with the tangent contact stiffness (the default before issue 11's
 # default-gc round), "bdf2" linearly implicit BDF2 (tangent)
@@ -166,7 +167,6 @@ def scheme_options(scheme: str) -> dict:
     if scheme not in IMPLICIT_SCHEMES:
         raise ValueError(f"implicit_scheme must be one of {tuple(IMPLICIT_SCHEMES)}, got {scheme!r}")
     return {} if scheme == DEFAULT_IMPLICIT_SCHEME else dict(IMPLICIT_SCHEMES[scheme])
-PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
 
 
 def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:

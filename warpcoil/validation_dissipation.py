@@ -74,7 +74,8 @@ def chain_run(damped: bool, omega_dt: float, steps: int, options: dict | None = 
         x.append(meter.state.x.numpy()[1:3, 0].copy())
         v.append(meter.state.v.numpy()[1:3, 0].copy())  # (CPU .numpy() is a view)
     dx, dv = np.diff(x, axis=0), np.diff(v, axis=0)
-    analytic = (theta - 0.5) * float(np.einsum("ni,ni,i->", dv, dv, mass) + np.einsum("ni,ij,nj->", dx, stiffness, dx))
+    quadratic = float(np.einsum("ni,ni,i->", dv, dv, mass) + np.einsum("ni,ij,nj->", dx, stiffness, dx))
+    analytic = (theta - 0.5) * quadratic
     return meter, analytic
 
 
