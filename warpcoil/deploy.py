@@ -24,7 +24,7 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import (DETACH_WHIP_S, detach_level, implicit_step_s, make_solver, scheme_options,
+from .implicit import (DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s, make_solver, scheme_options,
                        SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
@@ -224,7 +224,7 @@ class Ensemble:
         self._steps_before += self.stepper.steps
         self._push_dt_s = self.solver.dt_s
         if getattr(self.solver, "theta", 1.0) != 1.0:  # the θ-method does not bring a coil to rest at this step
-            self.solver.theta = 1.0  # (docs/FORMULATION.md "Implicit step: push force"): Euler settles it
+            self.solver.theta = IMPLICIT_SETTLE_THETA  # (FORMULATION.md "Implicit step: push force"): Euler settles it
         if getattr(self.solver, "method", "theta") == "bdf2":  # BDF2's history would restart at every change of
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
         self._settling = True

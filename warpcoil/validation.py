@@ -19,7 +19,7 @@ from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
 from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
-from .implicit import EULER, IMPLICIT_THETA, implicit_step_s, make_solver
+from .implicit import EULER, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA, implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -206,13 +206,19 @@ def _solver(model, integrator: str, dt_safety: float = DEFAULT_DT_SAFETY, **kwar
     return make_solver(model, integrator, dt, dt_safety=dt_safety, **kwargs)
 
 
+def _relaxing(integrator: str) -> dict:
+    """Solver options of a relaxation with nothing pushed: the implicit default as a deployment
+    settles (θ IMPLICIT_SETTLE_THETA; the gate a no-op, the chord on)."""
+    return {"theta": IMPLICIT_SETTLE_THETA} if integrator == "implicit" else {}
+
+
 def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0,
                           dt_safety: float = DEFAULT_DT_SAFETY, integrator: str = "symplectic") -> tuple[float, float]:
     """Tip deflection δ/L of a straight coil clamped at node 0 (x = 0, along +x)
     under a transverse dead load P = load_parameter · EI / L² at its free end,
     damped to rest; returns (result, the extensible elastica's δ/L for its EA).
     Nodes sit at x = k L/n (:meth:`ModelBuilder.clamp`: position and tangent at
-    node 0). ``integrator`` "implicit": at its default step."""
+    node 0). ``integrator`` "implicit": at its default step, as a deployment settles (θ 1)."""
     l0 = length_mm / segments
     spec = CoilSpec(length_mm=length_mm, segment_length_mm=l0)
     rest = np.zeros((segments + 1, 3))
@@ -226,7 +232,8 @@ def cantilever_deflection(segments: int, load_parameter: float, length_mm: float
     load = load_parameter * spec.EI / length_mm**2
     builder.apply_force(0, -1, (0.0, -load, 0.0))
     model = builder.finalize()
-    solver = _solver(model, integrator, dt_safety, coil_contact=False)  # a bending straight beam cannot touch itself
+    solver = _solver(model, integrator, dt_safety, coil_contact=False,  # a bending straight beam cannot touch itself
+                     **_relaxing(integrator))
     stepper = Stepper(solver, state_from_positions(model, rest), Control.create(model), chunk=1000)
     min_steps = 20_000 if integrator == "symplectic" else 2_000
     state, rested = stepper.run_to_rest(1e-14 * load * length_mm, max_steps=4_000_000, min_steps=min_steps)
@@ -360,7 +367,8 @@ def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, c
                stretch: float | None = None) -> np.ndarray:
     """Rest positions of a helical coil released with free ends and damped to rest:
     started straight, or (``stretch``) from its pre-shape stretched along its axis
-    to ``stretch`` × its pitch (same loop diameter, arc length and segments)."""
+    to ``stretch`` × its pitch (same loop diameter, arc length and segments). Implicit: at
+    its default step, as a deployment settles (θ 1: :func:`_relaxing`)."""
     spec = _helix_spec(segment_length_mm, helix)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=damping_uN_per_mm))
     builder.add_coil(spec)
@@ -370,7 +378,7 @@ def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, c
         start[:, 0] = model.arc_s.numpy()
     else:
         start = preshape.helix(spec.loop_diameter_mm, stretch * spec.helix_pitch_mm, spec.length_mm, spec.l0)
-    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact),
+    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact, **_relaxing(integrator)),
                       state_from_positions(model, start), Control.create(model), chunk=1000)
     return _settle(stepper, max_steps=4_000_000)
 
@@ -379,7 +387,7 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DE
                    integrator: str = "symplectic") -> list[CaseResult]:
     """A 60 mm helical coil started straight, free ends, damped to rest (elastic only:
     a straight start is no physical state; ``tight_pitch`` runs it with contact)."""
-    label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step"
+    label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step (settling θ)"
     return _helix_rows(label, _recovered(segment_length_mm, dt_safety, HELIX, coil_contact=False,
                                          integrator=integrator))
 
@@ -907,7 +915,8 @@ def implicit_cases() -> list[CaseResult]:
     rows = (implicit_convergence() + implicit_convergence(theta=1.0) + implicit_convergence(theta=0.7)
             + implicit_damping() + implicit_damping(theta=1.0) + implicit_damping(theta=0.7))
     result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
-    rows.append(_row("implicit default step: cantilever PL²/EI=5, 50 segments: δ/L", reference, result, 5e-3))
+    rows.append(_row("implicit default step (settling θ): cantilever PL²/EI=5, 50 segments: δ/L", reference, result,
+                     5e-3))
     return rows + helix_recovery(integrator="implicit")
 
 

@@ -93,7 +93,8 @@ def cantilever_rows(quick: bool, repeats: int) -> list[Row]:
     (deflection, reference), t = timed(lambda: validation.cantilever_deflection(50, 5.0, integrator="implicit"),
                                        repeats)
     error = abs(deflection - reference) / reference
-    rows.append(Row("cantilever", f"50 segments, implicit default step ({DEFAULT_LABEL})", False, 0, t, error))
+    rows.append(Row("cantilever", f"50 segments, implicit default step ({DEFAULT_LABEL}; at rest: settling θ 1)", False,
+                    0, t, error))
     return rows
 
 
@@ -110,7 +111,7 @@ def helix_rows(quick: bool, repeats: int) -> list[Row]:
                             0, t, _helix_error(res), f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm",
                             not_default=L0_IS_THE_MODEL if factor != 1.0 else ""))
     res, t = timed(lambda: validation.helix_recovery(integrator="implicit"), repeats)
-    rows.append(Row("helix recovery", f"l0 1 d, implicit default step ({DEFAULT_LABEL})", False, 0, t,
+    rows.append(Row("helix recovery", f"l0 1 d, implicit default step ({DEFAULT_LABEL}; unpushed: settling θ 1)", False, 0, t,
                     _helix_error(res),
                     f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
     return rows
