@@ -1,7 +1,8 @@
 """The chord pair pass's candidate filters (kernels/implicit.edge_ends: partners swept
-apart, the gap at x_end only for pairs in reach there) skip only pairs that add nothing:
-the assembled blocks and recorded pairs equal, bit for bit, those of the pass with every
-filter opened (every listed partner evaluated at x and at x_end)."""
+apart, the gap at x_end only for pairs in reach there; the contact pass's noted chord
+candidates, contact.chord_candidate) skip only pairs that add nothing: the assembled
+blocks and recorded pairs equal, bit for bit, those of the pass with every filter opened
+(every listed partner evaluated at x and at x_end)."""
 
 import math
 
@@ -32,15 +33,16 @@ def open_edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d),
     end_move[e] = wp.float64(OPEN_MM)
 
 
-def assembled(solver, state, scratch, control, edge_ends) -> list[np.ndarray]:
-    """The chord pass's blocks and recorded pairs at ``state`` with ``edge_ends``."""
+def assembled(solver, state, scratch, control, edge_ends, noted: bool) -> list[np.ndarray]:
+    """The chord pass's blocks and recorded pairs at ``state`` with ``edge_ends`` (``noted``:
+    over the candidates the step's contact pass noted, else every listed partner)."""
     kernels = implicit_module.kernels
     real = kernels.edge_ends
     kernels.edge_ends = edge_ends
     try:
         theta, dt = solver.theta, solver.dt_s
         solver._assemble(state, scratch, control, solver._x_end, 1, solver.model.contact.p0_uN / theta, theta * dt,
-                         math.sqrt(theta) * dt)
+                         math.sqrt(theta) * dt, noted=noted)
     finally:
         kernels.edge_ends = real
     count = solver._pair_count.numpy().copy()
@@ -52,22 +54,25 @@ def test_chord_pair_filters_change_nothing():
     deployment = Deployment(implicit_scene(length_mm=12.0, sac_diameter_mm=3.0), solver_options=GATED_CHORD)
     solver, control = deployment.solver, deployment.control
     scratch = new_state_like(deployment.model)
-    seen = {"frames": 0, "pairs": 0, "skipped": 0}
+    seen = {"frames": 0, "pairs": 0, "skipped": 0, "unnoted": 0}
 
     def on_frame(frame, state):
         solver.step(state, scratch, control)  # the contact pass, lists and predicted end at this state
-        filtered = assembled(solver, state, scratch, control, implicit_module.kernels.edge_ends)
+        filtered = assembled(solver, state, scratch, control, implicit_module.kernels.edge_ends, True)
         mid, sweep = solver._midpoints.numpy(), solver._sweep.numpy()
         listed, partners = solver._neighbour_count.numpy(), solver._neighbours.numpy()
+        noted = solver._chord_count.numpy()
+        within = (noted <= solver._chord_b.shape[1]) & (listed > 0)
+        seen["unnoted"] += int((listed[within] - noted[within]).sum())
         c0 = deployment.model.contact.c0_mm
         for a in np.nonzero(listed > 0)[0]:
             d = mid[a] - mid[partners[a, :listed[a]]]
             seen["skipped"] += int(((d * d).sum(1) > (sweep[a] + sweep[partners[a, :listed[a]]] + c0) ** 2).sum())
-        opened = assembled(solver, state, scratch, control, open_edge_ends)
+        opened = assembled(solver, state, scratch, control, open_edge_ends, False)
         for f, o in zip(filtered, opened):
             assert np.array_equal(f, o)
         seen["frames"] += 1
         seen["pairs"] += int(filtered[3][filtered[3] > 0].sum())
 
     deployment.run(on_frame)
-    assert seen["frames"] > 5 and seen["pairs"] > 0 and seen["skipped"] > 0, seen
+    assert seen["frames"] > 5 and seen["pairs"] > 0 and seen["skipped"] > 0 and seen["unnoted"] > 0, seen

@@ -150,6 +150,9 @@ CHORD_ENDS = ("flight", "solve")
 CHORD_END = "flight"
 CHORD_END_CG_ITERATIONS = 1  # conjugate-gradient iterations of the "solve" end's first solve (a predictor)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
+# chord candidates the contact pass notes per edge for the chord pass (more: it walks the edge's neighbour list;
+# seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
+CHORD_CANDIDATES_PER_EDGE = 32
 # the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "gated_chord" the
 # defaults above, "euler" linearly implicit Euler with the tangent contact stiffness (the default before issue 11's
 # default-gc round), "bdf2" linearly implicit BDF2 (tangent)
@@ -290,6 +293,9 @@ class ImplicitSolver(Solver):
         self._end_half = wp.zeros(n, dtype=wp.float64, device=dev)
         self._sweep = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
         self._end_move = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
+        # the free-flight end is known before the contact pass, which then notes the chord candidates (Solver)
+        self._noted_chord = self.chord and chord_end == "flight" and self.coil_contact
+        self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE if self._noted_chord else 1), dtype=wp.int32, device=dev)
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -321,16 +327,21 @@ class ImplicitSolver(Solver):
             dt_m = BDF2_SCALE * dt  # BDF2: M + h B + h² (H + K_c), h = 2/3 dt
         c = m.contact
         p0_stiff = c.p0_uN / theta  # contact stiffness K_c/θ in a matrix assembled at θ dt: θ dt² K_c
+        noted = self._noted_chord
+        if noted:  # the free-flight end first: the contact pass notes the chord pass's candidates from it
+            self._hold_nodes(state_in, state_out, control, dt)
+            self._predict_end(state_in, state_out, dt)
+            wp.launch(kernels.edge_ends, n, device=dev, inputs=[
+                state_in.x, self._x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
+                self._end_move])
+        self._note_chord = noted
         self.compute_forces(state_in, control.running)
+        self._note_chord = False
         if self.method == "bdf2":
             wp.launch(kernels.keep_history, n, device=dev, inputs=[state_in.x, state_in.v, state_out.x_prev,
                                                                   state_out.v_prev])
-        # catheter kinematics, releases and pusher advance as the reference has them
-        wp.launch(kernels.hold_nodes, n, device=dev, inputs=[
-            state_in.x, state_in.v, state_in.free, state_in.advance, m.fixed, m.coil_of, m.world_of, m.coil_world,
-            m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
-            control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
-            state_out.advance])
+        if not noted:
+            self._hold_nodes(state_in, state_out, control, dt)
         device_dt = dt_m if bdf2 else math.sqrt(theta) * dt  # the devices' stiffness enters at θ dt² K_c too
         x_end = state_in.x
         if self.chord:  # the predicted end and the wall's chord excess on its tangent (kernels/chord.py)
@@ -340,10 +351,8 @@ class ImplicitSolver(Solver):
                 self._solve_velocities(state_in, state_out, control, dt_m, CHORD_END_CG_ITERATIONS)
                 wp.launch(kernels.end_of_solve, n, device=dev, inputs=[
                     state_in.x, self._v, state_out.x, state_out.free, dt, x_end])
-            else:  # the damped free flight
-                wp.launch(kernels.predict_positions, n, device=dev, inputs=[
-                    state_in.x, state_in.v, state_out.x, state_out.free, m.inv_mass, m.damping_c, m.damping_k, dt,
-                    x_end])
+            elif not noted:  # the damped free flight
+                self._predict_end(state_in, state_out, dt)
             if self.has_wall:
                 wp.launch(chord.wall_chord_stiffness, n, device=dev, inputs=[
                     state_in.x, x_end, state_in.free, m.world_of, control.running, m.node_radius, m.wall_mesh,
@@ -353,7 +362,8 @@ class ImplicitSolver(Solver):
         gated = self.near_theta is not None and not bdf2
         if gated:
             self._gate(state_in, dt)
-        self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt)
+        self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt, ends=not noted,
+                       noted=noted)
         if theta != 1.0:  # the θ-method's right side: A v at the old velocities
             wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
@@ -389,15 +399,32 @@ class ImplicitSolver(Solver):
         state_out.time_s = state_in.time_s + dt
         state_out.history_dt_s = dt if self.method == "bdf2" else 0.0
 
+    def _hold_nodes(self, state_in: State, state_out: State, control: Control, dt: float) -> None:
+        """Catheter kinematics, releases and pusher advance as the reference has them."""
+        m = self.model
+        wp.launch(kernels.hold_nodes, m.node_count, device=m.device, inputs=[
+            state_in.x, state_in.v, state_in.free, state_in.advance, m.fixed, m.coil_of, m.world_of, m.coil_world,
+            m.arc_s, m.catheter_path, m.catheter_first, m.catheter_count, control.active_coil,
+            control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
+            state_out.advance])
+
+    def _predict_end(self, state_in: State, state_out: State, dt: float) -> None:
+        """The chord's free-flight end into ``self._x_end`` (after _hold_nodes)."""
+        m = self.model
+        wp.launch(kernels.predict_positions, m.node_count, device=m.device, inputs=[
+            state_in.x, state_in.v, state_out.x, state_out.free, m.inv_mass, m.damping_c, m.damping_k, dt,
+            self._x_end])
+
     def _assemble(self, state_in: State, state_out: State, control: Control, x_end: wp.array, chord_on: int,
-                  p0_stiff: float, dt_m: float, device_dt: float) -> None:
+                  p0_stiff: float, dt_m: float, device_dt: float, ends: bool = True, noted: bool = False) -> None:
         """The system's blocks, its right side M v + dt F and the recorded coil–coil pairs:
-        contact stiffness at the step start (``chord_on``: the chord to ``x_end``); the
-        devices' at ``device_dt``."""
+        contact stiffness at the step start (``chord_on``: the chord to ``x_end``, its
+        kernels.edge_ends launched here unless ``ends`` is False; ``noted``: over the chord
+        candidates the contact pass noted from them); the devices' at ``device_dt``."""
         m, dev, n, c = self.model, self.model.device, self.model.node_count, self.model.contact
         theta = self.theta
         if self.coil_contact:
-            if chord_on:
+            if chord_on and ends:
                 wp.launch(kernels.edge_ends, n, device=dev, inputs=[
                     state_in.x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
                     self._end_move])
@@ -407,7 +434,7 @@ class ImplicitSolver(Solver):
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n, x_end, self._end_mid, self._end_half, self._sweep,
-                self._end_move, chord_on])
+                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted)])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

@@ -314,6 +314,10 @@ class Solver:
         # per edge, its partners within a hair of touching (noted by the contact pass for the implicit step)
         self._touch_count = zeros(wp.int32)
         self._touch_b = wp.zeros((n, TOUCHING_PER_EDGE if self.record_touching else 1), dtype=wp.int32, device=dev)
+        # per edge, how many chord candidates the implicit step's contact pass noted (while _note_chord is set;
+        # implicit.ImplicitSolver holds the record and the predicted end's per-edge values)
+        self._note_chord = False
+        self._chord_count = zeros(wp.int32)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -386,13 +390,18 @@ class Solver:
             sums = (self._edge_sum_start, self._edge_sum_end)
             wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
                 m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad,
-                self._touch_count])
-            wp.launch(contact.edge_contact, n, device=dev, inputs=[
+                self._touch_count, self._chord_count])
+            pass_args = [
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
                 m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
-                self._touch_count, self._touch_b])
+                self._touch_count, self._touch_b]
+            if self._note_chord:  # the implicit step's chord candidates too (its predicted end is known)
+                wp.launch(contact.edge_contact_noting_chord, n, device=dev, inputs=pass_args + [
+                    self._end_mid, self._end_half, self._end_move, self._sweep, self._chord_count, self._chord_b])
+            else:
+                wp.launch(contact.edge_contact, n, device=dev, inputs=pass_args)
             wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
                 *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

@@ -208,7 +208,8 @@ def launch_costs(solver, state, control, steps: int, time_launch=launch_us) -> t
     (``time_launch(kind, target, args, kwargs, device)``, µs per call), and the
     neighbour-grid builds per step there (counted over ``steps`` steps run without
     graphs from ``state``), by which the build's launches are weighted. The
-    touching record a launch reads is put back as the step left it before each one."""
+    touching and chord-candidate records a launch reads are put back as the step left
+    them before each one."""
     device = solver.model.device
     stepper = Stepper(solver, state, control, chunk=steps, use_graph=False)
     builds_before = solver.grid_builds
@@ -219,13 +220,14 @@ def launch_costs(solver, state, control, steps: int, time_launch=launch_us) -> t
     with LaunchRecorder() as recorder:
         solver.step(stepper.state, stepper._b, control)
     solver._conditional_rebuild = conditional
-    touching = getattr(solver, "_touch_count", None)  # the implicit step's coil-contact record
-    noted = touching.numpy().copy() if touching is not None else None
+    # the implicit step's coil-contact records (touching partners, chord candidates)
+    records = [getattr(solver, k) for k in ("_touch_count", "_chord_count") if getattr(solver, k, None) is not None]
+    noted = [r.numpy().copy() for r in records]
     times: dict[str, float] = defaultdict(float)
     for kind, target, args, kwargs in recorder.launches:
         name = target.key if kind == "launch" else "HashGrid.build"
-        if noted is not None:  # the contact pass's replays add to it: as the step left it
-            touching.assign(noted)
+        for record, left in zip(records, noted):  # the contact pass's replays add to them: as the step left them
+            record.assign(left)
         times[name] += time_launch(kind, target, args, kwargs, device)
     for name in ("mark_built", "HashGrid.build", "build_neighbours"):
         if name in times:

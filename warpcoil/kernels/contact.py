@@ -809,7 +809,9 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     ``far`` when not evaluated). Each side's forces are summed exactly as
     :func:`pair_contact` from that side sums them (node–node terms enter b's side
     negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
-    evaluating the pair twice; the gap is evaluated once, for both. The gap of two parts of one coil closer than c0 at
+    evaluating the pair twice; the gap is evaluated once, for both (and returned a third time as
+    the segments' own gap, before any rest clearance: −FAR_MM when not evaluated). The gap of
+    two parts of one coil closer than c0 at
     rest is counted from their rest clearance (``rest_offset`` of the capsules'
     rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
     pre-shape are not touching.
@@ -837,6 +839,7 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     fb_end = zero
     gap_a = far
     gap_b = far
+    raw = -FAR_MM
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
@@ -847,8 +850,9 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
+            raw = gap_a
             if gap_a >= c0 + TOUCH_MARGIN_MM:  # no term in range: every node is at least as far, offsets add
-                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a
+                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a, raw
             if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
                 gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
             gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
@@ -930,7 +934,7 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             if two_a:
                 fb_start = fb_start - (wp.float64(1.0) - sa1) * ta1
                 fb_end = fb_end - sa1 * ta1
-    return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b
+    return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw
 
 
 @wp.func
@@ -942,7 +946,7 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                  far: wp.float64):
     """Edge a's side of :func:`pair_forces`: (fixed-point forces on a's start and end
     node, segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite)."""
-    f_start, f_end, fb_start, fb_end, gap, gap_b = pair_forces(
+    f_start, f_end, fb_start, fb_end, gap, gap_b, raw = pair_forces(
         x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a, p0, c0,
         u_linear, far)
     bad = int(0)
@@ -978,6 +982,62 @@ def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32), tou
         touch_b[e, slot] = other
 
 
+REACH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: far above rounding of mm-scale lengths (pair_in_reach_at_end)
+SIDE_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: ≫ the rounding between a pair's two sides' reach and gap
+
+
+@wp.func
+def pair_in_reach_at_end(end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64), a: int, b: int,
+                         c0: wp.float64, far: wp.float64) -> bool:
+    """Edges a and b at the chord's predicted end may be within the contact range: their
+    midpoints within ``far`` and within both half-lengths, radii and c0 (kernels/implicit.edge_ends'
+    values), widened by ``REACH_MARGIN_MM`` so that no rounding drops a pair in range
+    (a pair it adds beyond them is out of range and adds nothing). Symmetric in a and b, bit for bit."""
+    apart = wp.length(end_mid[a] - end_mid[b])
+    return apart <= far + REACH_MARGIN_MM and apart < end_half[a] + end_half[b] + c0 + REACH_MARGIN_MM
+
+
+@wp.func
+def swept_apart(mid: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.float64), a: int, b: int,
+                c0: wp.float64) -> bool:
+    """Edges a and b (midpoints ``mid`` at x) cannot be in reach at x nor at the predicted
+    end (pair_stiffness's near and near_end both false): their midpoints farther apart
+    than both sweeps and c0, widened by 2 ``REACH_MARGIN_MM`` (no square root; the
+    triangle inequality through x_end's midpoints)."""
+    d = mid[a] - mid[b]
+    reach = sweep[a] + sweep[b] + c0 + wp.float64(2.0) * REACH_MARGIN_MM
+    return wp.dot(d, d) > reach * reach
+
+
+@wp.func
+def chord_candidate(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, far: wp.float64,
+                    raw: wp.float64, c0: wp.float64, end_mid: wp.array(dtype=wp.vec3d),
+                    end_half: wp.array(dtype=wp.float64), end_move: wp.array(dtype=wp.float64),
+                    sweep: wp.array(dtype=wp.float64)) -> bool:
+    """Pair (a, b) may have a chord stiffness on either side (kernels/implicit.pair_stiffness
+    from a and from b): in reach at x (the bounding spheres, widened by SIDE_MARGIN_MM for
+    b's own sum of the same lengths) or at the predicted end (symmetric), and its gap at x
+    (``raw``, pair_forces' segment gap from a; −FAR_MM: not evaluated) not above c0 and both
+    edges' moves (+ REACH_MARGIN_MM, the stiffness pass's own test, + SIDE_MARGIN_MM: b's
+    closest points may round differently; a rest offset only adds). A pair it rejects adds
+    zero blocks on both sides (``sweep``: kernels/implicit.edge_ends, for :func:`swept_apart`)."""
+    if not edge_is_obstacle(free, has_next, fixed, b):
+        return False
+    if raw >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM + SIDE_MARGIN_MM:
+        return False
+    if raw > -FAR_MM or raw != raw:  # evaluated (in reach at x from a) and not too far, or not finite
+        return True
+    if swept_apart(mid, sweep, a, b, c0):  # the chord pass's own skip (symmetric)
+        return False
+    apart = wp.length(mid[a] - mid[b])
+    if apart <= far + SIDE_MARGIN_MM and apart < reach_a + wp.float64(0.5) * wp.length(x[b + 1] - x[b]) \
+            + node_radius[b] + SIDE_MARGIN_MM:
+        return True
+    return pair_in_reach_at_end(end_mid, end_half, a, b, c0, far)
+
+
 @wp.func
 def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
@@ -990,10 +1050,14 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
     """Pair (a, b) found by edge a: evaluated here when a < b or b takes no force
     (an edge in the catheter: it runs no pass of its own), once for both sides;
     with ``record``, a pair within TOUCH_MARGIN_MM of touching is noted on both
-    sides (:func:`note_touching`)."""
+    sides (:func:`note_touching`). Returns pair_forces' segment gap (−FAR_MM when not
+    evaluated), whether the pair was evaluated here, and whether b runs its own pass."""
     b_runs = edge_in_contact_pass(free, has_next, b)
+    raw = -FAR_MM
+    handled = False
     if b > a or not b_runs:
-        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b = pair_forces(
+        handled = True
+        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a = pair_forces(
             x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
             p0, c0, u_linear, far)
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
@@ -1003,15 +1067,18 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
             note_touching(a, b, touch_count, touch_b)
             if b_runs:
                 note_touching(b, a, touch_count, touch_b)
+        raw = raw_a
+    return raw, handled, b_runs
 
 
 @wp.kernel
 def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(dtype=wp.float64),
                     sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l),
                     min_gap: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
-                    bad: wp.array(dtype=wp.int32), touch_count: wp.array(dtype=wp.int32)):
-    """Empty coil–coil sums before :func:`edge_contact` adds the pairs (smallest gap:
-    the world's query radius, reported where no pair was evaluated)."""
+                    bad: wp.array(dtype=wp.int32), touch_count: wp.array(dtype=wp.int32),
+                    chord_count: wp.array(dtype=wp.int32)):
+    """Empty coil–coil sums and records before :func:`edge_contact` adds the pairs
+    (smallest gap: the world's query radius, reported where no pair was evaluated)."""
     e = wp.tid()
     sum_start[e] = vec3l()
     sum_end[e] = vec3l()
@@ -1019,6 +1086,7 @@ def clear_edge_sums(world_of: wp.array(dtype=wp.int32), query_radius: wp.array(d
     contacts[e] = 0
     bad[e] = 0
     touch_count[e] = 0
+    chord_count[e] = 0
 
 
 @wp.kernel(enable_backward=False)
@@ -1080,6 +1148,74 @@ def edge_contact(
             visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
                        reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
                        touch_count, touch_b)
+
+
+@wp.kernel(enable_backward=False)
+def edge_contact_noting_chord(
+    x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_share: wp.array(dtype=wp.float64),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    query_radius: wp.array(dtype=wp.float64),
+    grid_radius: wp.float64,
+    exclusion: int,
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    sum_start: wp.array(dtype=vec3l),
+    sum_end: wp.array(dtype=vec3l),
+    min_gap: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    bad: wp.array(dtype=wp.int32),
+    record: int,
+    touch_count: wp.array(dtype=wp.int32),
+    touch_b: wp.array2d(dtype=wp.int32),
+    end_mid: wp.array(dtype=wp.vec3d),
+    end_half: wp.array(dtype=wp.float64),
+    end_move: wp.array(dtype=wp.float64),
+    sweep: wp.array(dtype=wp.float64),
+    chord_count: wp.array(dtype=wp.int32),
+    chord_b: wp.array2d(dtype=wp.int32),
+):
+    """:func:`edge_contact`, noting on both sides each pair that may have a chord stiffness
+    in the implicit step (:func:`chord_candidate`; ``chord_count``, ``chord_b``, cleared by
+    :func:`clear_edge_sums`; ``end_mid``, ``end_half``, ``end_move``, ``sweep``:
+    kernels/implicit.edge_ends at this step's predicted end). An edge whose list overflowed,
+    or with a partner whose list overflowed that the partner's grid search evaluates (it
+    may miss the pair), overflows its record: its chord pass walks its whole list then."""
+    a = wp.tid()
+    w = world_of[a]
+    radius = query_radius[w]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
+        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
+        listed = neighbour_count[a]
+        if listed == NO_LIST:
+            wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            raw, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
+                                              mid, a, b, exclusion, reach_a, p0, c0, u_linear, radius, sum_start,
+                                              sum_end, min_gap, contacts, bad, record, touch_count, touch_b)
+            if handled:
+                if chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, radius, raw, c0,
+                                   end_mid, end_half, end_move, sweep):
+                    note_touching(a, b, chord_count, chord_b)
+                    if b_runs:
+                        note_touching(b, a, chord_count, chord_b)
+            elif neighbour_count[b] == NO_LIST:
+                wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
 
 
 @wp.kernel

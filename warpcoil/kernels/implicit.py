@@ -50,12 +50,16 @@ trace ≥ −1 − det).
 import warp as wp
 
 from .contact import (
+    NO_LIST,
+    REACH_MARGIN_MM,
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
     from_fixed,
     next_partner,
+    pair_in_reach_at_end,
     rest_offset,
+    swept_apart,
     segment_closest_params,
     to_fixed,
     vec3l,
@@ -158,7 +162,6 @@ def from_fixed_sym(diag: vec3l, off: vec3l) -> wp.mat33d:
 
 
 REST_BOUND_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: far above rounding of mm-scale lengths
-REACH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: the same, for pair_in_reach_at_end
 
 
 @wp.func
@@ -226,29 +229,6 @@ def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_
     half_x = wp.float64(0.5) * wp.length(x[e + 1] - x[e]) + node_radius[e]
     sweep[e] = wp.max(half, half_x) + wp.length(m - wp.float64(0.5) * (x[e] + x[e + 1]))
     end_move[e] = wp.max(wp.length(x_end[e] - x[e]), wp.length(x_end[e + 1] - x[e + 1]))
-
-
-@wp.func
-def swept_apart(mid: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.float64), a: int, b: int,
-                c0: wp.float64) -> bool:
-    """Edges a and b (midpoints ``mid`` at x) cannot be in reach at x nor at the predicted
-    end (pair_stiffness's near and near_end both false): their midpoints farther apart
-    than both sweeps and c0, widened by 2 ``REACH_MARGIN_MM`` (no square root; the
-    triangle inequality through x_end's midpoints)."""
-    d = mid[a] - mid[b]
-    reach = sweep[a] + sweep[b] + c0 + wp.float64(2.0) * REACH_MARGIN_MM
-    return wp.dot(d, d) > reach * reach
-
-
-@wp.func
-def pair_in_reach_at_end(end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64), a: int, b: int,
-                         c0: wp.float64, far: wp.float64) -> bool:
-    """Edges a and b at the predicted end may be within the contact range: their
-    midpoints within ``far`` and within both half-lengths, radii and c0 (edge_ends'
-    values), widened by ``REACH_MARGIN_MM`` so that no rounding drops a pair in range
-    (a pair it adds beyond them is out of range and adds nothing)."""
-    apart = wp.length(end_mid[a] - end_mid[b])
-    return apart <= far + REACH_MARGIN_MM and apart < end_half[a] + end_half[b] + c0 + REACH_MARGIN_MM
 
 
 @wp.func
@@ -372,6 +352,9 @@ def edge_contact_stiffness(
     sweep: wp.array(dtype=wp.float64),
     end_move: wp.array(dtype=wp.float64),
     chord: int,
+    chord_count: wp.array(dtype=wp.int32),
+    chord_b: wp.array2d(dtype=wp.int32),
+    noted_chord: int,
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
     partners that contact.edge_contact noted within a hair of touching at the same
@@ -383,7 +366,10 @@ def edge_contact_stiffness(
     the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
     every neighbour-list partner is a candidate (a pair may enter the contact range
     on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
-    ``end_half``, ``sweep``, ``end_move``: edge_ends)."""
+    ``end_half``, ``sweep``, ``end_move``: edge_ends); with ``noted_chord``, only those
+    contact.edge_contact noted as chord candidates at this step's predicted end
+    (``chord_count``, ``chord_b``; every pair with a block is among them), or, when
+    more than the record holds, every listed partner."""
     a = wp.tid()
     pair_count[a] = 0
     s_diag = vec3l()
@@ -401,6 +387,9 @@ def edge_contact_stiffness(
         if noted <= touch_b.shape[1] and chord == 0:  # the partners the contact pass noted touching
             candidates = touch_b
             listed = noted
+        if chord != 0 and noted_chord != 0 and chord_count[a] <= chord_b.shape[1]:  # the noted chord candidates
+            candidates = chord_b
+            listed = chord_count[a]
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
