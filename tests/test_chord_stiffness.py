@@ -13,7 +13,7 @@ from test_implicit_devices import BALLOON_R, DT, R_NODE, edge_model
 from test_implicit_devices import C0 as DEVICE_C0
 
 from warpcoil.deploy import Deployment, Ensemble
-from warpcoil.implicit import ImplicitSolver
+from warpcoil.implicit import EULER, ImplicitSolver
 from warpcoil.kernels.chord import CHORD_WALL_SKIP_C0
 from warpcoil.solver import Control
 from warpcoil.state import new_state_like, state_from_positions
@@ -100,7 +100,7 @@ def device_part(strut_or_balloon: str, x, velocity, stiffness: str):
     for with_device in (True, False):
         model, _ = edge_model(balloon=with_device and strut_or_balloon == "balloon",
                               strut=strut if with_device and strut_or_balloon == "strut" else None)
-        solver = ImplicitSolver(model, dt_s=DT, contact_stiffness=stiffness)
+        solver = ImplicitSolver(model, dt_s=DT, **{**EULER, "contact_stiffness": stiffness})  # blocks: K, not K/θ
         state = state_from_positions(model, x)
         state.v.assign(np.tile(velocity, (model.node_count, 1)))
         solver.allocate_neighbour_grid(state)

@@ -417,3 +417,33 @@ def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_pat
     assert str(path) in line and "catheter.angle_deg: applies only with placement = 'neck'" in line
     assert "catheter.tip and catheter.direction" in line
     assert not (tmp_path / "never").exists()
+
+
+# --- the implicit step's scheme: the default, Euler by name, and bad values ---------------
+@pytest.mark.parametrize("key, expected", [
+    ("", {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord", "chord_end": "flight"}),
+    ('implicit_scheme = "euler"\n', {"method": "theta", "theta": 1.0, "near_theta": None,
+                                     "contact_stiffness": "tangent", "chord_end": None})])
+def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path, key, expected):
+    """integrator = "implicit": the default scheme (θ 0.65 gated, chord) or, named, linearly
+    implicit Euler (the default before); result.json's "scheme" says which ran the push."""
+    lines = f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": lines})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
+    assert code == 0, err
+    assert out.startswith("completed: ")
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["scheme"] == {"integrator": "implicit", **expected}
+
+
+@pytest.mark.parametrize("lines, message", [
+    ('integrator = "implicit"\nimplicit_scheme = "rk4"\n', "simulation.implicit_scheme: must be one of 'gated_chord', "
+                                                           "'euler', 'bdf2', got 'rk4'"),
+    ('implicit_scheme = "euler"\n', "simulation.implicit_scheme: applies only to integrator = 'implicit'")])
+def test_a_bad_implicit_scheme_is_one_line_naming_file_and_key(tmp_path, lines, message):
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + lines})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
+    assert code == 2
+    line = one_line(err)
+    assert str(path) in line and message in line and "fix:" in line
+    assert not (tmp_path / "never").exists()

@@ -12,7 +12,7 @@ import pytest
 from warpcoil import validation, validation_devices
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment
-from warpcoil.implicit import ImplicitSolver
+from warpcoil.implicit import EULER, ImplicitSolver
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import load_scene
 from warpcoil.settings import ContactSettings, SimulationSettings
@@ -44,7 +44,7 @@ def edge_model(balloon: bool, segments: int = 2, strut: tuple | None = None):
 def system_and_forces(model, x):
     """(M + dt² H, the force at x as a function of positions, M) of one implicit step at x
     (θ = 1: the matrix of the linearly implicit Euler step)."""
-    solver = ImplicitSolver(model, dt_s=DT, theta=1.0)
+    solver = ImplicitSolver(model, dt_s=DT, **EULER)  # the tangent stiffness: the law's Hessian
     state = state_from_positions(model, x)
     solver.allocate_neighbour_grid(state)
     solver.step(state, new_state_like(model), Control.create(model))

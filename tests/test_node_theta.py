@@ -10,7 +10,7 @@ import pytest
 
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment
-from warpcoil.implicit import ImplicitSolver, PROXIMITY_MARGIN_C0
+from warpcoil.implicit import EULER, ImplicitSolver, PROXIMITY_MARGIN_C0
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import load_scene
 from warpcoil.settings import ContactSettings, SimulationSettings
@@ -36,7 +36,8 @@ def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Pat
     path = tmp_path / "s.toml"
     path.write_text(ASSISTED.format(integrator="implicit") + STENT + (FRICTION if friction else ""))
     runs = []
-    for options in ({"theta": theta}, {"theta": theta, "near_theta": theta}):
+    for options in ({"theta": theta, "near_theta": None, "contact_stiffness": "tangent"},
+                    {"theta": theta, "near_theta": theta, "contact_stiffness": "tangent"}):
         deployment = Deployment(load_scene(path), solver_options=options)
         result = deployment.run()
         assert result.status == "completed"
@@ -52,7 +53,7 @@ def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Pat
 
 def one_step_theta(model, x, v, theta=0.7):
     """Each node's θ_i after one gated step from positions x, velocities v."""
-    solver = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0)
+    solver = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, contact_stiffness="tangent")
     state = state_from_positions(model, x)
     state.v.assign(v)
     solver.allocate_neighbour_grid(state)
@@ -130,7 +131,7 @@ def test_mixed_theta_step_is_the_momentum_balance_with_per_node_position_updates
     v = rng.normal(scale=20.0, size=(n, 3))  # mm/s: ≤ 0.01 mm a step, no node reaches contact
     state = state_from_positions(model, x)
     state.v.assign(v)
-    euler = ImplicitSolver(model, dt_s=DT, theta=1.0)
+    euler = ImplicitSolver(model, dt_s=DT, **EULER)
     euler.allocate_neighbour_grid(state)
     euler.step(state, new_state_like(model), Control.create(model))
     mass = np.repeat(1.0 / model.inv_mass.numpy(), 3)
@@ -138,7 +139,8 @@ def test_mixed_theta_step_is_the_momentum_balance_with_per_node_position_updates
     euler.compute_forces(state)
     force = euler.force.numpy().ravel()
     assert np.abs(euler.contact_force.numpy()).max() == 0.0  # no contact force: the balloon is only near
-    gated = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, cg_iterations=200)
+    gated = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, contact_stiffness="tangent",
+                           cg_iterations=200)
     gated.allocate_neighbour_grid(state)
     out = new_state_like(model)
     gated.step(state, out, Control.create(model))

@@ -18,13 +18,14 @@ from test_ensemble import assert_same_run, scene as ensemble_scene
 RADIUS_MM = 0.5 * wc.CoilSpec().d
 
 
-def released_fast(angle_deg: float) -> wc.Scene:
-    """A 6 mm helix shot out at 2 m/s into a 3.5 mm sphere on the implicit default step:
-    the coil is out after 3.5 ms and still whips at ~10³ mm/s when the settling step
-    takes over (pinned at its coarsest, 2.5 ms, by ``coarsest_settling``: 2.5 mm per step
-    against c0 = 0.029 mm)."""
+def released_fast(angle_deg: float, scheme: str = "euler") -> wc.Scene:
+    """A 6 mm helix shot out at 2 m/s into a 3.5 mm sphere on the implicit default step,
+    linearly implicit Euler (``scheme``; the default scheme's chord sees the wall coming and
+    does not tunnel: test_the_default_schemes_chord_does_not_tunnel): the coil is out after
+    3.5 ms and still whips at ~10³ mm/s when the settling step takes over (pinned at its
+    coarsest, 2.5 ms, by ``coarsest_settling``: 2.5 mm per step against c0 = 0.029 mm)."""
     s = ensemble_scene(angle_deg=angle_deg, push_mm_s=2000.0)
-    return replace(s, simulation=replace(s.simulation, integrator="implicit"))
+    return replace(s, simulation=replace(s.simulation, integrator="implicit", implicit_scheme=scheme))
 
 
 @pytest.fixture
@@ -74,6 +75,19 @@ def test_a_node_past_the_wall_redoes_the_frame_at_half_the_step(coarsest_settlin
     halved = 0.5 * IMPLICIT_SETTLE_DT_MAX_S
     assert "past the wall" in result.step_reductions[0] and f"step halved to {halved:.3e} s" in result.step_reductions[0]
     assert result.settle_dt_s == pytest.approx(halved)  # the settling step, halved once
+
+
+def test_the_default_scheme_tunnels_too_and_the_check_redoes_the_frame(monkeypatch, coarsest_settling):
+    """The default scheme (settling with Euler + chord) at 20°: unchecked, the coarsest settling
+    step carries it 8.7 mm out of the lumen (the chord sees only the predicted free flight's
+    approach); checked, that frame is redone at half the step and every centre stays inside."""
+    checked = Deployment(released_fast(20.0, "gated_chord")).run()
+    assert checked.status == "completed", checked.reason
+    assert centre_distances_mm(checked).min() > 0.0
+    assert len(checked.step_reductions) == 1 and "past the wall" in checked.step_reductions[0]
+    without_the_wall_check(monkeypatch)
+    unchecked = Deployment(released_fast(20.0, "gated_chord")).run()
+    assert unchecked.step_reductions == [] and centre_distances_mm(unchecked).min() < -1.0
 
 
 def test_the_settling_step_set_by_the_fastest_node_keeps_every_node_in_the_lumen(monkeypatch):

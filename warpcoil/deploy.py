@@ -24,7 +24,7 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import (DETACH_WHIP_S, detach_level, implicit_step_s, make_solver,
+from .implicit import (DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s, make_solver, scheme_options,
                        SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
@@ -140,7 +140,7 @@ class Ensemble:
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
-                                f"steps per frame, integrator, settling step, push time) = {steps}; split them with warpcoil.deploy.ensemble_groups")
+                                f"steps per frame, integrator, settling step, push time, implicit scheme) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
         self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit default) step after the push
         self._push_dt_s: float | None = None  # the push's step, once the settling step took over
@@ -150,10 +150,12 @@ class Ensemble:
         self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
         self.detach_rule = detach_level  # (push speed mm/s, push step s, c0 mm) → steps per push step
         contact = self.scenes[0].contact
+        scheme = scheme_options(steps[0][6]) if self.integrator == "implicit" else {}  # simulation.implicit_scheme
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,
-                                **(solver_options or {})}  # benchmarks: other skins, ...
+                                **scheme, **(solver_options or {})}  # benchmarks: other skins, ...
         self.solver = make_solver(self.model, self.integrator, steps[0][0], dt_safety=sims[0].dt_safety,
                                   allow_unstable_dt=sims[0].allow_unstable_dt, **self._solver_options)
+        self.scheme = dict(self.solver.scheme)  # the push's (result.json: settling and step halving change θ)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
                                chunk=steps[0][2])
@@ -222,7 +224,7 @@ class Ensemble:
         self._steps_before += self.stepper.steps
         self._push_dt_s = self.solver.dt_s
         if getattr(self.solver, "theta", 1.0) != 1.0:  # the θ-method does not bring a coil to rest at this step
-            self.solver.theta = 1.0  # (docs/FORMULATION.md "Implicit step: push force"): Euler settles it
+            self.solver.theta = IMPLICIT_SETTLE_THETA  # (FORMULATION.md "Implicit step: push force"): Euler settles it
         if getattr(self.solver, "method", "theta") == "bdf2":  # BDF2's history would restart at every change of
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
         self._settling = True
@@ -347,7 +349,7 @@ class Ensemble:
         member.steps = (self._steps_before + (member.settle_steps if self._settling else self.stepper.steps)
                         + member.detach_steps)
         member.result = run_result(self.model, self.solver, member, status, reason, time.perf_counter() - started,
-                                   snap, self.step_reductions)
+                                   snap, self.step_reductions, self.scheme)
         if self._push_dt_s is not None:  # settled at longer steps: dt_s stays the push's, settle_dt_s the last
             frame_s = member.scene.simulation.frame_interval_s
             settle_dt = (self.solver.dt_s if not self._settling else  # (None: ended before its first settling frame)
@@ -558,9 +560,9 @@ def world_bounds(model: Model) -> list:
 
 
 def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None
-                ) -> list[tuple[float, float, int, str, float, float]]:
+                ) -> list[tuple[float, float, int, str, float, float, str]]:
     """Per world: (dt_s, contact linear onset, steps per frame, integrator, settling
-    step, push time) as a single run of its scene would take them (the onset is the
+    step, push time, implicit scheme or "") as a single run of its scene would take them (the onset is the
     explicit step's for either integrator: both integrate the same law). The implicit
     step at its default goes on at the settling step (s) from the push time (s: when
     every coil is out, Σ (length + COIL_GAP_MM) / push speed, and the last coil's
@@ -590,7 +592,8 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
         steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
-                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator, settle_dt, push_time))
+                      max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator, settle_dt, push_time,
+                      sim.implicit_scheme if sim.integrator == "implicit" else ""))
     return steps
 
 

@@ -2,6 +2,11 @@
 Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
 not by the stiffest spring.
 
+The default scheme ("gated_chord"): θ = 0.65, θ_i = 1 at nodes near an obstacle
+(``near_theta``), the chord contact stiffness, the pusher 0.8 c0 per step; "euler"
+(θ 1, no gate, tangent stiffness) and "bdf2" are named options (IMPLICIT_SCHEMES; scene key
+``simulation.implicit_scheme``; docs/FORMULATION.md "Implicit step: the default scheme").
+
 Forces, contact search, catheter kinematics and push accounting are the
 reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
 at the θ-method's evaluation point: Solver._accumulate_push_force); only the update differs
@@ -25,17 +30,17 @@ the far wall and turned the push force's sign (docs/FORMULATION.md "Implicit ste
 ``method="bdf2"``: linearly implicit BDF2 (h = 2/3 dt, the Euler matrix at h, the history
 x₋₁, v₋₁ carried in the State, an Euler start on a new or changed step): L-stable with
 third-order slow-mode damping, but the push force stays Euler's (docs/FORMULATION.md
-"Implicit step: BDF2"), so it is an option, not the default.
+"Implicit step: BDF2"), so it is an option (θ 1, no gate, tangent stiffness unless given).
 
 ``near_theta``: the proximity-gated θ, θ_i = near_theta for a node that could reach an obstacle
-within the step, θ elsewhere (kernels/node_theta.py); an option, not the default (docs/FORMULATION.md
-"Implicit step: proximity-gated θ").
+within the step, θ elsewhere (kernels/node_theta.py; docs/FORMULATION.md "Implicit step:
+proximity-gated θ"); None: every node at θ.
 
 ``contact_stiffness="chord"``: each contact's stiffness along its normal is the law's chord
 between the step start and a predicted end (``chord_end``: the damped free flight, or the
 tangent step's solution), where steeper than the tangent (kernels/chord.py): a contact that
-enters during the step is seen. An option, not the default (docs/FORMULATION.md "Implicit
-step: chord contact stiffness").
+enters during the step is seen (docs/FORMULATION.md "Implicit step: chord contact stiffness");
+"tangent": the law's slope at the step start.
 
 The contact law keeps the reference's linear onset (computed for the explicit
 step), so both integrators integrate the same forces.
@@ -99,26 +104,32 @@ DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). θ = 0.7 (numerical
-# damping of the slow modes ∝ θ − ½; stiff modes decay by (1 − θ)/θ = 0.43 per step) gets the push
-# force right (0.05–0.16 F0 off at 0.8–2.4 c0 per step against Euler's 0.36–0.46 F0, bench accuracy) but is
-# not the default: it let a coil press into thin stent struts twice as deep as Euler (0.034 against
-# 0.016 mm at 0.8 c0; the reference 0.006); a deployment settles with θ = 1 (deploy.Ensemble._settle_step;
-# docs/FORMULATION.md "Implicit step: push force and the θ-method")
-IMPLICIT_THETA = 1.0
-# proximity-gated θ (a solver option, near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
+# θ of the linearly implicit θ-method (1: linearly implicit Euler). The default, 0.65, with the proximity-gated θ
+# (IMPLICIT_NEAR_THETA) and the chord contact stiffness (IMPLICIT_CONTACT_STIFFNESS): "gated + chord", the one setting
+# measured to pass every check at 0.8 c0 per push step — stent struts −0.004 mm (Euler −0.016), free release at 100 /
+# 150 mm/s 10 of 10 in the helix (Euler 0 of 10), push force 0.22 / 0.09 F0 off on the 60 mm / small seed (Euler
+# 0.53 / 0.36; the rule allows 0.25), patient gaps within Euler's worst + c0/2 — at ~1.3× Euler's seed run time
+# (docs/FORMULATION.md "Implicit step: the default scheme"). θ 0.7 alone presses thin struts twice as deep as Euler
+# (0.034 against 0.016 mm): the gate and the chord are what make θ < 1 safe. A deployment settles with θ = 1
+# (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
+IMPLICIT_THETA = 0.65
+# θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 damps the stiff modes by only
+# (1 − θ)/θ = 0.54 a step and brings a free coil to rest slowly (the 60 mm helix recovered from straight at the
+# default step: 62 000 steps against Euler's 3 000); Euler (θ 1) settles it, with the gate a no-op and the chord on
+IMPLICIT_SETTLE_THETA = 1.0
+# proximity-gated θ (solver option near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
 # every node whose wall, stent strut, balloon or other coil edge lies within the contact range c0 plus a margin
-# PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py; docs/FORMULATION.md "Implicit step:
-# proximity-gated θ"). None: every node at θ (the default: with θ 0.7 it keeps θ 0.7's push force and free release
-# but presses 0.039 mm into thin stent struts, > c0, as the deepest entry is contact a step does not see)
-# With contact_stiffness "chord" it passes the hard checks at 0.8 c0 per push step, but the 60 mm seed's push force is
-# 0.28 F0 off (> 0.25) at 1.3x Euler's run time; at 1.0–1.6 c0 it tangles free releases or presses C0020 deeper
+# PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py;
+# docs/FORMULATION.md "Implicit step: proximity-gated θ"). None: every node at θ. The default, 1, with θ 0.65 and the
+# chord (above); gated alone (tangent stiffness) presses 0.039 mm into thin stent struts, > c0, as the deepest entry is
+# contact a step does not see; at 1.0–1.6 c0 per push step gated + chord tangles free releases or presses C0020 deeper
 # (docs/FORMULATION.md "Implicit step: gated + chord as the default?")
-IMPLICIT_NEAR_THETA: float | None = None
+IMPLICIT_NEAR_THETA: float | None = 1.0
 PROXIMITY_MARGIN_C0 = 2.0
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
 # default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
-# docs/FORMULATION.md "Implicit step: BDF2")
+# docs/FORMULATION.md "Implicit step: BDF2"). BDF2 takes θ 1, no gate and the tangent stiffness unless told otherwise:
+# the θ-method's defaults above are not its (BDF2_DEFAULTS)
 IMPLICIT_METHODS = ("theta", "bdf2")
 IMPLICIT_METHOD = "theta"
 BDF2_SCALE = 2.0 / 3.0  # BDF2's implicit coefficient h = 2/3 dt
@@ -130,9 +141,9 @@ CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHM
 PUSH_CG_ITERATIONS = CG_ITERATIONS
 # each contact's stiffness along its normal: "tangent" (the law's slope at the step start) or "chord" (the law's
 # secant between the step start and the predicted end, where steeper: contacts that enter during the step are
-# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness")
+# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness"). The default: "chord" (above)
 CONTACT_STIFFNESS = ("tangent", "chord")
-IMPLICIT_CONTACT_STIFFNESS = "tangent"
+IMPLICIT_CONTACT_STIFFNESS = "chord"
 # the chord's predicted end: "flight" (each node's damped free flight x + dt m v/(m + dt β): no extra solve) or
 # "solve" (the tangent step's solution: a second assembly and solve per step; sees force-driven approaches too)
 CHORD_ENDS = ("flight", "solve")
@@ -142,6 +153,27 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 # chord candidates the contact pass notes per edge for the chord pass (more: it walks the edge's neighbour list;
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
+# the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "gated_chord" the
+# defaults above, "euler" linearly implicit Euler with the tangent contact stiffness (the default before issue 11's
+# default-gc round), "bdf2" linearly implicit BDF2 (tangent)
+EULER = {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+BDF2_DEFAULTS = {"theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+IMPLICIT_SCHEMES = {
+    "gated_chord": {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
+                    "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS},
+    "euler": EULER,
+    "bdf2": {"method": "bdf2", **BDF2_DEFAULTS},
+}
+DEFAULT_IMPLICIT_SCHEME = "gated_chord"
+_UNSET = object()  # a solver option not given: the method's default
+
+
+def scheme_options(scheme: str) -> dict:
+    """The solver options of a named scheme (IMPLICIT_SCHEMES): none for the default
+    (options given beside it then take their method's defaults)."""
+    if scheme not in IMPLICIT_SCHEMES:
+        raise ValueError(f"implicit_scheme must be one of {tuple(IMPLICIT_SCHEMES)}, got {scheme!r}")
+    return {} if scheme == DEFAULT_IMPLICIT_SCHEME else dict(IMPLICIT_SCHEMES[scheme])
 
 
 def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
@@ -193,8 +225,20 @@ def detach_level(push_speed_mm_s: float, dt_s: float, c0_mm: float) -> int:
     return min(max(wanted, 1), DETACH_LEVEL_MAX)
 
 
+def implicit_options(method: str, theta=_UNSET, near_theta=_UNSET, contact_stiffness=_UNSET
+                     ) -> tuple[float, float | None, str]:
+    """(θ, near_theta, contact stiffness) of ``method``: the options given, the others
+    that method's defaults (θ-method: IMPLICIT_THETA, IMPLICIT_NEAR_THETA,
+    IMPLICIT_CONTACT_STIFFNESS; BDF2: BDF2_DEFAULTS)."""
+    defaults = BDF2_DEFAULTS if method == "bdf2" else IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME]
+    given = {"theta": theta, "near_theta": near_theta, "contact_stiffness": contact_stiffness}
+    chosen = {key: defaults[key] if value is _UNSET else value for key, value in given.items()}
+    return chosen["theta"], chosen["near_theta"], chosen["contact_stiffness"]
+
+
 class ImplicitSolver(Solver):
-    """A :class:`Solver` whose step is linearly implicit Euler (module docstring).
+    """A :class:`Solver` whose step is the linearly implicit θ-method (by default θ 0.65,
+    proximity-gated, chord contact stiffness) or BDF2 (module docstring).
 
     ``dt_s`` has no stability limit; the contact law's linear onset is the one the
     reference takes at ``dt_safety`` × its explicit bound."""
@@ -205,9 +249,10 @@ class ImplicitSolver(Solver):
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
-                 theta: float = IMPLICIT_THETA, method: str = IMPLICIT_METHOD,
-                 near_theta: float | None = IMPLICIT_NEAR_THETA, proximity_margin_c0: float = PROXIMITY_MARGIN_C0,
-                 contact_stiffness: str = IMPLICIT_CONTACT_STIFFNESS, chord_end: str = CHORD_END, **kwargs):
+                 theta: float = _UNSET, method: str = IMPLICIT_METHOD,
+                 near_theta: float | None = _UNSET, proximity_margin_c0: float = PROXIMITY_MARGIN_C0,
+                 contact_stiffness: str = _UNSET, chord_end: str = CHORD_END, **kwargs):
+        theta, near_theta, contact_stiffness = implicit_options(method, theta, near_theta, contact_stiffness)
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
         super().__init__(model, dt_s=None, dt_safety=dt_safety, coil_contact=coil_contact, **kwargs)
@@ -267,6 +312,9 @@ class ImplicitSolver(Solver):
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
+        self.scheme = {"integrator": "implicit", "method": self.method, "theta": self.theta,
+                       "near_theta": self.near_theta, "contact_stiffness": contact_stiffness,
+                       "chord_end": self.chord_end if self.chord else None}  # as built (the push's: settling sets θ 1)
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
         """Advance ``state_in`` by dt into ``state_out`` (distinct buffers)."""

@@ -109,6 +109,8 @@ class RunResult:
     packing_density_in_sac: float | None = None  # π(d/2)² (deployed − herniated length) / sac volume
     device: dict | None = None  # assist device: kind, geometry, state over time (warpcoil.devices.device_report)
     wall_field: dict | None = None  # wall_query "sdf": voxel_mm, voxels, build_s (s) and from_cache (field_cache.py)
+    # the integrator as the push ran it: integrator; implicit: method, theta, near_theta, contact_stiffness, chord_end
+    scheme: dict | None = None
 
     def summary(self) -> dict:
         """The JSON-ready scalars (no frames or positions)."""
@@ -176,8 +178,9 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
         length_outside_sac_mm=outside, balloon_inflation=member.inflation)
 
 def run_result(model: Model, solver: Solver, member: Measured, status: str, reason: str, wall_time_s: float,
-               snap: Snapshot, step_reductions: list[str]) -> RunResult:
-    """The member's RunResult from its frames and the frame's snapshot."""
+               snap: Snapshot, step_reductions: list[str], scheme: dict | None = None) -> RunResult:
+    """The member's RunResult from its frames and the frame's snapshot; ``scheme``: the
+    integrator's settings while pushing (default: the solver's)."""
     m, sl = model, member.nodes
     frames = member.frames
     last = frames[-1]
@@ -229,7 +232,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
             c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
             if sac_volume else None),
         device=device_report(member.scene, member.anatomy, frames, member.deflate_from_s),
-        wall_field=_field_report(solver.wall_fields[member.world]))
+        wall_field=_field_report(solver.wall_fields[member.world]), scheme=dict(scheme or solver.scheme))
 
 
 def _field_report(field) -> dict | None:

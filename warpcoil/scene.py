@@ -193,6 +193,7 @@ _SIMULATION = {
     "damping_uN_per_mm": _Key(_positive),
     "damping_speed_mm_s": _Key(_positive),
     "integrator": _Key(_choice("symplectic", "implicit")),
+    "implicit_scheme": _Key(_choice("gated_chord", "euler", "bdf2")),  # = implicit.IMPLICIT_SCHEMES (tested)
     "dt_s": _Key(_positive),
     "dt_safety": _Key(_fraction),
     "allow_unstable_dt": _Key(_bool),
@@ -357,6 +358,14 @@ class _Reader:
                 raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
         return self.build(WallSpec, values, "wall")
 
+    def simulation(self, document: dict[str, Any]) -> SimulationSettings:
+        simulation = self.section(document, "simulation", _SIMULATION, SimulationSettings)
+        if "implicit_scheme" in document.get("simulation", {}) and simulation.integrator != "implicit":
+            raise self.error("simulation.implicit_scheme", f"applies only to integrator = 'implicit' (this scene's is "
+                             f"{simulation.integrator!r}, which it would not change)",
+                             'add integrator = "implicit", or remove implicit_scheme')
+        return simulation
+
     def output(self, document: dict[str, Any]) -> OutputSettings:
         output = self.section(document, "output", _OUTPUT, OutputSettings)
         if output.porous and "wall" not in document:
@@ -378,7 +387,7 @@ class _Reader:
             catheter=self.catheter(document),
             wall=self.wall(document) if "wall" in document else None,
             contact=self.section(document, "contact", _CONTACT, ContactSettings),
-            simulation=self.section(document, "simulation", _SIMULATION, SimulationSettings),
+            simulation=self.simulation(document),
             output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),

@@ -228,6 +228,7 @@ class Solver:
         if wall_query not in WALL_QUERIES:
             raise ValueError(f"wall_query must be one of {WALL_QUERIES}, got {wall_query!r}")
         self.model = model
+        self.scheme = {"integrator": self.integrator}  # result.json's "scheme" (ImplicitSolver: its settings)
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
         self.wall_sided_skip = bool(wall_sided_skip)

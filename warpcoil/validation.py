@@ -19,7 +19,7 @@ from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
 from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
-from .implicit import IMPLICIT_THETA, implicit_step_s, make_solver
+from .implicit import EULER, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA, implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -206,13 +206,19 @@ def _solver(model, integrator: str, dt_safety: float = DEFAULT_DT_SAFETY, **kwar
     return make_solver(model, integrator, dt, dt_safety=dt_safety, **kwargs)
 
 
+def _relaxing(integrator: str) -> dict:
+    """Solver options of a relaxation with nothing pushed: the implicit default as a deployment
+    settles (θ IMPLICIT_SETTLE_THETA; the gate a no-op, the chord on)."""
+    return {"theta": IMPLICIT_SETTLE_THETA} if integrator == "implicit" else {}
+
+
 def cantilever_deflection(segments: int, load_parameter: float, length_mm: float = 20.0,
                           dt_safety: float = DEFAULT_DT_SAFETY, integrator: str = "symplectic") -> tuple[float, float]:
     """Tip deflection δ/L of a straight coil clamped at node 0 (x = 0, along +x)
     under a transverse dead load P = load_parameter · EI / L² at its free end,
     damped to rest; returns (result, the extensible elastica's δ/L for its EA).
     Nodes sit at x = k L/n (:meth:`ModelBuilder.clamp`: position and tangent at
-    node 0). ``integrator`` "implicit": at its default step."""
+    node 0). ``integrator`` "implicit": at its default step, as a deployment settles (θ 1)."""
     l0 = length_mm / segments
     spec = CoilSpec(length_mm=length_mm, segment_length_mm=l0)
     rest = np.zeros((segments + 1, 3))
@@ -226,7 +232,8 @@ def cantilever_deflection(segments: int, load_parameter: float, length_mm: float
     load = load_parameter * spec.EI / length_mm**2
     builder.apply_force(0, -1, (0.0, -load, 0.0))
     model = builder.finalize()
-    solver = _solver(model, integrator, dt_safety, coil_contact=False)  # a bending straight beam cannot touch itself
+    solver = _solver(model, integrator, dt_safety, coil_contact=False,  # a bending straight beam cannot touch itself
+                     **_relaxing(integrator))
     stepper = Stepper(solver, state_from_positions(model, rest), Control.create(model), chunk=1000)
     min_steps = 20_000 if integrator == "symplectic" else 2_000
     state, rested = stepper.run_to_rest(1e-14 * load * length_mm, max_steps=4_000_000, min_steps=min_steps)
@@ -360,7 +367,8 @@ def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, c
                stretch: float | None = None) -> np.ndarray:
     """Rest positions of a helical coil released with free ends and damped to rest:
     started straight, or (``stretch``) from its pre-shape stretched along its axis
-    to ``stretch`` × its pitch (same loop diameter, arc length and segments)."""
+    to ``stretch`` × its pitch (same loop diameter, arc length and segments). Implicit: at
+    its default step, as a deployment settles (θ 1: :func:`_relaxing`)."""
     spec = _helix_spec(segment_length_mm, helix)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=damping_uN_per_mm))
     builder.add_coil(spec)
@@ -370,7 +378,7 @@ def _recovered(segment_length_mm: float | None, dt_safety: float, helix: dict, c
         start[:, 0] = model.arc_s.numpy()
     else:
         start = preshape.helix(spec.loop_diameter_mm, stretch * spec.helix_pitch_mm, spec.length_mm, spec.l0)
-    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact),
+    stepper = Stepper(_solver(model, integrator, dt_safety, coil_contact=coil_contact, **_relaxing(integrator)),
                       state_from_positions(model, start), Control.create(model), chunk=1000)
     return _settle(stepper, max_steps=4_000_000)
 
@@ -379,7 +387,7 @@ def helix_recovery(segment_length_mm: float | None = None, dt_safety: float = DE
                    integrator: str = "symplectic") -> list[CaseResult]:
     """A 60 mm helical coil started straight, free ends, damped to rest (elastic only:
     a straight start is no physical state; ``tight_pitch`` runs it with contact)."""
-    label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step"
+    label = "helix recovery" if integrator == "symplectic" else f"helix recovery, {integrator} default step (settling θ)"
     return _helix_rows(label, _recovered(segment_length_mm, dt_safety, HELIX, coil_contact=False,
                                          integrator=integrator))
 
@@ -789,7 +797,7 @@ def implicit_convergence(time_s: float = 1.0e-3, factors=(0.4, 0.2, 0.1, 0.05, 0
         # step start (Gauss–Newton bending) and the backward-Euler twist are each first order (docs/FORMULATION.md)
         euler = _theta_errors(model, start, x_ref, scale, bound, factors, time_s)
         below = all(e <= r for e, r in zip(errors, euler))
-        return rows + [CaseResult(f"{label}: below the θ-method's error at every dt", 1.0, float(below),
+        return rows + [CaseResult(f"{label}: below linearly implicit Euler's error at every dt", 1.0, float(below),
                                   0.0 if below else 1.0, 0.0)]
     # rising towards 1: no pair falls back by more than 0.01 (the two coarsest sit on a plateau, equal to
     # ~1e-4) and the finest is clearly above the coarsest
@@ -814,15 +822,19 @@ def euler_loss_per_period(w: float) -> float:
 
 
 def _implicit_label(theta: float | None, method: str | None) -> tuple[str, dict]:
-    """A validation row's label and the solver options of the θ-method at ``theta`` or BDF2."""
+    """A validation row's label and the solver options: the default scheme (``theta`` None),
+    the plain θ-method at ``theta`` (no gate, tangent stiffness; θ 1: linearly implicit Euler) or BDF2."""
     if method == "bdf2":
         return "implicit BDF2", {"method": "bdf2"}
-    return ("implicit" if theta is None else f"implicit θ {theta:g}"), ({} if theta is None else {"theta": theta})
+    if theta is None:
+        return f"implicit default (θ {IMPLICIT_THETA:g} gated, chord)", {}
+    return f"implicit θ {theta:g}", {**EULER, "theta": theta}
 
 
 def _theta_errors(model, start, x_ref, scale, bound, factors, time_s) -> list[float]:
     """The linearly implicit Euler step's errors in :func:`implicit_convergence`."""
-    return [float(np.sqrt(((_positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False),
+    return [float(np.sqrt(((_positions_at(model, start, make_solver(model, "implicit", f * bound, coil_contact=False,
+                                                                      **EULER),
                                           time_s) - x_ref) ** 2).sum(axis=1).mean())) / scale for f in factors]
 
 
@@ -875,11 +887,12 @@ def implicit_damping(theta: float | None = None) -> list[CaseResult]:
     """Numerical damping of the implicit step at its default dt (:func:`cantilever_vibration_loss`)
     against the linear theory of the θ-method, 1 − |R|^(2π/(ω dt)) with
     |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²) (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt),
-    ω measured (BDF2: validation_bdf2)."""
-    loss, omega, dt, omega_ref = cantilever_vibration_loss({} if theta is None else {"theta": theta})
+    ω measured (BDF2: validation_bdf2). ``theta`` None: the default scheme (no node is gated
+    in free space: the θ-method at IMPLICIT_THETA); else the plain θ-method at ``theta``."""
+    label, options = _implicit_label(theta, None)
+    loss, omega, dt, omega_ref = cantilever_vibration_loss(options)
     w, th = omega * dt, IMPLICIT_THETA if theta is None else theta
     theory = 1.0 - ((1.0 + ((1.0 - th) * w) ** 2) / (1.0 + (th * w) ** 2)) ** (math.pi / w)
-    label = f"implicit θ {th:g}"
     return [_row(f"{label}: lowest bending mode ω (rad/s) vs 3.516 √(EI/ρL⁴)", omega_ref, omega, 5e-2),
             _row(f"{label}: amplitude lost per period at dt {dt:.3g} s", theory, loss, 0.25)]
 
@@ -899,9 +912,11 @@ def chord() -> list[CaseResult]:
 def implicit_cases() -> list[CaseResult]:
     """The implicit step: convergence to the reference, numerical damping, and the
     cantilever and helix recovery at its default step."""
-    rows = implicit_convergence() + implicit_convergence(theta=0.7) + implicit_damping() + implicit_damping(theta=0.7)
+    rows = (implicit_convergence() + implicit_convergence(theta=1.0) + implicit_convergence(theta=0.7)
+            + implicit_damping() + implicit_damping(theta=1.0) + implicit_damping(theta=0.7))
     result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
-    rows.append(_row("implicit default step: cantilever PL²/EI=5, 50 segments: δ/L", reference, result, 5e-3))
+    rows.append(_row("implicit default step (settling θ): cantilever PL²/EI=5, 50 segments: δ/L", reference, result,
+                     5e-3))
     return rows + helix_recovery(integrator="implicit")
 
 

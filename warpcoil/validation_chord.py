@@ -4,7 +4,9 @@ pair the stiffness is the contact law's secant between the gap at the step start
 the predicted end; a straight coil thrown at a face from outside the contact range stops
 at the depth where the law's work equals its kinetic energy, and the chord step converges
 to that depth as the step shrinks, with a smaller error than the tangent at long steps.
-Units mm, g, s, µN.
+Each on the linearly implicit Euler step (implicit.EULER with the stiffness named: the
+stiffness read from the matrix is then the law's, not over θ); the thrown coil also on
+the default scheme (θ 0.65 gated + chord). Units mm, g, s, µN.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from .coil import CoilSpec
-from .implicit import ImplicitSolver
+from .implicit import EULER, ImplicitSolver
 from .kernels import contact
 from .model import ModelBuilder
 from .settings import SimulationSettings
@@ -65,7 +67,8 @@ def wall_probe(gap_mm: float, speed_mm_s: float, stiffness: str, dt_s: float = P
     model, start = straight_coil_at_face(gap_mm)
     state = state_from_positions(model, start)
     state.v.assign(np.tile([0.0, 0.0, speed_mm_s], (3, 1)))
-    solver = ImplicitSolver(model, dt_s=dt_s, coil_contact=False, wall_query="bvh", contact_stiffness=stiffness)
+    solver = ImplicitSolver(model, dt_s=dt_s, coil_contact=False, wall_query="bvh",
+                            **{**EULER, "contact_stiffness": stiffness})
     solver.step(state, new_state_like(model), Control.create(model))
     end = solver._x_end.numpy()[1] if solver.chord else start[1]
     return solver.wall_stiffness.numpy()[1].copy(), face_gap(start[1]), face_gap(end), solver
@@ -88,25 +91,27 @@ def pair_probe(gap_mm: float, speed_mm_s: float, stiffness: str):
     start = np.concatenate([a, b])
     state = state_from_positions(model, start)
     state.v.assign(np.array([[0.0, speed_mm_s, 0.0]] * 3 + [[0.0, -speed_mm_s, 0.0]] * 3))
-    solver = ImplicitSolver(model, dt_s=PROBE_DT_S, contact_stiffness=stiffness)
+    solver = ImplicitSolver(model, dt_s=PROBE_DT_S, **{**EULER, "contact_stiffness": stiffness})
     solver.step(state, new_state_like(model), Control.create(model))
     ends = solver._x_end.numpy() if solver.chord else start
     gap = lambda x: float(x[4, 1] - x[1, 1] - D)  # noqa: E731 (every edge pair's closest points: the middle nodes)
     return solver._pair_count.numpy(), solver._pair_k.numpy(), gap(start), gap(ends), solver
 
 
-def throw_depth(stiffness: str, advance_c0: float) -> tuple[float, float]:
+def throw_depth(stiffness: str | None, advance_c0: float) -> tuple[float, float]:
     """The coil of :func:`straight_coil_at_face` thrown at the face at THROW_MM_S from
     THROW_START_C0 · c0 (near-zero damping), stepped at ``advance_c0`` · c0 per step until
     it has come back out of the contact range: (its smallest gap, the energy balance's, mm).
     The balance: ½ m v² = s ∫_h^c0 |F| dh per node (mass over contact share is the same for
-    every node, so the straight coil stays straight and each node obeys it)."""
+    every node, so the straight coil stays straight and each node obeys it). ``stiffness``
+    None: the default scheme (implicit.IMPLICIT_SCHEMES), else Euler with that stiffness."""
     settings = SimulationSettings(damping_uN_per_mm=1e-6)
     model, start = straight_coil_at_face(THROW_START_C0 * C0, settings)
     state = state_from_positions(model, start)
     state.v.assign(np.tile([0.0, 0.0, THROW_MM_S], (3, 1)))
     dt = advance_c0 * C0 / THROW_MM_S
-    solver = ImplicitSolver(model, dt_s=dt, coil_contact=False, wall_query="bvh", contact_stiffness=stiffness)
+    options = {} if stiffness is None else {**EULER, "contact_stiffness": stiffness}
+    solver = ImplicitSolver(model, dt_s=dt, coil_contact=False, wall_query="bvh", **options)
     control, out = Control.create(model), new_state_like(model)
     smallest = np.inf
     for _ in range(int(np.ceil(6.0 * THROW_START_C0 * C0 / THROW_MM_S / dt)) + 4):
@@ -140,6 +145,10 @@ def chord_cases() -> list[CaseResult]:
                                f"(mm; tangent {depth['tangent', advance]:.4f}), deeper by (c0)", reference,
                                depth["chord", advance], max(0.0, reference - depth["chord", advance]) / C0,
                                THROW_DEEPER_TOLERANCE_C0))
+    default, _ = throw_depth(None, THROW_ADVANCES_C0[0])  # the default scheme: θ 0.65, gated near the face, chord
+    rows.append(CaseResult(f"coil thrown at a face from {THROW_START_C0:g} c0, {THROW_ADVANCES_C0[0]:g} c0/step, default "
+                           "scheme (θ 0.65 gated, chord): deepest gap (mm), deeper by (c0)", reference, default,
+                           max(0.0, reference - default) / C0, THROW_DEEPER_TOLERANCE_C0))
     fine, finer = (abs(depth["chord", a] - reference) for a in THROW_ADVANCES_C0[-2:])
     order = float(np.log2(fine / finer))
     rows.append(CaseResult(f"... chord: observed order of its depth error ({THROW_ADVANCES_C0[-2]:g} → "

@@ -1,7 +1,8 @@
 """Validation of the numerical-dissipation ledger (dissipation.py), each row running the
 meter on the solver: on a clamped straight 3-node chain oscillating along its axis (a linear
-system: stretching only) the meter's books equal backward Euler's analytic loss
-Σ ½ Δvᵀ M Δv + ½ Δxᵀ K Δx of the trajectory, and with the model's damping its ratio
+system: stretching only) the meter's books equal the θ-method's analytic loss
+(θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (θ = 1: backward Euler's; the default
+θ 0.65 too), and with the model's damping its ratio
 numerical / physical falls at order 1 with the step; the same ratio on a released coil
 (docs/FORMULATION.md "Implicit step: numerical dissipation")."""
 
@@ -14,7 +15,7 @@ import numpy as np
 from . import preshape
 from .coil import CoilSpec
 from .dissipation import DissipationMeter
-from .implicit import make_solver
+from .implicit import EULER, IMPLICIT_THETA, make_solver
 from .model import Model, ModelBuilder
 from .settings import SimulationSettings
 from .solver import Control
@@ -53,29 +54,40 @@ def axial_chain(damped: bool) -> tuple[Model, np.ndarray, np.ndarray, float]:
     return model, stiffness, mass, omega
 
 
-def chain_run(damped: bool, omega_dt: float, steps: int) -> tuple[DissipationMeter, float]:
-    """The chain stepped by the implicit step at dt = omega_dt / ω: (its meter, backward Euler's
-    analytic loss Σ ½ Δvᵀ M Δv + ½ Δxᵀ K Δx of the axial trajectory, nJ)."""
+def chain_run(damped: bool, omega_dt: float, steps: int, options: dict | None = None
+              ) -> tuple[DissipationMeter, float]:
+    """The chain stepped by the implicit step (``options``: the solver's, default linearly
+    implicit Euler) at dt = omega_dt / ω: (its meter, the θ-method's analytic loss
+    (θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the axial trajectory, nJ). Derivation: with
+    M Δv = −dt K (x + θ Δx) and Δx = dt ((1 − θ) v + θ v'), ΔE = ½ (v + v')ᵀ M Δv +
+    ½ (x + x')ᵀ K Δx = (½ − θ) (Δvᵀ M Δv + Δxᵀ K Δx); no node is gated (no obstacle)."""
+    options = EULER if options is None else options
+    theta = options.get("theta", IMPLICIT_THETA)
     model, stiffness, mass, omega = axial_chain(damped)
     start = model.rest_x.numpy().copy()
     start[1:3, 0] += CHAIN_START_MM
-    meter = DissipationMeter(make_solver(model, "implicit", omega_dt / omega), state_from_positions(model, start),
-                             Control.create(model))
+    meter = DissipationMeter(make_solver(model, "implicit", omega_dt / omega, **options),
+                             state_from_positions(model, start), Control.create(model))
     x, v = [start[1:3, 0]], [np.zeros(2)]
     for _ in range(steps):
         meter.step()
         x.append(meter.state.x.numpy()[1:3, 0].copy())
         v.append(meter.state.v.numpy()[1:3, 0].copy())  # (CPU .numpy() is a view)
     dx, dv = np.diff(x, axis=0), np.diff(v, axis=0)
-    analytic = 0.5 * float(np.einsum("ni,ni,i->", dv, dv, mass) + np.einsum("ni,ij,nj->", dx, stiffness, dx))
+    quadratic = float(np.einsum("ni,ni,i->", dv, dv, mass) + np.einsum("ni,ij,nj->", dx, stiffness, dx))
+    analytic = (theta - 0.5) * quadratic
     return meter, analytic
 
 
 def chain_rows() -> list[CaseResult]:
-    """The meter against backward Euler's analytic loss (undamped), and its ratio's order (damped)."""
-    meter, analytic = chain_run(damped=False, omega_dt=0.5, steps=40)
-    rows = [_row("meter on a clamped 3-node chain oscillating along its axis, undamped, dt ω 0.5: numerical "
-                 "dissipation vs Σ ½ΔvᵀMΔv + ½ΔxᵀKΔx of its trajectory (nJ)", analytic, meter.totals.numerical_nJ, 1e-9)]
+    """The meter against the θ-method's analytic loss (undamped; Euler and the default), and its
+    ratio's order (damped, Euler)."""
+    rows = []
+    for label, options in (("Euler", EULER), (f"default θ {IMPLICIT_THETA:g}", {})):
+        meter, analytic = chain_run(damped=False, omega_dt=0.5, steps=40, options=options)
+        rows.append(_row(f"meter on a clamped 3-node chain oscillating along its axis, undamped, dt ω 0.5, {label}: "
+                         "numerical dissipation vs (θ − ½) Σ (ΔvᵀMΔv + ΔxᵀKΔx) of its trajectory (nJ)", analytic,
+                         meter.totals.numerical_nJ, 1e-9))
     steps = [round(2.0 * math.pi / w) for w in (0.05, 0.025)]  # one period of the fastest mode
     ratios = [chain_run(damped=True, omega_dt=w, steps=n)[0].totals.ratio for w, n in zip((0.05, 0.025), steps)]
     rows.append(_row(f"meter on the damped chain: order of numerical/physical in dt (dt ω 0.05 → 0.025: "

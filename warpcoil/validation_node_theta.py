@@ -17,7 +17,7 @@ import math
 from .validation import CaseResult, _row, cantilever_vibration_loss, free_release, implicit_convergence, tilted_catheter
 
 THETA = 0.7
-GATED = {"theta": THETA, "near_theta": 1.0}
+GATED = {"theta": THETA, "near_theta": 1.0, "contact_stiffness": "tangent"}  # the gate alone (no chord)
 EVERY_NODE = {**GATED, "proximity_margin_c0": 1.0e12}  # a reach beyond any distance: every node at θ_i = 1
 
 

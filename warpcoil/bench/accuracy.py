@@ -17,14 +17,15 @@ Cases and their references:
   energy ≤ 0.1 while pushing, MODEL.md).
 
 Knobs: step size (dt_safety × the stable bound), the integrator (the implicit
-step at its default, its push advance per step from 0.4 to 2.4 c0, the θ-method
-at θ = 0.7 beside its linearly implicit Euler step, linearly implicit BDF2, and the chord contact
-stiffness to either predicted end), push advance per step (push
+step at its default — θ 0.65, proximity-gated, chord contact stiffness — beside linearly implicit
+Euler at the same push step (the default before), its push advance per step from 0.4 to 2.4 c0,
+the plain θ-method at θ = 0.7, the gated θ 0.7 with either contact stiffness, linearly implicit
+BDF2, and Euler with the chord contact stiffness to either predicted end), push advance per step (push
 speed), segment length l0 ∈ {d/2, d, 2d} (d/2 on the validation cases, where
 it is affordable), mass scaling. A free release's rest state has more than one basin: each
-default release (and the implicit step at 50, 100 and 200 mm/s) is rerun with the catheter
-turned by 0.01°, and the detail says in how many runs it came to rest in the helix (the
-implicit default at 100 and 150 mm/s: none; at 0.4 c0 per push step: all; docs/FORMULATION.md
+default release (and the implicit step at 50, 100, 150 and 200 mm/s) is rerun with the catheter
+turned by 0.01°, and the detail says in how many runs it came to rest in the helix (implicit Euler
+at 0.8 c0 per push step at 100 and 150 mm/s: none; at 0.4 c0: all; docs/FORMULATION.md
 "the free release that comes to rest tangled"). The deployment reference is the finest
 setting swept: dt 0.25 × bound, true inertia, push 50 mm/s, l0 = d, with the exact
 wall (BVH) whatever the seed scene's ``wall_query``; the implicit default step also
@@ -43,7 +44,7 @@ import numpy as np
 
 from .. import validation
 from ..deploy import Deployment
-from ..implicit import IMPLICIT_ADVANCE_PER_C0, IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_THETA
+from ..implicit import EULER, IMPLICIT_ADVANCE_PER_C0, IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_THETA
 from ..scene import load_scene
 from ..recorder.atomic import write_text_atomic
 from .report import markdown_table, timed, write_report
@@ -56,9 +57,14 @@ MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a
 # a deployment setting is a default candidate only while its push force's mean over the push is within this
 # many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
 PUSH_FORCE_TOLERANCE_F0 = 0.25
-THETA_LOW = 0.7  # the θ-method's setting shown beside the linearly implicit Euler step (implicit.IMPLICIT_THETA)
-# the proximity-gated θ: θ_i = 1 near an obstacle, THETA_LOW elsewhere (an option; FORMULATION.md "proximity-gated θ")
-GATED_THETA = {"theta": THETA_LOW, "near_theta": 1.0}
+THETA_LOW = 0.7  # the plain θ-method's setting shown beside the default and linearly implicit Euler
+# the plain θ-method (every node at θ, tangent contact stiffness) at θ
+PLAIN_THETA = {"near_theta": None, "contact_stiffness": "tangent"}
+# the proximity-gated θ at THETA_LOW with the tangent stiffness (FORMULATION.md "proximity-gated θ")
+GATED_THETA = {"theta": THETA_LOW, "near_theta": 1.0, "contact_stiffness": "tangent"}
+# the implicit default: θ IMPLICIT_THETA, gated, chord (implicit.IMPLICIT_SCHEMES["gated_chord"])
+DEFAULT_LABEL = f"θ {IMPLICIT_THETA:g} gated, chord"
+IMPLICIT_DEFAULT_ROW = "implicit, default step ("  # the deployment's implicit default row, also checked for the front
 
 
 @dataclass
@@ -87,7 +93,8 @@ def cantilever_rows(quick: bool, repeats: int) -> list[Row]:
     (deflection, reference), t = timed(lambda: validation.cantilever_deflection(50, 5.0, integrator="implicit"),
                                        repeats)
     error = abs(deflection - reference) / reference
-    rows.append(Row("cantilever", "50 segments, implicit default step", False, 0, t, error))
+    rows.append(Row("cantilever", f"50 segments, implicit default step ({DEFAULT_LABEL}; at rest: settling θ 1)", False,
+                    0, t, error))
     return rows
 
 
@@ -104,7 +111,8 @@ def helix_rows(quick: bool, repeats: int) -> list[Row]:
                             0, t, _helix_error(res), f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm",
                             not_default=L0_IS_THE_MODEL if factor != 1.0 else ""))
     res, t = timed(lambda: validation.helix_recovery(integrator="implicit"), repeats)
-    rows.append(Row("helix recovery", "l0 1 d, implicit default step", False, 0, t, _helix_error(res),
+    rows.append(Row("helix recovery", f"l0 1 d, implicit default step ({DEFAULT_LABEL}; unpushed: settling θ 1)", False, 0, t,
+                    _helix_error(res),
                     f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
     return rows
 
@@ -153,21 +161,16 @@ def release_rows(quick: bool, repeats: int) -> list[Row]:
     for speed in (default_speed,) if quick else (50.0, 100.0, 150.0, 200.0):
         res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit"), repeats)
         detail, tangled = _release_detail(res, speed, "implicit", 2 if quick else 4)
-        rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step", False, 0, t,
+        rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step ({DEFAULT_LABEL})", False, 0, t,
                         _helix_error(res), detail, not_default=tangled))
-    advance = 0.5 * IMPLICIT_ADVANCE_PER_C0  # the finer push step that comes to rest in the helix (FORMULATION.md)
-    for speed in () if quick else (100.0, 150.0):
-        res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
-                                                       advance_per_c0=advance), repeats)
-        detail, tangled = _release_detail(res, speed, "implicit", 4, advance)
-        rows.append(Row("free release", f"push {speed:g} mm/s, implicit {advance:g} c0 per push step", False, 0, t,
-                        _helix_error(res), detail, not_default=tangled))
-    for speed in () if quick else (100.0, 150.0):  # the proximity-gated θ (FORMULATION.md "proximity-gated θ")
-        res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
-                                                       solver_options=GATED_THETA), repeats)
-        detail, tangled = _release_detail(res, speed, "implicit", 4, solver_options=GATED_THETA)
-        rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step, gated θ {THETA_LOW:g}", False, 0,
-                        t, _helix_error(res), detail, not_default=tangled))
+    for speed in () if quick else (100.0, 150.0):  # linearly implicit Euler, the default before (FORMULATION.md
+        # "the free release that comes to rest tangled"), at the default push step and at half of it
+        for advance in (IMPLICIT_ADVANCE_PER_C0, 0.5 * IMPLICIT_ADVANCE_PER_C0):
+            res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
+                                                           advance_per_c0=advance, solver_options=EULER), repeats)
+            detail, tangled = _release_detail(res, speed, "implicit", 4, advance, solver_options=EULER)
+            rows.append(Row("free release", f"push {speed:g} mm/s, implicit Euler {advance:g} c0 per push step", False,
+                            0, t, _helix_error(res), detail, not_default=tangled))
     return rows
 
 
@@ -277,10 +280,12 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         "dt 0.5 bound": (variant(dt_safety=0.5), None),
         "push 200 mm/s": (variant(push=200.0), None),
         "mass scale 10": (variant(mass_scale=10.0), None),
-        f"implicit, default step (θ {IMPLICIT_THETA:g}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
+        f"implicit, default step ({DEFAULT_LABEL}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
         f"the settling step, ≤ {IMPLICIT_SETTLE_DT_MAX_S * 1e3:g} ms)": (variant(integrator="implicit"), None),
     }
-    settings[f"implicit, default step, gated θ {THETA_LOW:g} (θ_i 1 near an obstacle)"] = (
+    settings[f"implicit Euler, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 (the default before; tangent contact "
+             f"stiffness)"] = (variant(integrator="implicit"), EULER)
+    settings[f"implicit, default step, gated θ {THETA_LOW:g} (θ_i 1 near an obstacle), tangent stiffness"] = (
         variant(integrator="implicit"), GATED_THETA)
     settings[f"implicit, default step, gated θ {THETA_LOW:g}, chord contact stiffness"] = (
         variant(integrator="implicit"), {**GATED_THETA, "contact_stiffness": "chord"})
@@ -288,12 +293,13 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
     implicit_other = variant(integrator="implicit")
     settings[f"implicit, default step, wall_query {other_query}"] = (
         replace(implicit_other, contact=replace(implicit_other.contact, wall_query=other_query)), None)
-    # the push step on the front, kept after the push: the linearly implicit Euler step (θ 1) and the θ-method
-    # with less numerical damping (θ THETA_LOW; it does not settle at the settling step)
+    # the push step on the front, kept after the push: the linearly implicit Euler step (θ 1) and the plain θ-method
+    # with less numerical damping (θ THETA_LOW, every node, tangent; it does not settle at the settling step)
     for theta in (1.0, THETA_LOW):
         for advance in (0.8, 1.2, 1.6, 2.4) if theta != 1.0 else (0.4, 1.2, 1.6, 2.4):
             settings[f"implicit θ {theta:g}, push advance {advance:g} c0 (kept)"] = (
-                variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"theta": theta})
+                variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s),
+                {"theta": theta, **PLAIN_THETA})
     for advance in (0.8, 1.2, 1.6, 2.4):  # linearly implicit BDF2 (L-stable), kept after the push
         settings[f"implicit BDF2, push advance {advance:g} c0 (kept)"] = (
             variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s), {"method": "bdf2"})
@@ -301,7 +307,7 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         for advance in advances:  # stiffness to each predicted end (kernels/chord.py), kept after the push
             settings[f"implicit, chord contact stiffness ({end} end), push advance {advance:g} c0 (kept)"] = (
                 variant(integrator="implicit", dt_s=advance * c0 / base.simulation.push_speed_mm_s),
-                {"contact_stiffness": "chord", "chord_end": end})
+                {**EULER, "contact_stiffness": "chord", "chord_end": end})
     if not quick:  # (l0 = d/2 is swept on the helix: on this deployment it took 3 min a run)
         settings.update({"push 100 mm/s": (variant(push=100.0), None), "mass scale 100": (variant(mass_scale=100.0), None),
                          "l0 2d": (variant(l0_factor=2.0), None)})
@@ -329,23 +335,26 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
 
 # --- report ---------------------------------------------------------------------------
 def pareto_check(rows: list[Row]) -> str:
-    """Is the default on (or within 10 % of) the Pareto front of its case? Rows with
+    """Is the default (and, on a deployment, the implicit default) on (or within 10 % of) the
+    Pareto front of its case? Rows with
     a ``not_default`` reason are not candidates; errors below a case's floor (a
     deployment's chaotic spread) count as equal."""
     lines = []
     for case in dict.fromkeys(r.case for r in rows):
         case_rows = [r for r in rows if r.case == case]
-        default = next(r for r in case_rows if r.default)
-        level = lambda r: max(r.error, r.floor)  # noqa: E731
-        better = [r for r in case_rows if not r.not_default and level(r) <= level(default)
-                  and r.wall_time_s < default.wall_time_s / 1.1]
-        verdict = "on the front (within 10 %)" if not better else \
-            "dominated by " + ", ".join(f"{r.setting} ({r.wall_time_s:.3g} s, error {r.error:.2e})" for r in better)
-        floor = f" (errors below the chaotic spread {default.floor:.2e} count as equal)" if default.floor else ""
-        excluded = sorted({f"{r.setting}: {r.not_default}" for r in case_rows
-                           if r.not_default and r.wall_time_s < default.wall_time_s and level(r) <= level(default)})
-        lines.append(f"- {case}: default {default.wall_time_s:.3g} s, error {default.error:.2e}{floor} — {verdict}"
-                     + (f"; faster but not default candidates: {'; '.join(excluded)}" if excluded else ""))
+        defaults = [("default", next(r for r in case_rows if r.default))]
+        defaults += [("implicit default", r) for r in case_rows if r.setting.startswith(IMPLICIT_DEFAULT_ROW)]
+        for name, default in defaults:
+            level = lambda r: max(r.error, r.floor)  # noqa: E731
+            better = [r for r in case_rows if not r.not_default and level(r) <= level(default)
+                      and r.wall_time_s < default.wall_time_s / 1.1]
+            verdict = "on the front (within 10 %)" if not better else "dominated by " + ", ".join(
+                f"{r.setting} ({r.wall_time_s:.3g} s, error {r.error:.2e})" for r in better)
+            floor = f" (errors below the chaotic spread {default.floor:.2e} count as equal)" if default.floor else ""
+            excluded = sorted({f"{r.setting}: {r.not_default}" for r in case_rows
+                               if r.not_default and r.wall_time_s < default.wall_time_s and level(r) <= level(default)})
+            lines.append(f"- {case}: {name} {default.wall_time_s:.3g} s, error {default.error:.2e}{floor} — {verdict}"
+                         + (f"; faster but not default candidates: {'; '.join(excluded)}" if excluded else ""))
     return "\n".join(lines)
 
 
@@ -379,6 +388,13 @@ def main(out: Path, quick: bool, repeats: int) -> int:
         rows.extend(new)
         for r in new:
             print(f"{r.case:28s} {r.setting:46s} {r.wall_time_s:8.2f} s  error {r.error:.2e}  {r.detail}", flush=True)
+    write_outputs(out, rows, quick, repeats)
+    return 0
+
+
+def write_outputs(out: Path, rows: list[Row], quick: bool, repeats: int) -> None:
+    """accuracy.md (table and Pareto check), accuracy.png and accuracy.json in ``out``
+    (also from a sweep's accuracy.json: ``[Row(**r) for r in json.load(...)]``)."""
     table = markdown_table(["case", "setting", "default", "steps", "wall time (s)", "error", "detail"],
                            [[r.case, r.setting, "yes" if r.default else "", r.steps or "", r.wall_time_s, r.error,
                              r.detail] for r in rows])
@@ -388,4 +404,3 @@ def main(out: Path, quick: bool, repeats: int) -> int:
                  [f"Median wall time of {repeats} run(s) per setting; errors are deterministic.", table,
                   "## Defaults and the Pareto front\n\n" + pareto_check(rows), "![error against run time](accuracy.png)"])
     write_text_atomic(out / "accuracy.json", json.dumps([asdict(r) for r in rows], indent=1))
-    return 0
