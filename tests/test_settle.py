@@ -7,8 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, SETTLE_ADVANCE_PER_C0, SETTLE_STALL_S,
-                               settle_finest_level, settle_level, settle_stalled)
+from test_implicit import implicit_scene
+
+from warpcoil.deploy import Deployment
+from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA,
+                               SETTLE_ADVANCE_PER_C0, SETTLE_STALL_S, settle_finest_level, settle_level, settle_stalled)
+from warpcoil.state import new_state_like
 from warpcoil.validation_settle import settle_cases
 
 C0_MM = 0.02921
@@ -113,3 +117,23 @@ def test_a_settling_that_stalls_again_goes_to_half_the_step_up_to_the_limit(monk
     assert [levels[i] for i in changes[-SETTLE_REFINE_MAX:]] == [finest * 2 ** r for r in range(SETTLE_REFINE_MAX)]
     assert np.diff(changes[-SETTLE_REFINE_MAX:]).min() == window + 1  # each after its own window of frames
     assert result.settle_dt_s == pytest.approx(frame_s / (2 * finest * 2 ** (SETTLE_REFINE_MAX - 1)))
+
+
+def test_every_implicit_run_settles_at_the_settling_theta():
+    """θ IMPLICIT_SETTLE_THETA once every coil is out, also for a run whose push step was
+    halved or a scene that gives dt_s (the θ-method at 0.65 takes ~20× the steps to rest);
+    a step halved while settling keeps the push's gate and contact stiffness."""
+    scene = implicit_scene()
+    halved = Deployment(scene)
+    snapshot = new_state_like(halved.model)
+    snapshot.copy_from(halved.stepper.state)
+    halved._halve_step(snapshot, "halved for the test at t = 0")
+    assert halved.solver.theta == IMPLICIT_THETA
+    assert halved.run().status == "completed" and halved.solver.theta == IMPLICIT_SETTLE_THETA
+    given = Deployment(implicit_scene(dt_s=halved.solver.dt_s))
+    assert given.run().status == "completed" and given.solver.theta == IMPLICIT_SETTLE_THETA
+    bdf2 = Deployment(scene, solver_options={"method": "bdf2"})
+    bdf2._settle_step()
+    before = (bdf2.solver.near_theta, bdf2.solver.chord)
+    bdf2._halve_step(new_state_like(bdf2.model), "halved for the test while settling")
+    assert (bdf2.solver.theta, bdf2.solver.near_theta, bdf2.solver.chord) == (IMPLICIT_SETTLE_THETA, *before)

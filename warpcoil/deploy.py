@@ -142,9 +142,10 @@ class Ensemble:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame, integrator, settling step, push time, implicit scheme) = {steps}; split them with warpcoil.deploy.ensemble_groups")
         self.integrator = steps[0][3]
-        self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit default) step after the push
+        self.settle_dt_s, self.push_time_s = steps[0][4], steps[0][5]  # (implicit) step after the push, its start
         self._push_dt_s: float | None = None  # the push's step, once the settling step took over
         self._settling = False  # every member steps at its own settling step (_settle_chunk)
+        self._push_over = False  # every coil is out: the solver settles at θ IMPLICIT_SETTLE_THETA (_settle_scheme)
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
         self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
         self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
@@ -205,8 +206,12 @@ class Ensemble:
         self._steps_before += done - failed  # the failed frame's steps are dropped
         self._settling = False  # (a single run) on at the halved step to its end
         options = dict(self._solver_options)
-        if self._push_dt_s is not None:  # halved while settling: on with Euler, as _settle_step switched to
-            options.update(method="theta", theta=1.0)
+        if self._push_over:  # halved after the push: on with the settling θ, the push's gate and contact stiffness
+            scheme = self.solver.scheme
+            options.update(method="theta", theta=IMPLICIT_SETTLE_THETA, near_theta=scheme["near_theta"],
+                           contact_stiffness=scheme["contact_stiffness"])
+            if scheme["chord_end"] is not None:
+                options["chord_end"] = scheme["chord_end"]
         solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
                              dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True,
                              **options)
@@ -223,11 +228,17 @@ class Ensemble:
         the next frame on each member steps at its own settling step (:meth:`_settle_chunk`)."""
         self._steps_before += self.stepper.steps
         self._push_dt_s = self.solver.dt_s
-        if getattr(self.solver, "theta", 1.0) != 1.0:  # the θ-method does not bring a coil to rest at this step
+        self._settle_scheme()
+        self._settling = True
+
+    def _settle_scheme(self) -> None:
+        """Every coil is out: the implicit solver goes on at θ IMPLICIT_SETTLE_THETA, at the
+        settling step or (a run that gave ``dt_s`` or halved its step) at its own."""
+        self._push_over = True
+        if getattr(self.solver, "theta", 1.0) != IMPLICIT_SETTLE_THETA:  # the θ-method does not bring a coil to rest
             self.solver.theta = IMPLICIT_SETTLE_THETA  # (FORMULATION.md "Implicit step: push force"): Euler settles it
         if getattr(self.solver, "method", "theta") == "bdf2":  # BDF2's history would restart at every change of
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
-        self._settling = True
 
     def _settle_chunk(self, live: list[Member]) -> None:
         """One frame of settling: each live member at the step its fastest free node sets
@@ -516,9 +527,12 @@ class Ensemble:
             if single:
                 self._work_before = (self.members[0].pusher_work_nJ, self.members[0].last_advance_mm)
             pushing = [m for m in self.members if m.result is None and m not in rerun and m.active >= 0]
-            if (self.settle_dt_s and not self._settling and self._push_dt_s is None and not self.step_reductions
-                    and not pushing and self.stepper.state.time_s >= self.push_time_s):
-                self._settle_step()
+            if (self.integrator == "implicit" and not self._push_over and not pushing
+                    and self.stepper.state.time_s >= self.push_time_s):
+                if self.settle_dt_s and not self.step_reductions:
+                    self._settle_step()
+                else:
+                    self._settle_scheme()
         if interrupted[0] and rerun:
             self._interrupt(rerun, started)  # (restored to their last healthy frame)
             rerun = []
@@ -566,8 +580,9 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     explicit step's for either integrator: both integrate the same law). The implicit
     step at its default goes on at the settling step (s) from the push time (s: when
     every coil is out, Σ (length + COIL_GAP_MM) / push speed, and the last coil's
-    whip, DETACH_WHIP_S after its release, is over) once every coil is detached;
-    otherwise both are 0."""
+    whip, DETACH_WHIP_S after its release, is over) once every coil is detached; a
+    scene that gives ``dt_s`` keeps it (settling step 0) but settles at θ
+    IMPLICIT_SETTLE_THETA from the push time too. The symplectic step: both 0."""
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
@@ -582,12 +597,12 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             onset_dt = explicit_dt
             if sim.dt_s is None:
                 settle_dt = settle_step_s(dt, sim.frame_interval_s)
-                coils = model.world_coils(w)
-                push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
-                                  ) / sim.push_speed_mm_s
-                # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
-                # ends first
-                push_time += max(0.0, DETACH_WHIP_S - COIL_GAP_MM / sim.push_speed_mm_s)
+            coils = model.world_coils(w)
+            push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
+                              ) / sim.push_speed_mm_s
+            # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
+            # ends first
+            push_time += max(0.0, DETACH_WHIP_S - COIL_GAP_MM / sim.push_speed_mm_s)
         else:
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
