@@ -12,15 +12,15 @@ def row(setting: str, time_s: float, error: float, default: bool = False, not_de
 
 def test_the_implicit_default_is_judged_beside_the_default():
     rows = [row("symplectic default", 18.0, 0.03, default=True),
-            row(IMPLICIT_DEFAULT_ROW + "θ 0.65 gated, chord)", 2.0, 0.05),
-            row("implicit Euler", 1.4, 0.06, not_default="push force off by 0.53 F0 (> 0.25 F0)"),
+            row(IMPLICIT_DEFAULT_ROW + "Euler, tangent)", 2.0, 0.05),
+            row("implicit BDF2", 1.4, 0.06, not_default="push force off by 0.53 F0 (> 0.25 F0)"),
             row("implicit θ 0.7, 1.2 c0", 1.0, 0.06),
             row("implicit θ 0.7, 2.4 c0", 1.9, 0.20)]  # above the chaotic spread: not equal
     symplectic, implicit = pareto_check(rows).splitlines()
     assert symplectic.startswith(f"- {CASE}: default 18 s") and "dominated by" in symplectic
     assert implicit.startswith(f"- {CASE}: implicit default 2 s")
     assert "dominated by implicit θ 0.7, 1.2 c0 (1 s" in implicit and "2.4 c0" not in implicit
-    assert "faster but not default candidates: implicit Euler: push force off by 0.53 F0" in implicit
+    assert "faster but not default candidates: implicit BDF2: push force off by 0.53 F0" in implicit
 
 
 def test_a_case_without_an_implicit_default_row_has_one_line():

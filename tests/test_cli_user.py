@@ -419,14 +419,14 @@ def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_pat
     assert not (tmp_path / "never").exists()
 
 
-# --- the implicit step's scheme: the default, Euler by name, and bad values ---------------
+# --- the implicit step's scheme: the default (Euler), gated_chord by name, and bad values ---------------
 @pytest.mark.parametrize("key, expected", [
-    ("", {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord", "chord_end": "flight"}),
-    ('implicit_scheme = "euler"\n', {"method": "theta", "theta": 1.0, "near_theta": None,
-                                     "contact_stiffness": "tangent", "chord_end": None})])
-def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path, key, expected):
-    """integrator = "implicit": the default scheme (θ 0.65 gated, chord) or, named, linearly
-    implicit Euler (the default before); result.json's "scheme" says which ran the push."""
+    ("", {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent", "chord_end": None}),
+    ('implicit_scheme = "gated_chord"\n', {"method": "theta", "theta": 0.65, "near_theta": 1.0,
+                                           "contact_stiffness": "chord", "chord_end": "flight"})])
+def test_an_implicit_run_reports_its_scheme_and_gated_chord_is_chosen_by_name(tmp_path, key, expected):
+    """integrator = "implicit": the default scheme (linearly implicit Euler) or, named,
+    gated_chord (θ 0.65 gated, chord); result.json's "scheme" says which ran the push."""
     lines = f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'
     path = scene(tmp_path, **{"frame_interval_s = 0.005\n": lines})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
@@ -437,8 +437,8 @@ def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path
 
 
 @pytest.mark.parametrize("lines, message", [
-    ('integrator = "implicit"\nimplicit_scheme = "rk4"\n', "simulation.implicit_scheme: must be one of 'gated_chord', "
-                                                           "'euler', 'bdf2', got 'rk4'"),
+    ('integrator = "implicit"\nimplicit_scheme = "rk4"\n', "simulation.implicit_scheme: must be one of 'euler', "
+                                                           "'gated_chord', 'bdf2', got 'rk4'"),
     ('implicit_scheme = "euler"\n', "simulation.implicit_scheme: applies only to integrator = 'implicit'")])
 def test_a_bad_implicit_scheme_is_one_line_naming_file_and_key(tmp_path, lines, message):
     path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + lines})

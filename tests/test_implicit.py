@@ -121,15 +121,16 @@ def test_stable_far_beyond_the_explicit_bound():
     assert energies[-1] < 1e-3 * energies[0]
 
 
-@pytest.mark.parametrize("theta", [None, 1.0])
-def test_converges_to_the_reference_at_first_order(theta):
-    """The default scheme (θ 0.65; no obstacle, so no node gated) and linearly implicit Euler
-    against the reference as dt shrinks: first order at the finest pair. Euler's order still
-    rises towards 1 across these steps (0.73 → 0.80); the default's is already near 1 there
-    (0.91 → 0.93: within 0.1 of 1), so the "rises" row is Euler's (the full sweep of
-    `warpcoil validate implicit` shows the default rising from its coarser steps)."""
-    rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025), theta=theta)
-    if theta is None:
+@pytest.mark.parametrize("scheme", ["default", "gated_chord"])
+def test_converges_to_the_reference_at_first_order(scheme):
+    """The default scheme (linearly implicit Euler) and gated_chord (θ 0.65; no obstacle, so
+    no node gated) against the reference as dt shrinks: first order at the finest pair. Euler's
+    order still rises towards 1 across these steps (0.73 → 0.80); gated_chord's is already near 1
+    there (0.91 → 0.93: within 0.1 of 1), so the "rises" row is Euler's (the full sweep of
+    `warpcoil validate implicit` shows gated_chord rising from its coarser steps)."""
+    labelled = validation.GATED_CHORD_LABELLED if scheme == "gated_chord" else None
+    rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025), labelled_options=labelled)
+    if labelled is not None:
         rows = [r for r in rows if "rises" not in r.case]
         assert abs(rows[-1].result - 1.0) < 0.1
     failed = [r for r in rows if not r.passed]
@@ -199,22 +200,25 @@ def test_scene_key_integrator(tmp_path: Path):
 
 
 def test_named_schemes_build_their_solvers_and_bdf2_takes_its_own_defaults():
-    """simulation.implicit_scheme names each of implicit.IMPLICIT_SCHEMES (the default: θ 0.65
-    gated, chord); method "bdf2" alone takes θ 1, no gate, the tangent stiffness; the θ-method's
+    """simulation.implicit_scheme names each of implicit.IMPLICIT_SCHEMES (the default: linearly
+    implicit Euler, tangent); method "bdf2" alone takes θ 1, no gate, the tangent stiffness; the θ-method's
     options given to BDF2 are refused by name; explicit solver options override the scheme."""
     for name, options in IMPLICIT_SCHEMES.items():
         s = implicit_scene()
         s = replace(s, simulation=replace(s.simulation, implicit_scheme=name))
         scheme = Deployment(s).solver.scheme
         assert {key: scheme[key] for key in options} == options, name
-    assert IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME] == {"method": "theta", "theta": 0.65, "near_theta": 1.0,
-                                                         "contact_stiffness": "chord"}
+    assert IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME] == {"method": "theta", "theta": 1.0, "near_theta": None,
+                                                         "contact_stiffness": "tangent"}
+    assert IMPLICIT_SCHEMES["gated_chord"] == {"method": "theta", "theta": 0.65, "near_theta": 1.0,
+                                               "contact_stiffness": "chord"}
+    assert Deployment(implicit_scene()).solver.scheme["theta"] == 1.0  # the scene default is Euler
     model, _ = straight_rod()
     bdf2 = ImplicitSolver(model, dt_s=1e-4, method="bdf2")
     assert (bdf2.theta, bdf2.near_theta, bdf2.chord) == (1.0, None, False)
     with pytest.raises(ValueError, match="near_theta"):
         ImplicitSolver(model, dt_s=1e-4, method="bdf2", near_theta=1.0)
-    s = replace(implicit_scene(), simulation=replace(implicit_scene().simulation, implicit_scheme="euler"))
+    s = replace(implicit_scene(), simulation=replace(implicit_scene().simulation, implicit_scheme="gated_chord"))
     assert Deployment(s, solver_options={"theta": 0.7}).solver.scheme["theta"] == 0.7
 
 

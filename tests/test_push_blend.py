@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 from warpcoil.deploy import Deployment
-from warpcoil.implicit import EULER, IMPLICIT_THETA
+from warpcoil.implicit import EULER, GATED_CHORD
 from warpcoil.state import new_state_like
 
 from test_ensemble import scene
 
 STEPS = 250  # 0.058 s of the push (dt 234 µs): the coil is in contact with the sac from ~step 60
 VARIANTS = {"euler": EULER, "theta": {**EULER, "theta": 0.7}, "gated": {**EULER, "theta": 0.7, "near_theta": 1.0},
-            "default": {}}  # plain θ 0.7, gated θ 0.7 (tangent), the default (θ 0.65 gated, chord)
-THETA = {name: options.get("theta", IMPLICIT_THETA) for name, options in VARIANTS.items()}
+            "gated_chord": GATED_CHORD}  # plain θ 0.7, gated θ 0.7 (tangent), the named scheme θ 0.65 gated, chord
+THETA = {name: options["theta"] for name, options in VARIANTS.items()}
 
 
 def implicit_scene():
@@ -60,7 +60,7 @@ def test_euler_reads_the_push_force_at_the_step_start(traces):
     assert np.array_equal(raw, reading)
 
 
-@pytest.mark.parametrize("name", ["theta", "gated", "default"])
+@pytest.mark.parametrize("name", ["theta", "gated", "gated_chord"])
 def test_theta_method_reads_the_blend_of_consecutive_push_forces(traces, name):
     """θ < 1 (per-node θ_i too: the global θ): reading_n = (1 − θ) P_{n−1} + θ P_n, the
     solver's first step (no previous reading) P_0."""
@@ -70,12 +70,12 @@ def test_theta_method_reads_the_blend_of_consecutive_push_forces(traces, name):
     assert np.allclose(reading[1:], expected, rtol=1e-12, atol=1e-9 * np.abs(raw).max())
 
 
-@pytest.mark.parametrize("name", ["theta", "gated", "default"])
+@pytest.mark.parametrize("name", ["theta", "gated", "gated_chord"])
 def test_blended_peak_is_eulers_while_the_step_start_force_rings(traces, name):
-    """Against the wall the step-start push force P_n of θ 0.7 (0.65: the default) alternates from step to step
+    """Against the wall the step-start push force P_n of θ 0.7 (0.65: gated_chord) alternates from step to step
     (its peak > 10 × Euler's); the blended reading's peak is within 1.25 × Euler's, its
     RMS within 1.1 × Euler's, and its mean over the steps is P_n's but for the one-step
-    shift: Σ reading = Σ P_n − (1 − θ) P_last (θ 0.7: within 1 % here; the default's last
+    shift: Σ reading = Σ P_n − (1 − θ) P_last (θ 0.7: within 1 % here; gated_chord's last
     P_n rings at −4 885 µN, 1.5 %)."""
     euler_peak = traces["euler"][1].max()
     raw, reading = traces[name]
@@ -84,7 +84,7 @@ def test_blended_peak_is_eulers_while_the_step_start_force_rings(traces, name):
     rms = lambda p: np.sqrt((p**2).mean())  # noqa: E731
     assert rms(reading) < min(rms(raw), 1.1 * rms(traces["euler"][1]))
     assert reading.sum() == pytest.approx(raw.sum() - (1.0 - THETA[name]) * raw[-1], rel=1e-9)
-    assert abs(reading.mean() - raw.mean()) <= (0.01 if name != "default" else 0.02) * abs(raw.mean())
+    assert abs(reading.mean() - raw.mean()) <= (0.01 if name != "gated_chord" else 0.02) * abs(raw.mean())
 
 
 def test_a_new_coils_reading_starts_unblended():

@@ -10,7 +10,7 @@ import pytest
 from test_implicit import implicit_scene
 
 from warpcoil.deploy import Deployment
-from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA,
+from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, IMPLICIT_SETTLE_THETA, GATED_CHORD,
                                SETTLE_ADVANCE_PER_C0, SETTLE_STALL_S, settle_finest_level, settle_level, settle_stalled)
 from warpcoil.state import new_state_like
 from warpcoil.validation_settle import settle_cases
@@ -120,17 +120,18 @@ def test_a_settling_that_stalls_again_goes_to_half_the_step_up_to_the_limit(monk
 
 
 def test_every_implicit_run_settles_at_the_settling_theta():
-    """θ IMPLICIT_SETTLE_THETA once every coil is out, also for a run whose push step was
-    halved or a scene that gives dt_s (the θ-method at 0.65 takes ~20× the steps to rest);
-    a step halved while settling keeps the push's gate and contact stiffness."""
+    """θ IMPLICIT_SETTLE_THETA once every coil is out of a gated_chord run (θ 0.65 while pushing),
+    also for a run whose push step was halved or a scene that gives dt_s (the θ-method at 0.65
+    takes ~20× the steps to rest); a step halved while settling keeps the push's gate and contact
+    stiffness."""
     scene = implicit_scene()
-    halved = Deployment(scene)
+    halved = Deployment(scene, solver_options=GATED_CHORD)
     snapshot = new_state_like(halved.model)
     snapshot.copy_from(halved.stepper.state)
     halved._halve_step(snapshot, "halved for the test at t = 0")
-    assert halved.solver.theta == IMPLICIT_THETA
+    assert halved.solver.theta == GATED_CHORD["theta"]
     assert halved.run().status == "completed" and halved.solver.theta == IMPLICIT_SETTLE_THETA
-    given = Deployment(implicit_scene(dt_s=halved.solver.dt_s))
+    given = Deployment(implicit_scene(dt_s=halved.solver.dt_s), solver_options=GATED_CHORD)
     assert given.run().status == "completed" and given.solver.theta == IMPLICIT_SETTLE_THETA
     bdf2 = Deployment(scene, solver_options={"method": "bdf2"})
     bdf2._settle_step()

@@ -20,8 +20,8 @@ RADIUS_MM = 0.5 * wc.CoilSpec().d
 
 def released_fast(angle_deg: float, scheme: str = "euler") -> wc.Scene:
     """A 6 mm helix shot out at 2 m/s into a 3.5 mm sphere on the implicit default step,
-    linearly implicit Euler (``scheme``; the default scheme tunnels here too, at the settling
-    step: test_the_default_scheme_tunnels_too_and_the_check_redoes_the_frame): the coil is out after
+    linearly implicit Euler (``scheme``, the default; gated_chord tunnels here too, at the settling
+    step: test_gated_chord_tunnels_too_and_the_check_redoes_the_frame): the coil is out after
     3.5 ms and still whips at ~10³ mm/s when the settling step takes over (pinned at its
     coarsest, 2.5 ms, by ``coarsest_settling``: 2.5 mm per step against c0 = 0.029 mm)."""
     s = ensemble_scene(angle_deg=angle_deg, push_mm_s=2000.0)
@@ -77,8 +77,8 @@ def test_a_node_past_the_wall_redoes_the_frame_at_half_the_step(coarsest_settlin
     assert result.settle_dt_s == pytest.approx(halved)  # the settling step, halved once
 
 
-def test_the_default_scheme_tunnels_too_and_the_check_redoes_the_frame(monkeypatch, coarsest_settling):
-    """The default scheme (settling with Euler + chord) at 20°: unchecked, the coarsest settling
+def test_gated_chord_tunnels_too_and_the_check_redoes_the_frame(monkeypatch, coarsest_settling):
+    """The named scheme gated_chord (settling with Euler + chord) at 20°: unchecked, the coarsest settling
     step carries it 8.7 mm out of the lumen (the chord sees only the predicted free flight's
     approach); checked, that frame is redone at half the step and every centre stays inside."""
     checked = Deployment(released_fast(20.0, "gated_chord")).run()

@@ -2,10 +2,11 @@
 Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
 not by the stiffest spring.
 
-The default scheme ("gated_chord"): θ = 0.65, θ_i = 1 at nodes near an obstacle
-(``near_theta``), the chord contact stiffness, the pusher 0.8 c0 per step; "euler"
-(θ 1, no gate, tangent stiffness) and "bdf2" are named options (IMPLICIT_SCHEMES; scene key
-``simulation.implicit_scheme``; docs/FORMULATION.md "Implicit step: the default scheme").
+The default scheme ("euler"): θ = 1 (linearly implicit Euler), no gate, the tangent contact
+stiffness, the pusher 0.8 c0 per step; "gated_chord" (θ 0.65, θ_i = 1 at nodes near an obstacle
+(``near_theta``), the chord contact stiffness: unstable on a slowly pushed helix) and "bdf2" are
+named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``; docs/FORMULATION.md
+"Implicit step: the default back to Euler (stability)").
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
@@ -104,27 +105,21 @@ DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler). The default, 0.65, with the proximity-gated θ
-# (IMPLICIT_NEAR_THETA) and the chord contact stiffness (IMPLICIT_CONTACT_STIFFNESS): "gated + chord", the one setting
-# measured to pass every check at 0.8 c0 per push step — stent struts −0.004 mm (Euler −0.016), free release at 100 /
-# 150 mm/s 10 of 10 in the helix (Euler 0 of 10), push force 0.22 / 0.09 F0 off on the 60 mm / small seed (Euler
-# 0.53 / 0.36; the rule allows 0.25), patient gaps within Euler's worst + c0/2 — at ~1.3× Euler's seed run time
-# (docs/FORMULATION.md "Implicit step: the default scheme"). θ 0.7 alone presses thin struts twice as deep as Euler
-# (0.034 against 0.016 mm): the gate and the chord are what make θ < 1 safe. A deployment settles with θ = 1
-# (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
-IMPLICIT_THETA = 0.65
-# θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 damps the stiff modes by only
+# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). With the Gauss–Newton bending Hessian
+# (stiffness ratio r ≈ 0.67–0.71 of the true one for a coil relaxing toward its helix) the θ-method is stable only for
+# θ ≥ 1/(2r): θ 0.65 ("gated_chord", GATED_CHORD below) blows up a helix pushed slowly into free space, Euler does
+# not (docs/FORMULATION.md "Unseen cases", "Implicit step: the default back to Euler (stability)"). A deployment
+# settles with θ = 1 (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
+IMPLICIT_THETA = 1.0
+# θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 (gated_chord) damps the stiff modes by only
 # (1 − θ)/θ = 0.54 a step and brings a free coil to rest slowly (the 60 mm helix recovered from straight at the
 # default step: 62 000 steps against Euler's 3 000); Euler (θ 1) settles it, with the gate a no-op and the chord on
 IMPLICIT_SETTLE_THETA = 1.0
 # proximity-gated θ (solver option near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
 # every node whose wall, stent strut, balloon or other coil edge lies within the contact range c0 plus a margin
 # PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py;
-# docs/FORMULATION.md "Implicit step: proximity-gated θ"). None: every node at θ. The default, 1, with θ 0.65 and the
-# chord (above); gated alone (tangent stiffness) presses 0.039 mm into thin stent struts, > c0, as the deepest entry is
-# contact a step does not see; at 1.0–1.6 c0 per push step gated + chord tangles free releases or presses C0020 deeper
-# (docs/FORMULATION.md "Implicit step: gated + chord as the default?")
-IMPLICIT_NEAR_THETA: float | None = 1.0
+# docs/FORMULATION.md "Implicit step: proximity-gated θ"). None (the default): every node at θ; GATED_CHORD uses 1
+IMPLICIT_NEAR_THETA: float | None = None
 PROXIMITY_MARGIN_C0 = 2.0
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
 # default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
@@ -141,9 +136,9 @@ CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHM
 PUSH_CG_ITERATIONS = CG_ITERATIONS
 # each contact's stiffness along its normal: "tangent" (the law's slope at the step start) or "chord" (the law's
 # secant between the step start and the predicted end, where steeper: contacts that enter during the step are
-# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness"). The default: "chord" (above)
+# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness"). The default: "tangent"
 CONTACT_STIFFNESS = ("tangent", "chord")
-IMPLICIT_CONTACT_STIFFNESS = "chord"
+IMPLICIT_CONTACT_STIFFNESS = "tangent"
 # the chord's predicted end: "flight" (each node's damped free flight x + dt m v/(m + dt β): no extra solve) or
 # "solve" (the tangent step's solution: a second assembly and solve per step; sees force-driven approaches too)
 CHORD_ENDS = ("flight", "solve")
@@ -153,18 +148,20 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 # chord candidates the contact pass notes per edge for the chord pass (more: it walks the edge's neighbour list;
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
-# the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "gated_chord" the
-# defaults above, "euler" linearly implicit Euler with the tangent contact stiffness (the default before issue 11's
-# default-gc round), "bdf2" linearly implicit BDF2 (tangent)
+# the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "euler" the defaults
+# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity gate and the
+# chord stiffness (the one setting that passed every 0.8 c0 check, stent struts, free releases, push force, at ~1.3×
+# Euler's run time, but unstable on a slowly pushed helix: docs/FORMULATION.md "Implicit step: the default scheme",
+# "Unseen cases"), "bdf2" linearly implicit BDF2 (tangent)
 EULER = {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+GATED_CHORD = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord"}
 BDF2_DEFAULTS = {"theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
 IMPLICIT_SCHEMES = {
-    "gated_chord": {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
-                    "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS},
     "euler": EULER,
+    "gated_chord": GATED_CHORD,
     "bdf2": {"method": "bdf2", **BDF2_DEFAULTS},
 }
-DEFAULT_IMPLICIT_SCHEME = "gated_chord"
+DEFAULT_IMPLICIT_SCHEME = "euler"
 _UNSET = object()  # a solver option not given: the method's default
 
 
@@ -237,8 +234,8 @@ def implicit_options(method: str, theta=_UNSET, near_theta=_UNSET, contact_stiff
 
 
 class ImplicitSolver(Solver):
-    """A :class:`Solver` whose step is the linearly implicit θ-method (by default θ 0.65,
-    proximity-gated, chord contact stiffness) or BDF2 (module docstring).
+    """A :class:`Solver` whose step is the linearly implicit θ-method (by default θ 1,
+    ungated, tangent contact stiffness: linearly implicit Euler) or BDF2 (module docstring).
 
     ``dt_s`` has no stability limit; the contact law's linear onset is the one the
     reference takes at ``dt_safety`` × its explicit bound."""

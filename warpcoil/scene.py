@@ -193,7 +193,7 @@ _SIMULATION = {
     "damping_uN_per_mm": _Key(_positive),
     "damping_speed_mm_s": _Key(_positive),
     "integrator": _Key(_choice("symplectic", "implicit")),
-    "implicit_scheme": _Key(_choice("gated_chord", "euler", "bdf2")),  # = implicit.IMPLICIT_SCHEMES (tested)
+    "implicit_scheme": _Key(_choice("euler", "gated_chord", "bdf2")),  # = implicit.IMPLICIT_SCHEMES (tested)
     "dt_s": _Key(_positive),
     "dt_safety": _Key(_fraction),
     "allow_unstable_dt": _Key(_bool),
