@@ -8,7 +8,7 @@ import pytest
 from warpcoil import preshape
 from warpcoil.coil import CoilSpec
 from warpcoil.dissipation import DissipationMeter
-from warpcoil.implicit import make_solver
+from warpcoil.implicit import GATED_CHORD, make_solver
 from warpcoil.model import ModelBuilder
 from warpcoil.settings import CatheterSpec, SimulationSettings
 from warpcoil.solver import Control
@@ -17,11 +17,11 @@ from warpcoil.validation import REFERENCE_D_MM
 from warpcoil.validation_dissipation import chain_run, observed_order
 
 
-@pytest.mark.parametrize("omega_dt, options", [(0.5, None), (0.1, None), (0.5, {})])
+@pytest.mark.parametrize("omega_dt, options", [(0.5, None), (0.1, None), (0.5, GATED_CHORD)])
 def test_meter_books_the_theta_methods_loss_on_a_linear_chain(omega_dt, options):
     """Undamped, axially oscillating chain (exactly linear forces): the meter's numerical
     dissipation = (θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (backward Euler: θ 1;
-    {}: the default, θ 0.65), and it is all of it (no physical)."""
+    GATED_CHORD: θ 0.65), and it is all of it (no physical)."""
     meter, analytic = chain_run(damped=False, omega_dt=omega_dt, steps=30, options=options)
     assert analytic > 0.0
     assert meter.totals.physical_nJ == 0.0

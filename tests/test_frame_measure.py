@@ -129,7 +129,7 @@ def test_a_run_reports_the_same_frames_as_with_the_full_pass():
     """The whole small seed run (field steps), frames and result, bit for bit, with the
     measurement as it was: every node searched in full (which also re-anchored the
     step's wall search each frame; linearly implicit Euler's forces do not depend on
-    that. The default scheme's gate reads the wall pass's certified lower bound where it
+    that. gated_chord's gate reads the wall pass's certified lower bound where it
     has no exact distance, so re-anchoring moves the gated θ_i of nodes between c0 and
     the gate's reach and the run with it: 1 166 against 1 170 steps; docs/FORMULATION.md
     "Implicit step: the default scheme")."""

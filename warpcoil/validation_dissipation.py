@@ -1,8 +1,8 @@
 """Validation of the numerical-dissipation ledger (dissipation.py), each row running the
 meter on the solver: on a clamped straight 3-node chain oscillating along its axis (a linear
 system: stretching only) the meter's books equal the θ-method's analytic loss
-(θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (θ = 1: backward Euler's; the default
-θ 0.65 too), and with the model's damping its ratio
+(θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (θ = 1: backward Euler's, the default;
+gated_chord's θ 0.65 too), and with the model's damping its ratio
 numerical / physical falls at order 1 with the step; the same ratio on a released coil
 (docs/FORMULATION.md "Implicit step: numerical dissipation")."""
 
