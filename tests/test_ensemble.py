@@ -134,15 +134,16 @@ def test_members_with_their_own_step_bound_and_search_radius():
         assert [f.min_coil_gap_mm for f in member.frames] == [f.min_coil_gap_mm for f in single.frames]
 
 
-def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch):
-    """Implicit default step (400 mm/s: at 600 the default scheme's members settle at one
-    step in every shared frame): after the push each member steps at the settling step its
+@pytest.mark.parametrize("scheme, push_mm_s", [("euler", 600.0), ("gated_chord", 400.0)])
+def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch, scheme, push_mm_s):
+    """Implicit step, Euler (the default) and gated_chord (at 600 mm/s its members settle at one
+    step in every shared frame, so 400): after the push each member steps at the settling step its
     own fastest node sets (implicit.settle_level); members at different steps in the
     same frame advance apart, so each still equals its single run."""
     from dataclasses import replace
 
-    scenes = [scene(a, push_mm_s=400.0) for a in (0.0, 40.0)]
-    scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit")) for s in scenes]
+    scenes = [scene(a, push_mm_s=push_mm_s) for a in (0.0, 40.0)]
+    scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit", implicit_scheme=scheme)) for s in scenes]
     real = Ensemble._settle_chunk
     levels: list[set[int]] = []
 

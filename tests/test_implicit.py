@@ -12,7 +12,7 @@ import warpcoil as wc
 from warpcoil import validation
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment, Ensemble
-from warpcoil.implicit import (DEFAULT_IMPLICIT_SCHEME, EULER, IMPLICIT_DT_MAX_S, IMPLICIT_SCHEMES, ImplicitSolver,
+from warpcoil.implicit import (DEFAULT_IMPLICIT_SCHEME, EULER, GATED_CHORD, IMPLICIT_DT_MAX_S, IMPLICIT_SCHEMES, ImplicitSolver,
                                make_solver)
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import SceneError, load_scene
@@ -219,7 +219,8 @@ def test_named_schemes_build_their_solvers_and_bdf2_takes_its_own_defaults():
     with pytest.raises(ValueError, match="near_theta"):
         ImplicitSolver(model, dt_s=1e-4, method="bdf2", near_theta=1.0)
     s = replace(implicit_scene(), simulation=replace(implicit_scene().simulation, implicit_scheme="gated_chord"))
-    assert Deployment(s, solver_options={"theta": 0.7}).solver.scheme["theta"] == 0.7
+    overridden = Deployment(s, solver_options={"theta": 0.7}).solver.scheme  # key by key: the gate and chord stay
+    assert (overridden["theta"], overridden["near_theta"], overridden["contact_stiffness"]) == (0.7, 1.0, "chord")
 
 
 def test_conjugate_gradients_solve_the_system_with_exact_contact_coupling():
@@ -300,12 +301,12 @@ def test_a_pushed_world_takes_the_push_iterations_and_a_settling_world_all_of_th
 def test_push_force_of_a_steady_push_is_the_damping_the_free_part_meets_at_any_step():
     """Pushed straight out, the free part moves with the pusher: the push force balances
     its damping. Linearly implicit Euler gives that at large steps as the reference does
-    (damping applied after the solve gave a spurious compression growing as dt²); the default
+    (damping applied after the solve gave a spurious compression growing as dt²); the gated_chord
     scheme over its push steps (≤ IMPLICIT_DT_MAX_S: at 2 ms, 7 c0 a step, each released node's
     stiff transient rings at −(1 − θ)/θ = −0.54 a step and the reading is 7 % high)."""
     push, damping = free_space_push_force("symplectic")
     assert push == pytest.approx(damping, rel=0.05)
-    for options, steps in ((EULER, (1.0e-4, 5.0e-4, 2.0e-3)), ({}, (1.0e-4, IMPLICIT_DT_MAX_S))):
+    for options, steps in ((EULER, (1.0e-4, 5.0e-4, 2.0e-3)), (GATED_CHORD, (1.0e-4, IMPLICIT_DT_MAX_S))):
         for dt in steps:
             push, damping = free_space_push_force("implicit", dt, **options)
             assert push == pytest.approx(damping, rel=0.05), (options, dt)

@@ -122,8 +122,8 @@ def test_a_settling_that_stalls_again_goes_to_half_the_step_up_to_the_limit(monk
 def test_every_implicit_run_settles_at_the_settling_theta():
     """θ IMPLICIT_SETTLE_THETA once every coil is out of a gated_chord run (θ 0.65 while pushing),
     also for a run whose push step was halved or a scene that gives dt_s (the θ-method at 0.65
-    takes ~20× the steps to rest); a step halved while settling keeps the push's gate and contact
-    stiffness."""
+    takes ~20× the steps to rest); a step halved while settling goes on at θ 1 with the push's
+    gate and contact stiffness (BDF2's: none, tangent)."""
     scene = implicit_scene()
     halved = Deployment(scene, solver_options=GATED_CHORD)
     snapshot = new_state_like(halved.model)

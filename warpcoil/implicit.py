@@ -153,7 +153,8 @@ CHORD_CANDIDATES_PER_EDGE = 32
 # chord stiffness (the one setting that passed every 0.8 c0 check, stent struts, free releases, push force, at ~1.3×
 # Euler's run time, but unstable on a slowly pushed helix: docs/FORMULATION.md "Implicit step: the default scheme",
 # "Unseen cases"), "bdf2" linearly implicit BDF2 (tangent)
-EULER = {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+EULER = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
+         "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS}  # the θ-method defaults above
 GATED_CHORD = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord"}
 BDF2_DEFAULTS = {"theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
 IMPLICIT_SCHEMES = {
