@@ -314,10 +314,15 @@ class Solver:
         # per edge, its partners within a hair of touching (noted by the contact pass for the implicit step)
         self._touch_count = zeros(wp.int32)
         self._touch_b = wp.zeros((n, TOUCHING_PER_EDGE if self.record_touching else 1), dtype=wp.int32, device=dev)
-        # per edge, how many chord candidates the implicit step's contact pass noted (while _note_chord is set;
-        # implicit.ImplicitSolver holds the record and the predicted end's per-edge values)
+        # per edge, how many chord candidates the implicit step's contact pass noted (while _note_chord is set),
+        # and the contact pass's other chord inputs: the predicted end's per-edge values and the record
+        # (implicit.ImplicitSolver's; one-element placeholders here)
         self._note_chord = False
         self._chord_count = zeros(wp.int32)
+        one = {"dtype": wp.float64, "device": dev}
+        self._end_mid = wp.zeros(1, dtype=wp.vec3d, device=dev)
+        self._end_half, self._end_move, self._sweep = wp.zeros(1, **one), wp.zeros(1, **one), wp.zeros(1, **one)
+        self._chord_b = wp.zeros((1, 1), dtype=wp.int32, device=dev)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -396,12 +401,11 @@ class Solver:
                 m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
-                self._touch_count, self._touch_b]
-            if self._note_chord:  # the implicit step's chord candidates too (its predicted end is known)
-                wp.launch(contact.edge_contact_noting_chord, n, device=dev, inputs=pass_args + [
-                    self._end_mid, self._end_half, self._end_move, self._sweep, self._chord_count, self._chord_b])
-            else:
-                wp.launch(contact.edge_contact, n, device=dev, inputs=pass_args)
+                self._touch_count, self._touch_b,
+                # the implicit step's chord candidates too, while its predicted end is known
+                self._end_mid, self._end_half, self._end_move, self._sweep, self._chord_count, self._chord_b,
+                int(self._note_chord)]
+            wp.launch(contact.edge_contact, n, device=dev, inputs=pass_args)
             wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
                 *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])
             wp.launch(contact.gather_contact, n, device=dev, inputs=[

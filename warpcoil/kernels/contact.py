@@ -1119,6 +1119,13 @@ def edge_contact(
     record: int,
     touch_count: wp.array(dtype=wp.int32),
     touch_b: wp.array2d(dtype=wp.int32),
+    end_mid: wp.array(dtype=wp.vec3d),
+    end_half: wp.array(dtype=wp.float64),
+    end_move: wp.array(dtype=wp.float64),
+    sweep: wp.array(dtype=wp.float64),
+    chord_count: wp.array(dtype=wp.int32),
+    chord_b: wp.array2d(dtype=wp.int32),
+    note_chord: int,
 ):
     """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
     and every other edge b of the same ensemble member near it, each pair evaluated
@@ -1134,7 +1141,14 @@ def edge_contact(
     edges) are skipped. Edges in the catheter stand in for the catheter: free
     edges are pushed off them. With ``record``, each edge's partners within
     TOUCH_MARGIN_MM of touching are noted (``touch_count``, ``touch_b``) for the
-    implicit step's contact stiffness."""
+    implicit step's contact stiffness. With ``note_chord``, also each pair that may have a
+    chord stiffness in the implicit step, on both sides (:func:`chord_candidate`;
+    ``chord_count``, ``chord_b``, cleared by :func:`clear_edge_sums`; ``end_mid``,
+    ``end_half``, ``end_move``, ``sweep``: kernels/implicit.edge_ends at this step's predicted
+    end). An edge whose list overflowed, one with a partner whose list overflowed that the
+    partner's grid search evaluates (it may miss the pair), and one that such a grid search
+    found (the grid returns whole cells, which the found edge's own list may not hold)
+    overflows its record: its chord pass walks its whole list then, as without the notes."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -1142,67 +1156,7 @@ def edge_contact(
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
         query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         listed = neighbour_count[a]
-        k = int(0)
-        b = int(0)
-        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion,
-                       reach_a, p0, c0, u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
-                       touch_count, touch_b)
-
-
-@wp.kernel(enable_backward=False)
-def edge_contact_noting_chord(
-    x: wp.array(dtype=wp.vec3d),
-    rest_x: wp.array(dtype=wp.vec3d),
-    free: wp.array(dtype=wp.int32),
-    has_next: wp.array(dtype=wp.int32),
-    coil_of: wp.array(dtype=wp.int32),
-    world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
-    fixed: wp.array(dtype=wp.int32),
-    node_radius: wp.array(dtype=wp.float64),
-    contact_share: wp.array(dtype=wp.float64),
-    grid: wp.uint64,
-    neighbours: wp.array2d(dtype=wp.int32),
-    neighbour_count: wp.array(dtype=wp.int32),
-    mid: wp.array(dtype=wp.vec3d),
-    query_radius: wp.array(dtype=wp.float64),
-    grid_radius: wp.float64,
-    exclusion: int,
-    p0: wp.float64,
-    c0: wp.float64,
-    u_linear: wp.float64,
-    sum_start: wp.array(dtype=vec3l),
-    sum_end: wp.array(dtype=vec3l),
-    min_gap: wp.array(dtype=wp.float64),
-    contacts: wp.array(dtype=wp.int32),
-    bad: wp.array(dtype=wp.int32),
-    record: int,
-    touch_count: wp.array(dtype=wp.int32),
-    touch_b: wp.array2d(dtype=wp.int32),
-    end_mid: wp.array(dtype=wp.vec3d),
-    end_half: wp.array(dtype=wp.float64),
-    end_move: wp.array(dtype=wp.float64),
-    sweep: wp.array(dtype=wp.float64),
-    chord_count: wp.array(dtype=wp.int32),
-    chord_b: wp.array2d(dtype=wp.int32),
-):
-    """:func:`edge_contact`, noting on both sides each pair that may have a chord stiffness
-    in the implicit step (:func:`chord_candidate`; ``chord_count``, ``chord_b``, cleared by
-    :func:`clear_edge_sums`; ``end_mid``, ``end_half``, ``end_move``, ``sweep``:
-    kernels/implicit.edge_ends at this step's predicted end). An edge whose list overflowed,
-    one with a partner whose list overflowed that the partner's grid search evaluates (it
-    may miss the pair), and one that such a grid search found (the grid returns whole
-    cells, which the found edge's own list may not hold) overflows its record: its chord
-    pass walks its whole list then, as without the notes."""
-    a = wp.tid()
-    w = world_of[a]
-    radius = query_radius[w]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
-        reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
-        listed = neighbour_count[a]
-        if listed == NO_LIST:
+        if note_chord != 0 and listed == NO_LIST:
             wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
         k = int(0)
         b = int(0)
@@ -1210,6 +1164,8 @@ def edge_contact_noting_chord(
             raw, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
                                               mid, a, b, exclusion, reach_a, p0, c0, u_linear, radius, sum_start,
                                               sum_end, min_gap, contacts, bad, record, touch_count, touch_b)
+            if note_chord == 0:
+                continue
             if handled:
                 if chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, radius, raw, c0,
                                    end_mid, end_half, end_move, sweep):
