@@ -329,9 +329,7 @@ class ImplicitSolver(Solver):
         if noted:  # the free-flight end first: the contact pass notes the chord pass's candidates from it
             self._hold_nodes(state_in, state_out, control, dt)
             self._predict_end(state_in, state_out, dt)
-            wp.launch(kernels.edge_ends, n, device=dev, inputs=[
-                state_in.x, self._x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
-                self._end_move])
+            self._edge_ends(state_in.x, self._x_end)
         self._note_chord = noted
         self.compute_forces(state_in, control.running)
         self._note_chord = False
@@ -406,6 +404,13 @@ class ImplicitSolver(Solver):
             control.push_speed_mm_s, control.running, dt, state_out.x, state_out.v, state_out.free,
             state_out.advance])
 
+    def _edge_ends(self, x: wp.array, x_end: wp.array) -> None:
+        """Per edge, its midpoint and reach at the predicted end ``x_end`` and its sweep and
+        move from ``x`` (kernels.edge_ends: the chord pass's and the contact pass's filters)."""
+        m = self.model
+        wp.launch(kernels.edge_ends, m.node_count, device=m.device, inputs=[
+            x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep, self._end_move])
+
     def _predict_end(self, state_in: State, state_out: State, dt: float) -> None:
         """The chord's free-flight end into ``self._x_end`` (after _hold_nodes)."""
         m = self.model
@@ -423,9 +428,7 @@ class ImplicitSolver(Solver):
         theta = self.theta
         if self.coil_contact:
             if chord_on and ends:
-                wp.launch(kernels.edge_ends, n, device=dev, inputs=[
-                    state_in.x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep,
-                    self._end_move])
+                self._edge_ends(state_in.x, x_end)
             wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
                 m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
