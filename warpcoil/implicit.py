@@ -307,8 +307,6 @@ class ImplicitSolver(Solver):
         self._pair_n = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec3d, device=dev)
         self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
                                                                                          device=dev)
-        self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
-        self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
         self.scheme = {"integrator": "implicit", "method": self.method, "theta": self.theta,
                        "near_theta": self.near_theta, "contact_stiffness": contact_stiffness,

@@ -32,6 +32,11 @@ NEIGHBOUR_SKIN_MM = 0.2  # coil–coil neighbour grid rebuilt when a midpoint mo
 NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches the grid instead
 TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the implicit step searches its list)
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
+NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built (Solver's neighbour_build)
+# "auto" walks each world's edges (contact.walk_neighbours) on the CPU while the largest world has at most this many
+# nodes, else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count; measured crossover:
+# docs/FORMULATION.md "Implicit step: the neighbour lists without the hash grid")
+NEIGHBOUR_WALK_MAX_NODES = 2048
 
 
 class UnstableStepError(ValueError):
@@ -214,6 +219,10 @@ class Solver:
     ``wall_sided_skip``: a node in wall contact that cannot have left the lumen
     since its last search skips the signed BVH query (kernels/contact.wall_contact;
     bit-identical to the full search, which False forces).
+    ``neighbour_build``: "grid" builds the neighbour lists from Warp's hash grid, "walk"
+    by each edge walking its world's edges (contact.walk_neighbours: the same lists; the
+    grid is built only when a list overflows), "auto" (default) walks on the CPU while
+    every world has at most NEIGHBOUR_WALK_MAX_NODES nodes.
     """
 
     integrator = "symplectic"
@@ -224,9 +233,12 @@ class Solver:
                  allow_unstable_dt: bool = False, coil_contact: bool = True,
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
                  wall_guard_steps: int = WALL_GUARD_STEPS, neighbour_capacity: int = NEIGHBOUR_CAPACITY,
-                 wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM, wall_sided_skip: bool = True):
+                 wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM, wall_sided_skip: bool = True,
+                 neighbour_build: str = "auto"):
         if wall_query not in WALL_QUERIES:
             raise ValueError(f"wall_query must be one of {WALL_QUERIES}, got {wall_query!r}")
+        if neighbour_build not in NEIGHBOUR_BUILDS:
+            raise ValueError(f"neighbour_build must be one of {NEIGHBOUR_BUILDS}, got {neighbour_build!r}")
         self.model = model
         self.scheme = {"integrator": self.integrator}  # result.json's "scheme" (ImplicitSolver: its settings)
         self.coil_contact = coil_contact
@@ -337,6 +349,13 @@ class Solver:
         self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
         self._list_radius = model.contact.query_radius_mm + self.neighbour_skin_mm
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
+        largest_world = int(max(model.world_nodes(w).stop - model.world_nodes(w).start for w in range(model.world_count)))
+        self.walk_neighbours = neighbour_build == "walk" or (
+            neighbour_build == "auto" and dev.is_cpu and largest_world <= NEIGHBOUR_WALK_MAX_NODES)
+        self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
+        self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
+        self._coil_step = wp.zeros(model.coil_count, dtype=wp.float64, device=dev)  # mm, per coil (walk_neighbours)
+        self._list_overflow = wp.zeros(1, dtype=wp.int32, device=dev)  # a walked list overflowed: build the grid
         # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
         self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
@@ -349,17 +368,38 @@ class Solver:
         wp.launch(contact.edge_midpoints, m.node_count, device=m.device, inputs=[
             state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints, self._rebuild])
 
-    def _build_grid(self) -> None:
-        wp.launch(contact.mark_built, self.model.node_count, device=self.model.device, inputs=[
-            self._midpoints, self._built_midpoints, self._rebuild])
+    def _build_grid(self, allocate: bool = False) -> None:
+        """Neighbour lists at the current midpoints: from the hash grid, or walked
+        (``walk_neighbours``; the grid then built only when a list overflowed, or to
+        size its buffers: ``allocate``)."""
+        m = self.model
+        wp.launch(contact.mark_built, m.node_count, device=m.device, inputs=[
+            self._midpoints, self._built_midpoints, self._rebuild, self._list_overflow])
+        if self.walk_neighbours:
+            wp.launch(contact.coil_midpoint_steps, m.coil_count, device=m.device, inputs=[
+                self._built_midpoints, self._coil_first, self._coil_last, self._coil_step])
+            wp.launch(contact.walk_neighbours, m.node_count, device=m.device, inputs=[
+                self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.world_node_range, self._coil_last,
+                self._coil_step, m.contact.exclusion_edges, self._list_radius, self._neighbours,
+                self._neighbour_count, self._list_overflow])
+            if allocate:
+                self._build_hash_grid()
+            elif self._conditional_rebuild:
+                wp.capture_if(self._list_overflow, on_true=self._build_hash_grid)
+            else:
+                self._build_hash_grid()
+        else:
+            self._build_hash_grid()
+            wp.launch(contact.build_neighbours, m.node_count, device=m.device, inputs=[
+                self._grid.id, self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.contact.exclusion_edges,
+                self._list_radius, self._neighbours, self._neighbour_count])
+        self.grid_builds += 1
+
+    def _build_hash_grid(self) -> None:
         m = self.model
         # one world: no groups (its grouped queries see every point, in the same order; Warp's CPU build
         # sorts 32- instead of 64-bit keys then)
         self._grid.build(self._built_midpoints, self._list_radius, groups=m.world_of if m.world_count > 1 else None)
-        wp.launch(contact.build_neighbours, m.node_count, device=m.device, inputs=[
-            self._grid.id, self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.contact.exclusion_edges,
-            self._list_radius, self._neighbours, self._neighbour_count])
-        self.grid_builds += 1
 
     def compute_contacts(self, state: State, wall_search_mm: float | None = None,
                          running: wp.array | None = None, wall_measure: bool = False) -> None:
@@ -582,7 +622,7 @@ class Solver:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
         if self.coil_contact:
             self._launch_midpoints(state)
-            self._build_grid()
+            self._build_grid(allocate=True)
             self._rebuild.fill_(1)
 
     # --- measurements ------------------------------------------------------

@@ -229,7 +229,7 @@ def launch_costs(solver, state, control, steps: int, time_launch=launch_us) -> t
         for record, left in zip(records, noted):  # the contact pass's replays add to them: as the step left them
             record.assign(left)
         times[name] += time_launch(kind, target, args, kwargs, device)
-    for name in ("mark_built", "HashGrid.build", "build_neighbours"):
+    for name in ("mark_built", "HashGrid.build", "build_neighbours", "coil_midpoint_steps", "walk_neighbours"):
         if name in times:
             times[name] *= build_share
     return dict(times), build_share

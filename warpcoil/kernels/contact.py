@@ -618,12 +618,15 @@ def edge_midpoints(
 
 
 @wp.kernel
-def mark_built(mid: wp.array(dtype=wp.vec3d), built_mid: wp.array(dtype=wp.vec3d), rebuild: wp.array(dtype=wp.int32)):
-    """The neighbour grid is being built from ``mid``: remember it, clear the rebuild flag."""
+def mark_built(mid: wp.array(dtype=wp.vec3d), built_mid: wp.array(dtype=wp.vec3d), rebuild: wp.array(dtype=wp.int32),
+               overflow: wp.array(dtype=wp.int32)):
+    """The neighbour lists are being built from ``mid``: remember it, clear the rebuild
+    and list-overflow flags."""
     i = wp.tid()
     built_mid[i] = mid[i]
     if i == 0:
         rebuild[0] = 0
+        overflow[0] = 0
 
 
 NO_LIST = wp.constant(-1)  # an edge whose neighbour list overflowed searches the grid instead
@@ -658,6 +661,89 @@ def build_neighbours(
                 else:
                     found = NO_LIST
     count[a] = found
+
+
+WALK_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of mm-scale midpoint distances
+WALK_ROUNDING = wp.constant(wp.float64(1.0e-12))  # relative: ≫ a squared distance's rounding against the length's
+F64_0 = wp.constant(wp.float64(0.0))
+F64_1 = wp.constant(wp.float64(1.0))
+
+
+@wp.kernel
+def coil_midpoint_steps(built_mid: wp.array(dtype=wp.vec3d), coil_first: wp.array(dtype=wp.int32),
+                        coil_last: wp.array(dtype=wp.int32), step: wp.array(dtype=wp.float64)):
+    """Per coil: the longest distance between consecutive midpoints along it at the
+    build (mm; ``walk_neighbours``' skip bound)."""
+    c = wp.tid()
+    longest = wp.float64(0.0)
+    for i in range(coil_first[c], coil_last[c]):
+        longest = wp.max(longest, wp.length(built_mid[i + 1] - built_mid[i]))
+    step[c] = longest
+
+
+WALK_SKIP_MIN = wp.constant(4)  # walk_neighbours computes a skip only where it passes at least this many edges
+
+
+@wp.kernel
+def walk_neighbours(
+    built_mid: wp.array(dtype=wp.vec3d),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    world_node_range: wp.array2d(dtype=wp.int32),
+    coil_last: wp.array(dtype=wp.int32),
+    coil_step: wp.array(dtype=wp.float64),
+    exclusion: int,
+    list_radius: wp.float64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    overflow: wp.array(dtype=wp.int32),
+):
+    """:func:`build_neighbours`' lists without the hash grid: edge a walks its world's
+    edges in index order and keeps every edge (not a bonded neighbour) whose midpoint
+    is within ``list_radius`` of a's (the same test, so the same set; a different
+    order, which no reader depends on). From a midpoint at distance D beyond
+    list_radius + WALK_SKIP_MIN L (L: ``coil_step``, the longest step between
+    consecutive midpoints of its coil) it skips the next (D − list_radius)/L − 1 of
+    its coil, none of which can be within list_radius (triangle inequality). An
+    overflowed list (NO_LIST) raises ``overflow``: the hash grid is then built for
+    its grid search."""
+    a = wp.tid()
+    found = int(0)
+    if has_next[a] != 0:
+        w = world_of[a]
+        b = world_node_range[w, 0]
+        last = world_node_range[w, 1]
+        here = built_mid[a]
+        inside = list_radius * (F64_1 - WALK_ROUNDING)  # surely within, squared below: no square root
+        inside_sq = inside * inside
+        outside = list_radius * (F64_1 + WALK_ROUNDING)  # surely beyond above
+        outside_sq = outside * outside
+        while b <= last and found != NO_LIST:  # coil by coil
+            c = coil_of[b]
+            end = coil_last[c]
+            step = coil_step[c]
+            far = list_radius + WALK_MARGIN_MM + wp.float64(WALK_SKIP_MIN) * step
+            far_sq = far * far
+            while b <= end:
+                d = here - built_mid[b]
+                apart_sq = wp.dot(d, d)
+                if apart_sq > far_sq and step > F64_0:
+                    apart = wp.sqrt(apart_sq)
+                    b = wp.min(b + int(wp.min((apart - list_radius - WALK_MARGIN_MM) / step, wp.float64(1.0e6))),
+                               end + 1)
+                    continue
+                if apart_sq <= outside_sq and has_next[b] != 0 and not bonded(coil_of, exclusion, a, b):
+                    if apart_sq <= inside_sq or wp.length(d) <= list_radius:
+                        if found == neighbours.shape[1]:
+                            found = NO_LIST
+                            break
+                        neighbours[a, found] = b
+                        found += 1
+                b += 1
+    count[a] = found
+    if found == NO_LIST:
+        overflow[0] = 1
 
 
 @wp.func
