@@ -36,7 +36,7 @@ NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built
 # "auto" walks each world's edges (contact.walk_neighbours) on the CPU while the largest world has at most this many
 # nodes, else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count; measured crossover:
 # docs/FORMULATION.md "Implicit step: the neighbour lists without the hash grid")
-NEIGHBOUR_WALK_MAX_NODES = 2048
+NEIGHBOUR_WALK_MAX_NODES = 256
 
 
 class UnstableStepError(ValueError):

@@ -787,11 +787,12 @@ def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
 def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
                       coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                       contact_share: wp.array(dtype=wp.float64), j: int, b: int, p0: wp.float64, c0: wp.float64,
-                      u_linear: wp.float64):
+                      u_linear: wp.float64, rest_near: bool):
     """½ s_j × the law of the gap between node sphere j and capsule b (|x_j − closest
     point of edge b| − r_j − r_b, plus the rest offset of a same-coil pair), s_j node
     j's contact share: (force on node j along x_j − closest point, µN; the closest
-    point's parameter t on b)."""
+    point's parameter t on b). ``rest_near`` False: the pair's rest offset is 0
+    (:func:`rest_apart`), not computed."""
     p = x[j]
     pb0 = x[b]
     pb1 = x[b + 1]
@@ -805,7 +806,7 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
     gap = dist - node_radius[j] - node_radius[b]
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     if gap < c0 and dist > wp.float64(1.0e-12):
-        if coil_of[j] == coil_of[b]:
+        if rest_near:
             rest = closest_on_segment(rest_x[j], rest_x[b], rest_x[b + 1])
             gap = gap + rest_offset(wp.length(rest_x[j] - rest) - node_radius[j] - node_radius[b], c0)
         if gap < c0:
@@ -816,15 +817,17 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
 @wp.func
 def node_node_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
                    coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                   j: int, k: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.vec3d:
+                   j: int, k: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+                   rest_near: bool) -> wp.vec3d:
     """The law of the gap between node spheres j and k (with a same-coil pair's rest
-    offset), along x_j − x_k: the force on j of the term φ(|x_j − x_k|)."""
+    offset; ``rest_near`` False: 0, not computed), along x_j − x_k: the force on j of
+    the term φ(|x_j − x_k|)."""
     delta = x[j] - x[k]
     dist = wp.length(delta)
     gap = dist - node_radius[j] - node_radius[k]
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     if gap < c0 and dist > wp.float64(1.0e-12):
-        if coil_of[j] == coil_of[k]:
+        if rest_near:
             gap = gap + rest_offset(wp.length(rest_x[j] - rest_x[k]) - node_radius[j] - node_radius[k], c0)
         if gap < c0:
             f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
@@ -866,6 +869,26 @@ def owned_nodes(has_next: wp.array(dtype=wp.int32), e: int) -> int:
     if has_next[e + 1] == 0:
         return 2
     return 1
+
+
+REST_APART_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: far above rounding of mm-scale lengths
+
+
+@wp.func
+def rest_apart(rest_x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+               c0: wp.float64) -> bool:
+    """Edges a and b are more than c0 (+ REST_APART_MARGIN_MM) apart in the rest shape by
+    their bounding spheres (rest midpoints' distance less both half-lengths and the
+    largest radius of each edge): every rest clearance between their nodes and capsules
+    is then above c0 and its rest_offset exactly 0."""
+    ra0 = rest_x[a]
+    ra1 = rest_x[a + 1]
+    rb0 = rest_x[b]
+    rb1 = rest_x[b + 1]
+    apart = wp.length(wp.float64(0.5) * (ra0 + ra1 - rb0 - rb1))
+    halves = wp.float64(0.5) * (wp.length(ra1 - ra0) + wp.length(rb1 - rb0))
+    radii = wp.max(node_radius[a], node_radius[a + 1]) + wp.max(node_radius[b], node_radius[b + 1])
+    return apart - halves - radii > c0 + REST_APART_MARGIN_MM
 
 
 @wp.func
@@ -939,22 +962,24 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             raw = gap_a
             if gap_a >= c0 + TOUCH_MARGIN_MM:  # no term in range: every node is at least as far, offsets add
                 return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a, raw
-            if coil_of[a] == coil_of[b]:  # beyond the rest clearance, as the law sees it
+            # a same-coil pair near in the rest shape: its terms count from their rest clearances
+            rest_near = coil_of[a] == coil_of[b] and not rest_apart(rest_x, node_radius, a, b, c0)
+            if rest_near:  # beyond the rest clearance, as the law sees it
                 gap_a = rest_clearance_gap(rest_x, node_radius, a, b, gap_a, c0)
             gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
             two_a = owned_nodes(has_next, a) == 2
             two_b = owned_nodes(has_next, b) == 2
             # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
-            ta0, sa0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a, b, p0, c0, u_linear)
+            ta0, sa0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a, b, p0, c0, u_linear, rest_near)
             ta1 = zero
             sa1 = wp.float64(0.0)
             if two_a:
-                ta1, sa1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a + 1, b, p0, c0, u_linear)
-            tb0, sb0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b, a, p0, c0, u_linear)
+                ta1, sa1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a + 1, b, p0, c0, u_linear, rest_near)
+            tb0, sb0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b, a, p0, c0, u_linear, rest_near)
             tb1 = zero
             sb1 = wp.float64(0.0)
             if two_b:
-                tb1, sb1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b + 1, a, p0, c0, u_linear)
+                tb1, sb1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b + 1, a, p0, c0, u_linear, rest_near)
             # joint corrections w_mq φ(a + m, b + q) (force on a + m)
             ja0 = joint(free, has_next, fixed, coil_of, exclusion, a, b)
             ja1 = joint(free, has_next, fixed, coil_of, exclusion, a + 1, b)
@@ -975,13 +1000,13 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             n10 = zero
             n11 = zero
             if w00 > wp.float64(0.0):
-                n00 = node_node_term(x, rest_x, coil_of, node_radius, a, b, p0, c0, u_linear)
+                n00 = node_node_term(x, rest_x, coil_of, node_radius, a, b, p0, c0, u_linear, rest_near)
             if w01 > wp.float64(0.0):
-                n01 = node_node_term(x, rest_x, coil_of, node_radius, a, b + 1, p0, c0, u_linear)
+                n01 = node_node_term(x, rest_x, coil_of, node_radius, a, b + 1, p0, c0, u_linear, rest_near)
             if w10 > wp.float64(0.0):
-                n10 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b, p0, c0, u_linear)
+                n10 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b, p0, c0, u_linear, rest_near)
             if w11 > wp.float64(0.0):
-                n11 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b + 1, p0, c0, u_linear)
+                n11 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b + 1, p0, c0, u_linear, rest_near)
             # a's side: its nodes' terms with their joint corrections, then the reactions of b's nodes
             f = ta0
             if w00 > wp.float64(0.0):
