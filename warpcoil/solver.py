@@ -34,9 +34,11 @@ TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the im
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built (Solver's neighbour_build)
 # "auto" walks each world's edges (contact.walk_neighbours) on the CPU while the largest world has at most this many
-# nodes, else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count; measured crossover:
-# docs/FORMULATION.md "Implicit step: the neighbour lists without the hash grid")
-NEIGHBOUR_WALK_MAX_NODES = 256
+# nodes, else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count). Measured, one
+# world packed dense (a coil at its pre-shape): walk / grid 68 / 143 µs at 206 nodes, 153 / 186 at 309, 267 / 236 at
+# 412; in the push (most edges strung along the catheter) the walk is cheaper still (docs/FORMULATION.md "Implicit
+# step: the neighbour lists without the hash grid")
+NEIGHBOUR_WALK_MAX_NODES = 360
 
 
 class UnstableStepError(ValueError):

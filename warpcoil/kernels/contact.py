@@ -681,7 +681,9 @@ def coil_midpoint_steps(built_mid: wp.array(dtype=wp.vec3d), coil_first: wp.arra
     step[c] = longest
 
 
-WALK_SKIP_MIN = wp.constant(4)  # walk_neighbours computes a skip only where it passes at least this many edges
+# walk_neighbours computes a skip (a square root and a division) only where it passes at least this many edges;
+# nearer, testing each edge is cheaper (measured on the seed case: 4 → 12 cut a build late in the push by ~40 %)
+WALK_SKIP_MIN = wp.constant(12)
 
 
 @wp.kernel
