@@ -1173,6 +1173,8 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
         fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a = pair_forces(
             x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
             p0, c0, u_linear, far)
+        if raw_a == -FAR_MM:  # not evaluated: zero forces and the gap the sums start from (clear_edge_sums)
+            return raw_a, handled, b_runs
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
         if b_runs:
             add_side(b, fb_start, fb_end, gap_b, c0, sum_start, sum_end, min_gap, contacts, bad)
