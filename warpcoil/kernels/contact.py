@@ -664,7 +664,7 @@ def build_neighbours(
 
 
 WALK_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of mm-scale midpoint distances
-WALK_ROUNDING = wp.constant(wp.float64(1.0e-12))  # relative: ≫ a squared distance's rounding against the length's
+SQUARED_ROUNDING = wp.constant(wp.float64(1.0e-12))  # relative: ≫ a squared distance's rounding against its length's
 F64_0 = wp.constant(wp.float64(0.0))
 F64_1 = wp.constant(wp.float64(1.0))
 
@@ -717,9 +717,9 @@ def walk_neighbours(
         b = world_node_range[w, 0]
         last = world_node_range[w, 1]
         here = built_mid[a]
-        inside = list_radius * (F64_1 - WALK_ROUNDING)  # surely within, squared below: no square root
+        inside = list_radius * (F64_1 - SQUARED_ROUNDING)  # surely within, squared below: no square root
         inside_sq = inside * inside
-        outside = list_radius * (F64_1 + WALK_ROUNDING)  # surely beyond above
+        outside = list_radius * (F64_1 + SQUARED_ROUNDING)  # surely beyond above
         outside_sq = outside * outside
         while b <= last and found != NO_LIST:  # coil by coil
             c = coil_of[b]
@@ -951,13 +951,15 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     gap_a = far
     gap_b = far
     raw = -FAR_MM
-    if edge_is_obstacle(free, has_next, fixed, b):
+    between = mid[a] - mid[b]
+    beyond = far * (wp.float64(1.0) + SQUARED_ROUNDING)  # squared: surely farther than ``far`` (no square root)
+    if wp.dot(between, between) <= beyond * beyond and edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
         pb0 = x[b]
         pb1 = x[b + 1]
         # bounding spheres first: most candidates end here
-        apart = wp.length(mid[a] - mid[b])
+        apart = wp.length(between)
         if apart <= far and apart < reach_a + wp.float64(0.5) * wp.length(pb1 - pb0) + node_radius[b]:
             st = segment_closest_params(pa0, pa1, pb0, pb1)
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
