@@ -121,6 +121,13 @@ IMPLICIT_SETTLE_THETA = 1.0
 # docs/FORMULATION.md "Implicit step: proximity-gated θ"). None (the default): every node at θ; GATED_CHORD uses 1
 IMPLICIT_NEAR_THETA: float | None = None
 PROXIMITY_MARGIN_C0 = 2.0
+# the turn gate of a gated run (solver option turn_gate_rad): θ_i = near_theta also for every node whose edge turns by
+# more than this angle in the step at the step start's velocities. The linearly implicit step moves nodes on straight
+# lines, so an edge turning α a step is stretched by ≈ α²/2 of its length, an error in the stiffest springs that
+# θ 0.65 returns at 0.54 a step where Euler removes it: at the curling front of a slowly pushed helix it grew into
+# strains of 1–8 % and kinetic energy of 64 µJ (Euler 18.5 nJ). Stable from 0.003 to 0.03 rad; 0.01 keeps
+# the seed's push force (docs/FORMULATION.md "Implicit step: the turn gate"). 0: no turn gate
+TURN_GATE_RAD = 0.01
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
 # default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
 # docs/FORMULATION.md "Implicit step: BDF2"). BDF2 takes θ 1, no gate and the tangent stiffness unless told otherwise:
@@ -249,7 +256,8 @@ class ImplicitSolver(Solver):
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
                  theta: float = _UNSET, method: str = IMPLICIT_METHOD,
                  near_theta: float | None = _UNSET, proximity_margin_c0: float = PROXIMITY_MARGIN_C0,
-                 contact_stiffness: str = _UNSET, chord_end: str = CHORD_END, **kwargs):
+                 turn_gate_rad: float = TURN_GATE_RAD, contact_stiffness: str = _UNSET, chord_end: str = CHORD_END,
+                 **kwargs):
         theta, near_theta, contact_stiffness = implicit_options(method, theta, near_theta, contact_stiffness)
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
@@ -279,6 +287,9 @@ class ImplicitSolver(Solver):
                              f"{near_theta} with method {method!r}")
         self.near_theta = None if near_theta is None else float(near_theta)
         self.proximity_margin_mm = float(proximity_margin_c0) * model.contact.c0_mm
+        if turn_gate_rad < 0.0:
+            raise ValueError(f"turn_gate_rad must be ≥ 0 (0: no turn gate), got {turn_gate_rad}")
+        self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
@@ -453,13 +464,13 @@ class ImplicitSolver(Solver):
 
     def _gate(self, state_in: State, dt: float) -> None:
         """Each node's θ_i (``node_theta``) from its distances at the step start, which the
-        contact pass has just measured (kernels/node_theta.py)."""
+        contact pass has just measured, and its edges' turn in the step (kernels/node_theta.py)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         reach = m.contact.c0_mm + self.proximity_margin_mm  # the contact range and a margin
         near = max(self.near_theta, self.theta)  # θ = 1 (the settling step, Ensemble._settle_step): Euler everywhere
         wp.launch(node_theta.proximity_theta, n, device=dev, inputs=[
-            state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
-            int(self.coil_contact), reach, dt, self.theta, near, self.node_theta])
+            state_in.x, state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
+            int(self.coil_contact), reach, self.turn_gate_rad, dt, self.theta, near, self.node_theta])
         if self.has_stent:
             wp.launch(node_theta.strut_proximity, n, device=dev, inputs=[
                 state_in.x, state_in.v, state_in.free, m.has_next, m.world_of, m.node_radius, self._strut_grid.id,
