@@ -105,11 +105,11 @@ DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). With the Gauss–Newton bending Hessian
-# (stiffness ratio r ≈ 0.67–0.71 of the true one for a coil relaxing toward its helix) the θ-method is stable only for
-# θ ≥ 1/(2r): θ 0.65 ("gated_chord", GATED_CHORD below) blows up a helix pushed slowly into free space, Euler does
-# not (docs/FORMULATION.md "Unseen cases", "Implicit step: the default back to Euler (stability)"). A deployment
-# settles with θ = 1 (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
+# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). Below 1 the straight-line step's error
+# on fast-turning edges (their stretch α²/2) is returned instead of removed: ungated θ 0.65 blows up a helix pushed
+# slowly into free space, Euler does not; the turn gate (TURN_GATE_RAD) steps those nodes at θ 1 (docs/FORMULATION.md
+# "Unseen cases", "Implicit step: the turn gate"). A deployment settles with θ = 1 (deploy.Ensemble._settle_step;
+# docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
 # θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 (gated_chord) damps the stiff modes by only
 # (1 − θ)/θ = 0.54 a step and brings a free coil to rest slowly (the 60 mm helix recovered from straight at the
@@ -156,10 +156,10 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
 # the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "euler" the defaults
-# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity gate and the
-# chord stiffness (the one setting that passed every 0.8 c0 check, stent struts, free releases, push force, at ~1.3×
-# Euler's run time, but unstable on a slowly pushed helix: docs/FORMULATION.md "Implicit step: the default scheme",
-# "Unseen cases"), "bdf2" linearly implicit BDF2 (tangent)
+# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity and turn gates
+# and the chord stiffness (closer push force and free releases at 0.8 c0, at ~1.25× Euler's run time; unstable on a
+# slowly pushed helix until the turn gate: docs/FORMULATION.md "Implicit step: the default scheme", "Unseen cases",
+# "Implicit step: the turn gate"), "bdf2" linearly implicit BDF2 (tangent)
 EULER = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
          "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS}  # the θ-method defaults above
 GATED_CHORD = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord"}
