@@ -4,9 +4,9 @@ not by the stiffest spring.
 
 The default scheme ("euler"): θ = 1 (linearly implicit Euler), no gate, the tangent contact
 stiffness, the pusher 0.8 c0 per step; "gated_chord" (θ 0.65, θ_i = 1 at nodes near an obstacle
-(``near_theta``), the chord contact stiffness: unstable on a slowly pushed helix) and "bdf2" are
-named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``; docs/FORMULATION.md
-"Implicit step: the default back to Euler (stability)").
+(``near_theta``) or whose edges turn fast (``turn_gate_rad``), the chord contact stiffness) and
+"bdf2" are named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``;
+docs/FORMULATION.md "Implicit step: the default back to Euler (stability)", "the turn gate").
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
@@ -287,8 +287,9 @@ class ImplicitSolver(Solver):
                              f"{near_theta} with method {method!r}")
         self.near_theta = None if near_theta is None else float(near_theta)
         self.proximity_margin_mm = float(proximity_margin_c0) * model.contact.c0_mm
-        if turn_gate_rad < 0.0:
-            raise ValueError(f"turn_gate_rad must be ≥ 0 (0: no turn gate), got {turn_gate_rad}")
+        if not turn_gate_rad >= 0.0:  # NaN too
+            raise ValueError(f"turn_gate_rad must be ≥ 0 (0: no turn gate; it applies with near_theta only), got "
+                             f"{turn_gate_rad}")
         self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         if contact_stiffness not in CONTACT_STIFFNESS:
@@ -322,7 +323,9 @@ class ImplicitSolver(Solver):
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
         self.scheme = {"integrator": "implicit", "method": self.method, "theta": self.theta,
-                       "near_theta": self.near_theta, "contact_stiffness": contact_stiffness,
+                       "near_theta": self.near_theta,
+                       "turn_gate_rad": self.turn_gate_rad if self.near_theta is not None else None,
+                       "contact_stiffness": contact_stiffness,
                        "chord_end": self.chord_end if self.chord else None}  # as built (the push's: settling sets θ 1)
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:

@@ -32,7 +32,7 @@ def edge_turn(x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), a: int, 
     """Angle (rad) edge a turns through in a step dt at its nodes' velocities: the part of
     their relative velocity normal to the edge, times dt, over its length."""
     d = x[a + 1] - x[a]
-    length = wp.length(d)
+    length = wp.max(wp.length(d), wp.float64(1.0e-12))  # a collapsed edge: gated (any turn counts)
     t = d / length
     dv = v[a + 1] - v[a]
     return wp.length(dv - wp.dot(dv, t) * t) * dt / length
