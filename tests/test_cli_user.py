@@ -421,8 +421,9 @@ def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_pat
 
 # --- the implicit step's scheme: the default (Euler), gated_chord by name, and bad values ---------------
 @pytest.mark.parametrize("key, expected", [
-    ("", {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent", "chord_end": None}),
-    ('implicit_scheme = "gated_chord"\n', {"method": "theta", "theta": 0.65, "near_theta": 1.0,
+    ("", {"method": "theta", "theta": 1.0, "near_theta": None, "turn_gate_rad": None, "contact_stiffness": "tangent",
+          "chord_end": None}),
+    ('implicit_scheme = "gated_chord"\n', {"method": "theta", "theta": 0.65, "near_theta": 1.0, "turn_gate_rad": 0.01,
                                            "contact_stiffness": "chord", "chord_end": "flight"})])
 def test_an_implicit_run_reports_its_scheme_and_gated_chord_is_chosen_by_name(tmp_path, key, expected):
     """integrator = "implicit": the default scheme (linearly implicit Euler) or, named,

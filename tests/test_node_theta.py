@@ -10,7 +10,7 @@ import pytest
 
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment
-from warpcoil.implicit import EULER, ImplicitSolver, PROXIMITY_MARGIN_C0
+from warpcoil.implicit import EULER, ImplicitSolver, PROXIMITY_MARGIN_C0, TURN_GATE_RAD
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import load_scene
 from warpcoil.settings import ContactSettings, SimulationSettings
@@ -51,9 +51,9 @@ def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Pat
     assert gated.push_force_mean_max_uN == plain.push_force_mean_max_uN
 
 
-def one_step_theta(model, x, v, theta=0.7):
+def one_step_theta(model, x, v, theta=0.7, **options):
     """Each node's θ_i after one gated step from positions x, velocities v."""
-    solver = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, contact_stiffness="tangent")
+    solver = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, contact_stiffness="tangent", **options)
     state = state_from_positions(model, x)
     state.v.assign(v)
     solver.allocate_neighbour_grid(state)
@@ -111,6 +111,28 @@ def test_a_strut_or_balloon_within_reach_gives_theta_one():
             assert np.all(theta == expected), (obstacle, gap, theta)
 
 
+def test_a_node_whose_edge_turns_past_the_gate_gets_theta_one():
+    """A straight free 4-node rod, far from everything, its last node moving sideways so that
+    its edge turns just above or just below the turn gate in the step: θ_i = 1 on that edge's
+    two nodes only when above; a gate of 0 gates nothing; a negative or NaN gate is refused."""
+    spec = CoilSpec(wire_diameter_mm=0.3, length_mm=0.9, segment_length_mm=0.3)
+    rest = np.zeros((4, 3))
+    rest[:, 2] = np.arange(4) * 0.3
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0))
+    builder.add_coil(spec, rest)
+    model = builder.finalize()
+    for factor, expected in ((1.05, [0.7, 0.7, 1.0, 1.0]), (0.95, [0.7] * 4)):
+        v = np.zeros_like(rest)
+        v[3, 0] = factor * TURN_GATE_RAD * 0.3 / DT  # mm/s: edge 2 turns factor × the gate in a step
+        assert np.array_equal(one_step_theta(model, rest, v), expected), factor
+    v = np.zeros_like(rest)
+    v[3, 0] = 10.0 * TURN_GATE_RAD * 0.3 / DT
+    assert np.array_equal(one_step_theta(model, rest, v, turn_gate_rad=0.0), [0.7] * 4)
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(ValueError, match="turn_gate_rad"):
+            ImplicitSolver(model, dt_s=DT, theta=0.7, near_theta=1.0, turn_gate_rad=bad)
+
+
 def test_mixed_theta_step_is_the_momentum_balance_with_per_node_position_updates():
     """A stretched straight rod, moving, half of it beside a balloon (within reach, outside
     the contact range: no contact force), solved to convergence: the step satisfies
@@ -140,7 +162,7 @@ def test_mixed_theta_step_is_the_momentum_balance_with_per_node_position_updates
     force = euler.force.numpy().ravel()
     assert np.abs(euler.contact_force.numpy()).max() == 0.0  # no contact force: the balloon is only near
     gated = ImplicitSolver(model, dt_s=DT, theta=theta, near_theta=1.0, contact_stiffness="tangent",
-                           cg_iterations=200)
+                           cg_iterations=200, turn_gate_rad=0.0)  # the balloon's gate alone (random velocities turn edges)
     gated.allocate_neighbour_grid(state)
     out = new_state_like(model)
     gated.step(state, out, Control.create(model))
@@ -158,7 +180,9 @@ def test_validate_node_theta_rows():
     share per period with no node gated and 1 − (1 + θ w²)^(−π/w) with every node gated
     (between θ 0.7's 1.08 % and Euler's 2.70 %); every node gated converges to the
     reference; the free release at 100 and 150 mm/s comes to rest in the helix (linearly
-    implicit Euler: tangled in 5 of 5 turned runs at both speeds, FORMULATION.md)."""
+    implicit Euler: tangled in 5 of 5 turned runs at both speeds, FORMULATION.md); with the
+    turn gate (0.01 and 0.003 rad) gated_chord pushes a helix slowly into free space
+    quasi-statically."""
     from warpcoil.validation_node_theta import node_theta_cases
 
     rows = node_theta_cases()

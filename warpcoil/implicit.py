@@ -4,9 +4,9 @@ not by the stiffest spring.
 
 The default scheme ("euler"): θ = 1 (linearly implicit Euler), no gate, the tangent contact
 stiffness, the pusher 0.8 c0 per step; "gated_chord" (θ 0.65, θ_i = 1 at nodes near an obstacle
-(``near_theta``), the chord contact stiffness: unstable on a slowly pushed helix) and "bdf2" are
-named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``; docs/FORMULATION.md
-"Implicit step: the default back to Euler (stability)").
+(``near_theta``) or whose edges turn fast (``turn_gate_rad``), the chord contact stiffness) and
+"bdf2" are named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``;
+docs/FORMULATION.md "Implicit step: the default back to Euler (stability)", "the turn gate").
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
@@ -105,11 +105,11 @@ DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). With the Gauss–Newton bending Hessian
-# (stiffness ratio r ≈ 0.67–0.71 of the true one for a coil relaxing toward its helix) the θ-method is stable only for
-# θ ≥ 1/(2r): θ 0.65 ("gated_chord", GATED_CHORD below) blows up a helix pushed slowly into free space, Euler does
-# not (docs/FORMULATION.md "Unseen cases", "Implicit step: the default back to Euler (stability)"). A deployment
-# settles with θ = 1 (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
+# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). Below 1 the straight-line step's error
+# on fast-turning edges (their stretch α²/2) is returned instead of removed: ungated θ 0.65 blows up a helix pushed
+# slowly into free space, Euler does not; the turn gate (TURN_GATE_RAD) steps those nodes at θ 1 (docs/FORMULATION.md
+# "Unseen cases", "Implicit step: the turn gate"). A deployment settles with θ = 1 (deploy.Ensemble._settle_step;
+# docs/FORMULATION.md "Implicit step: push force and the θ-method")
 IMPLICIT_THETA = 1.0
 # θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 (gated_chord) damps the stiff modes by only
 # (1 − θ)/θ = 0.54 a step and brings a free coil to rest slowly (the 60 mm helix recovered from straight at the
@@ -121,6 +121,13 @@ IMPLICIT_SETTLE_THETA = 1.0
 # docs/FORMULATION.md "Implicit step: proximity-gated θ"). None (the default): every node at θ; GATED_CHORD uses 1
 IMPLICIT_NEAR_THETA: float | None = None
 PROXIMITY_MARGIN_C0 = 2.0
+# the turn gate of a gated run (solver option turn_gate_rad): θ_i = near_theta also for every node whose edge turns by
+# more than this angle in the step at the step start's velocities. The linearly implicit step moves nodes on straight
+# lines, so an edge turning α a step is stretched by ≈ α²/2 of its length, an error in the stiffest springs that
+# θ 0.65 returns at 0.54 a step where Euler removes it: at the curling front of a slowly pushed helix it grew into
+# strains of 1–8 % and kinetic energy of 64 µJ (Euler 18.5 nJ). Stable from 0.003 to 0.03 rad; 0.01 keeps
+# the seed's push force (docs/FORMULATION.md "Implicit step: the turn gate"). 0: no turn gate
+TURN_GATE_RAD = 0.01
 # the implicit step's scheme: "theta" (the θ-method above) or "bdf2" (linearly implicit BDF2, L-stable; not the
 # default: its push force is Euler's, and at 1.6–2.4 c0 it presses deeper into C0020's wall than Euler at 0.8 c0;
 # docs/FORMULATION.md "Implicit step: BDF2"). BDF2 takes θ 1, no gate and the tangent stiffness unless told otherwise:
@@ -149,10 +156,10 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
 # the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "euler" the defaults
-# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity gate and the
-# chord stiffness (the one setting that passed every 0.8 c0 check, stent struts, free releases, push force, at ~1.3×
-# Euler's run time, but unstable on a slowly pushed helix: docs/FORMULATION.md "Implicit step: the default scheme",
-# "Unseen cases"), "bdf2" linearly implicit BDF2 (tangent)
+# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity and turn gates
+# and the chord stiffness (closer push force and free releases at 0.8 c0, at ~1.25× Euler's run time; unstable on a
+# slowly pushed helix until the turn gate: docs/FORMULATION.md "Implicit step: the default scheme", "Unseen cases",
+# "Implicit step: the turn gate"), "bdf2" linearly implicit BDF2 (tangent)
 EULER = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
          "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS}  # the θ-method defaults above
 GATED_CHORD = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord"}
@@ -249,7 +256,8 @@ class ImplicitSolver(Solver):
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
                  theta: float = _UNSET, method: str = IMPLICIT_METHOD,
                  near_theta: float | None = _UNSET, proximity_margin_c0: float = PROXIMITY_MARGIN_C0,
-                 contact_stiffness: str = _UNSET, chord_end: str = CHORD_END, **kwargs):
+                 turn_gate_rad: float = TURN_GATE_RAD, contact_stiffness: str = _UNSET, chord_end: str = CHORD_END,
+                 **kwargs):
         theta, near_theta, contact_stiffness = implicit_options(method, theta, near_theta, contact_stiffness)
         kwargs.pop("allow_unstable_dt", None)
         kwargs.setdefault("neighbour_skin_mm", IMPLICIT_NEIGHBOUR_SKIN_MM)
@@ -279,6 +287,10 @@ class ImplicitSolver(Solver):
                              f"{near_theta} with method {method!r}")
         self.near_theta = None if near_theta is None else float(near_theta)
         self.proximity_margin_mm = float(proximity_margin_c0) * model.contact.c0_mm
+        if not turn_gate_rad >= 0.0:  # NaN too
+            raise ValueError(f"turn_gate_rad must be ≥ 0 (0: no turn gate; it applies with near_theta only), got "
+                             f"{turn_gate_rad}")
+        self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
@@ -309,7 +321,9 @@ class ImplicitSolver(Solver):
                                                                                          device=dev)
         self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
         self.scheme = {"integrator": "implicit", "method": self.method, "theta": self.theta,
-                       "near_theta": self.near_theta, "contact_stiffness": contact_stiffness,
+                       "near_theta": self.near_theta,
+                       "turn_gate_rad": self.turn_gate_rad if self.near_theta is not None else None,
+                       "contact_stiffness": contact_stiffness,
                        "chord_end": self.chord_end if self.chord else None}  # as built (the push's: settling sets θ 1)
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float | None = None) -> None:
@@ -451,13 +465,13 @@ class ImplicitSolver(Solver):
 
     def _gate(self, state_in: State, dt: float) -> None:
         """Each node's θ_i (``node_theta``) from its distances at the step start, which the
-        contact pass has just measured (kernels/node_theta.py)."""
+        contact pass has just measured, and its edges' turn in the step (kernels/node_theta.py)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         reach = m.contact.c0_mm + self.proximity_margin_mm  # the contact range and a margin
         near = max(self.near_theta, self.theta)  # θ = 1 (the settling step, Ensemble._settle_step): Euler everywhere
         wp.launch(node_theta.proximity_theta, n, device=dev, inputs=[
-            state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
-            int(self.coil_contact), reach, dt, self.theta, near, self.node_theta])
+            state_in.x, state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
+            int(self.coil_contact), reach, self.turn_gate_rad, dt, self.theta, near, self.node_theta])
         if self.has_stent:
             wp.launch(node_theta.strut_proximity, n, device=dev, inputs=[
                 state_in.x, state_in.v, state_in.free, m.has_next, m.world_of, m.node_radius, self._strut_grid.id,

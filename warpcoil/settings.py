@@ -155,10 +155,10 @@ class SimulationSettings:
       explicit stability bound) or "implicit" (the linearly implicit θ-method,
       warpcoil/implicit.py: no stability bound, step set by accuracy).
     * implicit_scheme (integrator "implicit" only): "euler" (the default: linearly implicit
-      Euler, tangent contact stiffness), "gated_chord" (θ 0.65, θ_i = 1 near an obstacle,
-      chord contact stiffness: unstable on a slowly pushed helix) or "bdf2"
+      Euler, tangent contact stiffness), "gated_chord" (θ 0.65, θ_i = 1 near an obstacle
+      or where an edge turns fast, chord contact stiffness) or "bdf2"
       (implicit.IMPLICIT_SCHEMES; docs/FORMULATION.md "Implicit step: the default back to
-      Euler (stability)").
+      Euler (stability)", "Implicit step: the turn gate").
     * dt_s: step; None → dt_safety (default 0.9) × the stable bound (symplectic), or
       the implicit default (the pusher advances 0.8 c0 per step, at most 0.5 ms; once every
       coil is out, frame / (2k), the longest moving the fastest node ≤ c0, 1.67–2.5 ms at

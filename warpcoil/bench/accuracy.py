@@ -64,7 +64,7 @@ PLAIN_THETA = {"near_theta": None, "contact_stiffness": "tangent"}
 # the proximity-gated θ at THETA_LOW with the tangent stiffness (FORMULATION.md "proximity-gated θ")
 GATED_THETA = {"theta": THETA_LOW, "near_theta": 1.0, "contact_stiffness": "tangent"}
 # the implicit default: linearly implicit Euler (implicit.IMPLICIT_SCHEMES["euler"]); beside it the named scheme
-# gated_chord (θ 0.65, gated, chord: unstable on a slowly pushed helix, docs/FORMULATION.md "Unseen cases")
+# gated_chord (θ 0.65, proximity and turn gates, chord; docs/FORMULATION.md "Unseen cases", "the turn gate")
 DEFAULT_LABEL = "Euler, tangent"
 GATED_CHORD_LABEL = f"gated_chord: θ {GATED_CHORD['theta']:g} gated, chord"
 IMPLICIT_DEFAULT_ROW = "implicit, default step ("  # the deployment's implicit default row, also checked for the front

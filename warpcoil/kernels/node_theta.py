@@ -1,6 +1,7 @@
 """Proximity-gated θ of the implicit θ-method: θ_i = ``near_theta`` (1: the position update
 x' = x + dt v', backward Euler) for every node that could reach an obstacle within the
-step, θ elsewhere (docs/FORMULATION.md "Implicit step: proximity-gated θ").
+step, or whose edges turn fast (the turn gate), θ elsewhere (docs/FORMULATION.md
+"Implicit step: proximity-gated θ", "Implicit step: the turn gate").
 
 With the elastic forces linearised at x + θ Δx (global θ) and node i's position update
 Δx_i = dt ((1 − θ_i) v_i + θ_i v'_i), the unknown u = Δx/(θ dt) − (1 − θ)/θ v (= v' where
@@ -17,7 +18,7 @@ import warp as wp
 from .contact import edge_in_contact_pass
 from .devices import balloon_gap, strut_gap
 from .implicit import solving
-from .rod import F64_1
+from .rod import F64_0, F64_1
 
 
 @wp.func
@@ -26,8 +27,20 @@ def gate(gap: wp.float64, reach: wp.float64) -> bool:
     return not (gap >= reach)
 
 
+@wp.func
+def edge_turn(x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), a: int, dt: wp.float64) -> wp.float64:
+    """Angle (rad) edge a turns through in a step dt at its nodes' velocities: the part of
+    their relative velocity normal to the edge, times dt, over its length."""
+    d = x[a + 1] - x[a]
+    length = wp.max(wp.length(d), wp.float64(1.0e-12))  # a collapsed edge: gated (any turn counts)
+    t = d / length
+    dv = v[a + 1] - v[a]
+    return wp.length(dv - wp.dot(dv, t) * t) * dt / length
+
+
 @wp.kernel
 def proximity_theta(
+    x: wp.array(dtype=wp.vec3d),
     v: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
@@ -36,6 +49,7 @@ def proximity_theta(
     coil_gap: wp.array(dtype=wp.float64),
     coil_contact: int,
     reach_mm: wp.float64,
+    turn_rad: wp.float64,
     dt: wp.float64,
     theta: wp.float64,
     near_theta: wp.float64,
@@ -44,7 +58,9 @@ def proximity_theta(
     """θ_i of node i: ``near_theta`` where the wall (its centre's signed distance less
     its radius; a certified lower bound where not searched) or another coil edge
     (the smallest gap of edges i − 1 and i) lies within ``reach_mm`` + |v_i| dt
-    (mm) at the step start, ``theta`` elsewhere."""
+    (mm) at the step start, or where edge i − 1 or i turns by more than ``turn_rad``
+    (rad) in the step at the start's velocities (``turn_rad`` ≤ 0: no turn gate);
+    ``theta`` elsewhere."""
     i = wp.tid()
     reach = reach_mm + wp.length(v[i]) * dt
     near = bool(False)
@@ -56,6 +72,12 @@ def proximity_theta(
             if i >= 1:
                 if has_next[i - 1] != 0:
                     near = near or gate(coil_gap[i - 1], reach)
+        if turn_rad > F64_0:
+            if has_next[i] != 0:
+                near = near or edge_turn(x, v, i, dt) > turn_rad
+            if i >= 1:
+                if has_next[i - 1] != 0:
+                    near = near or edge_turn(x, v, i - 1, dt) > turn_rad
     node_theta[i] = wp.where(near, near_theta, theta)
 
 
