@@ -30,13 +30,22 @@ def built_lists(model, x: np.ndarray, how: str, **options) -> tuple[list, wc.Sol
 
 def shapes(model) -> dict[str, np.ndarray]:
     """Node positions to build at: the coils strung along the catheter, the coils at their
-    pre-shapes (dense: every loop within the loop diameter), and the pre-shape with the
-    second coil's edges stretched to 3× (the walk's skip bound is the coil's longest step)."""
+    pre-shapes (dense: every loop within the loop diameter), the pre-shape with the
+    second coil's edges stretched to 3× (the walk's skip bound is the coil's longest step),
+    the pre-shape with every node moved at random (uneven steps, one edge 2 mm long), and a
+    world gone unstable: one node NaN, the first coil's start 50 mm away (no skip bound)."""
     rest = model.rest_x.numpy()
     stretched = rest.copy()
     second = model.node_slice(1)
     stretched[second] = rest[second][0] + 3.0 * (rest[second] - rest[second][0])
-    return {"catheter": wc.packed_state(model, gap_mm=1.0).x.numpy(), "pre-shape": rest, "stretched": stretched}
+    shaken = rest + np.random.default_rng(7).normal(scale=0.2, size=rest.shape)
+    shaken[second.start + 5:second.stop] += [2.0, 0.0, 0.0]
+    unstable = rest.copy()
+    first = model.node_slice(0)
+    unstable[first.start:first.start + 10] += [50.0, 0.0, 0.0]
+    unstable[first.start + 10] = np.nan
+    return {"catheter": wc.packed_state(model, gap_mm=1.0).x.numpy(), "pre-shape": rest, "stretched": stretched,
+            "shaken": shaken, "unstable": unstable}
 
 
 @pytest.mark.parametrize("capacity", [64, 3], ids=["lists", "overflowing lists"])
@@ -47,7 +56,7 @@ def test_walked_lists_are_the_grids(capacity):
         walked, solver = built_lists(model, x, "walk", neighbour_capacity=capacity)
         assert walked == grid, name
         assert any(len(row) > 0 for row in grid if row is not None), name  # there was something to find
-        if capacity == 3 and name != "catheter":
+        if capacity == 3 and name in ("pre-shape", "stretched"):
             assert None in walked and solver._list_overflow.numpy()[0] == 1  # the grid is built for those
 
 
@@ -99,3 +108,4 @@ def test_neighbour_build_is_checked_and_auto_walks_small_worlds_on_the_cpu():
     assert model.node_count <= NEIGHBOUR_WALK_MAX_NODES
     assert wc.Solver(model).walk_neighbours == model.device.is_cpu
     assert not wc.Solver(model, neighbour_build="grid").walk_neighbours
+    assert not wc.Solver(Ensemble([two_coil_scene()] * 2).model).walk_neighbours  # ensembles: the grid (unmeasured)

@@ -223,8 +223,9 @@ class Solver:
     bit-identical to the full search, which False forces).
     ``neighbour_build``: "grid" builds the neighbour lists from Warp's hash grid, "walk"
     by each edge walking its world's edges (contact.walk_neighbours: the same lists; the
-    grid is built only when a list overflows), "auto" (default) walks on the CPU while
-    every world has at most NEIGHBOUR_WALK_MAX_NODES nodes.
+    grid is built only when a list overflows), "auto" (default) walks on the CPU for a
+    single world of at most NEIGHBOUR_WALK_MAX_NODES nodes (an ensemble sorts the grid once
+    for all its worlds but would walk each: not measured, so it keeps the grid).
     """
 
     integrator = "symplectic"
@@ -353,7 +354,8 @@ class Solver:
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
         largest_world = int(max(model.world_nodes(w).stop - model.world_nodes(w).start for w in range(model.world_count)))
         self.walk_neighbours = neighbour_build == "walk" or (
-            neighbour_build == "auto" and dev.is_cpu and largest_world <= NEIGHBOUR_WALK_MAX_NODES)
+            neighbour_build == "auto" and dev.is_cpu and model.world_count == 1
+            and largest_world <= NEIGHBOUR_WALK_MAX_NODES)
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._coil_step = wp.zeros(model.coil_count, dtype=wp.float64, device=dev)  # mm, per coil (walk_neighbours)

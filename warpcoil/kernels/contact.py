@@ -676,8 +676,14 @@ def coil_midpoint_steps(built_mid: wp.array(dtype=wp.vec3d), coil_first: wp.arra
     build (mm; ``walk_neighbours``' skip bound)."""
     c = wp.tid()
     longest = wp.float64(0.0)
+    finite = bool(True)
     for i in range(coil_first[c], coil_last[c]):
-        longest = wp.max(longest, wp.length(built_mid[i + 1] - built_mid[i]))
+        d = wp.length(built_mid[i + 1] - built_mid[i])
+        if not (d <= wp.float64(1.0e300)):  # NaN or inf (a world gone unstable): no bound, no skip
+            finite = False
+        longest = wp.max(longest, d)
+    if not finite:
+        longest = wp.float64(wp.inf)
     step[c] = longest
 
 
