@@ -69,6 +69,7 @@ class Member:
         self.coils = model.world_coils(world)
         self.coil_nodes = [model.node_slice(c) for c in self.coils]
         self.coil_lengths_mm = np.array([host["arc_s"][model.coil_last[c]] for c in self.coils])
+        self.wire_areas_mm2 = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in scene.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + len(self.coils)) / sim.push_speed_mm_s
@@ -380,17 +381,17 @@ class Ensemble:
         if k < 0:
             member.resisted_since_s = None
             return None
-        areas = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in member.scene.coils])
+        areas = member.wire_areas_mm2
         deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
         in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
         sac = member.anatomy.sac_volume_mm3
         packing = in_sac / sac if sac else 0.0
-        where = (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "
-                 f"{member.coil_lengths_mm.sum():.2f} mm deployed" + (f", packing density {100 * packing:.1f} %"
-                                                                       if sac else ""))
+        where = lambda: (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "  # noqa: E731
+                         f"{member.coil_lengths_mm.sum():.2f} mm deployed"
+                         + (f", packing density {100 * packing:.1f} %" if sac else ""))
         fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
         if sac and packing > sim.stall_packing:
-            return (f"stalled: {where}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
+            return (f"stalled: {where()}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
                     f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
         if frame.push_force_mean_uN <= member.stall_force_uN:
             member.resisted_since_s = None
@@ -402,7 +403,7 @@ class Ensemble:
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
                  f"{member.self_deployment_force_uN:.4g} µN = {member.stall_force_uN:.4g} µN")
-        return (f"stalled: {where}: the mean push force stayed above {limit} "
+        return (f"stalled: {where()}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")
 

@@ -151,22 +151,29 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
     push force mean, peak and RMS (µN)."""
     w, sl, m = member.world, member.nodes, model
     free = snap.free[sl] == 1
+    any_free = bool(free.any())
     advance = snap.advance[member.coils.start:member.coils.stop]
     deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
     c0 = m.contact.c0_mm
     wall_gap = np.inf
     wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
-    if m.world_walls[w] is not None and free.any():
+    if m.world_walls[w] is not None and any_free:
         centre = snap.wall_distance[sl][free]
         gaps = centre - member.radius[free]
         wall_gap = float(gaps.min())
-        wall_contacts = int((gaps < c0).sum())
-        max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
-        outside = float(member.segment[free][centre < 0.0].sum())
-    if member.anatomy.sac is not None and free.any():
+        wall_contacts = int(np.count_nonzero(gaps < c0))
+        force = snap.wall_force[sl][free]
+        # the largest |force|: sqrt is monotone and correctly rounded, so this is np.linalg.norm's max exactly
+        max_wall_force = float(np.sqrt(np.add.reduce(force * force, axis=1).max()))
+        if member.anatomy.sac is None:
+            outside = float(member.segment[free][centre < 0.0].sum())
+    if member.anatomy.sac is not None and any_free:
         outside = float(member.segment[free][~inside_sac(member.anatomy.sac, snap.x[sl][free])].sum())
-    in_pass = free | np.concatenate([free[1:], [False]])  # edges with a free node
-    coil_gap = float(snap.coil_gap[sl][in_pass].min()) if (solver.coil_contact and free.any()) else np.inf
+    coil_gap = np.inf
+    if solver.coil_contact and any_free:
+        in_pass = free.copy()  # edges with a free node: the node or the next one free
+        in_pass[:-1] |= free[1:]
+        coil_gap = float(snap.coil_gap[sl][in_pass].min())
     return Frame(
         time_s=snap.time_s, deployed_length_mm=deployed, push_force_mean_uN=float(push[0]),
         push_force_peak_uN=float(push[1]), push_force_rms_uN=float(push[2]),

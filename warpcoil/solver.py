@@ -364,6 +364,7 @@ class Solver:
         self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
         self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
         self._views: dict = {}  # id(array) → (array, its numpy view): host()
+        self._world_slices = [model.world_nodes(w) for w in range(model.world_count)]
 
     # --- one step ----------------------------------------------------------
     def _launch_midpoints(self, state: State) -> None:
@@ -656,10 +657,12 @@ class Solver:
         host = self.host
         per_node = {"kinetic_nJ": host(self._kinetic), "stretch_nJ": host(self._stretch_e),
                     "bend_nJ": host(self._bend_e), "twist_nJ": host(self._twist_e)}
-        worlds = [m.world_nodes(w) for w in range(m.world_count)]
+        worlds = self._world_slices
         energies = {k: np.array([v[sl].sum() for sl in worlds]) for k, v in per_node.items()}
         x = host(state.x)
         unhealthy = host(self._unhealthy)
+        if not unhealthy.any() and np.isfinite(x).all():  # (every frame of a healthy run: the counts are 0)
+            return energies, np.zeros(len(worlds), dtype=np.int64)
         bad = np.array([unhealthy[sl].sum() + (~np.isfinite(x[sl])).any(axis=1).sum() for sl in worlds])
         return energies, bad
 
