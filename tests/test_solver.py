@@ -131,3 +131,18 @@ def test_packing_follows_a_polyline_catheter():
     s = model.arc_s.numpy()
     on_last = s <= seg
     assert np.allclose(np.linalg.norm(x[on_last] - pts[-1], axis=1), s[on_last])
+
+
+def test_world_energies_count_each_non_finite_node_once():
+    """The per-world count of non-finite nodes: 0 for a healthy state (its fast path), and one per
+    node with any non-finite coordinate (NaN or ±inf)."""
+    model, _ = helix_model()
+    solver = wc.Solver(model)
+    straight = np.zeros((model.node_count, 3))
+    straight[:, 0] = model.arc_s.numpy()
+    _, bad = solver.world_energies(wc.state_from_positions(model, straight))
+    assert bad.tolist() == [0]
+    straight[3] = [np.nan, 0.0, np.nan]
+    straight[7, 2] = np.inf
+    _, bad = solver.world_energies(wc.state_from_positions(model, straight))
+    assert bad.tolist() == [2]
