@@ -50,3 +50,18 @@ def test_quiet_prints_nothing_and_a_terminal_gets_a_bar():
     bar.update(2)
     bar.close()
     assert "\r" in terminal.getvalue() and "2/2 deployments" in terminal.getvalue()
+
+
+def test_a_terminal_bar_is_redrawn_at_most_every_interval_and_ends_on_the_last_update(monkeypatch):
+    now = [0.0]
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: now[0])
+    terminal = Terminal()
+    bar = Progress("deployed", "mm", total=10.0, stream=terminal)
+    for k in range(1, 101):  # a frame every 10 ms: 10 redraws in the second, not 100
+        now[0] += 0.01
+        bar.update(0.1 * k, note=f"push {k}")
+    drawn = [part for part in terminal.getvalue().split("\r") if part.startswith("deployed")]
+    bar.close()
+    assert 10 <= len(drawn) <= 12  # (tqdm's own first draw, then one per BAR_INTERVAL_S)
+    assert terminal.getvalue().rstrip().endswith("push 100")
+    assert "10.0/10.0 mm" in terminal.getvalue().split("\r")[-1]
