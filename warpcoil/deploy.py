@@ -248,7 +248,7 @@ class Ensemble:
         steps do not depend on the others': it equals its single run)."""
         frame_s = self.members[0].scene.simulation.frame_interval_s
         state = self.stepper.state
-        v, free = state.v.numpy(), state.free.numpy() == 1
+        v, free = self.solver.host(state.v), self.solver.host(state.free) == 1  # (read before the steps)
         c0 = self.model.contact.c0_mm
         for m in live:
             moving = free[m.nodes]
@@ -297,7 +297,7 @@ class Ensemble:
         if self.integrator == "implicit" and getattr(self.solver, "method", "theta") != "bdf2":
             # (BDF2's history flag is one per state, shared by the members: a member held while another
             # steps finer would resume it wrongly, so a BDF2 run keeps the push step through detachment)
-            advance = state.advance.numpy()
+            advance = self.solver.host(state.advance)  # (read before the steps)
             c0 = self.model.contact.c0_mm
             for m in live:
                 m.detach_level = (self.detach_rule(m.scene.simulation.push_speed_mm_s, dt, c0)
