@@ -22,7 +22,6 @@ import math
 import time
 from dataclasses import replace
 
-import numpy as np
 import warp as wp
 
 from warpcoil.bench.report import machine, markdown_table
@@ -46,6 +45,7 @@ def captured_builds(solver: Solver):
 
 
 def lists(solver: Solver) -> list:
+    """Per edge: its neighbour list as a sorted tuple, or None when it overflowed (NO_LIST)."""
     count, table = solver._neighbour_count.numpy(), solver._neighbours.numpy()
     return [None if c < 0 else tuple(sorted(table[a, :c])) for a, c in enumerate(count)]
 

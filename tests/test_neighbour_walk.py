@@ -13,11 +13,7 @@ from warpcoil.implicit import ImplicitSolver
 from warpcoil.solver import NEIGHBOUR_WALK_MAX_NODES
 from test_deploy import two_coil_scene
 
-
-def lists(solver) -> list:
-    """Per edge: its neighbour list as a sorted tuple, or None when it overflowed (NO_LIST)."""
-    count, table = solver._neighbour_count.numpy(), solver._neighbours.numpy()
-    return [None if c < 0 else tuple(sorted(table[a, :c])) for a, c in enumerate(count)]
+from benchmarks.neighbour_build import lists
 
 
 def built_lists(model, x: np.ndarray, how: str, **options) -> tuple[list, wc.Solver]:
@@ -109,3 +105,10 @@ def test_neighbour_build_is_checked_and_auto_walks_small_worlds_on_the_cpu():
     assert wc.Solver(model).walk_neighbours == model.device.is_cpu
     assert not wc.Solver(model, neighbour_build="grid").walk_neighbours
     assert not wc.Solver(Ensemble([two_coil_scene()] * 2).model).walk_neighbours  # ensembles: the grid (unmeasured)
+    spec = wc.CoilSpec(length_mm=NEIGHBOUR_WALK_MAX_NODES * 0.3, segment_length_mm=0.3)
+    rest = np.zeros((NEIGHBOUR_WALK_MAX_NODES + 1, 3))
+    rest[:, 0] = np.arange(NEIGHBOUR_WALK_MAX_NODES + 1) * 0.3
+    builder = wc.ModelBuilder()
+    builder.add_coil(spec, rest)
+    large = builder.finalize()
+    assert large.node_count > NEIGHBOUR_WALK_MAX_NODES and not wc.Solver(large).walk_neighbours  # a large world: the grid

@@ -33,8 +33,8 @@ NEIGHBOUR_CAPACITY = 64  # edges per neighbour list; an edge with more searches 
 TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the implicit step searches its list)
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built (Solver's neighbour_build)
-# "auto" walks each world's edges (contact.walk_neighbours) on the CPU while the largest world has at most this many
-# nodes, else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count). Measured, one
+# "auto" walks the edges (contact.walk_neighbours) on the CPU for a single world of at most this many nodes (an
+# ensemble keeps the grid: one sort for all its worlds against a walk per world, not measured), else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count). Measured, one
 # world packed dense (a coil at its pre-shape): walk / grid 68 / 143 µs at 206 nodes, 153 / 186 at 309, 267 / 236 at
 # 412; in the push (most edges strung along the catheter) the walk is cheaper still (docs/FORMULATION.md "Implicit
 # step: the neighbour lists without the hash grid")
@@ -352,10 +352,8 @@ class Solver:
         self._grid_radius = model.contact.query_radius_mm + 0.5 * self.neighbour_skin_mm
         self._list_radius = model.contact.query_radius_mm + self.neighbour_skin_mm
         self._grid = wp.HashGrid(cells, cells, cells, device=dev, dtype=wp.float64) if coil_contact else None
-        largest_world = int(max(model.world_nodes(w).stop - model.world_nodes(w).start for w in range(model.world_count)))
         self.walk_neighbours = neighbour_build == "walk" or (
-            neighbour_build == "auto" and dev.is_cpu and model.world_count == 1
-            and largest_world <= NEIGHBOUR_WALK_MAX_NODES)
+            neighbour_build == "auto" and dev.is_cpu and model.world_count == 1 and n <= NEIGHBOUR_WALK_MAX_NODES)
         self._coil_first = wp.array(model.coil_first, dtype=wp.int32, device=dev)
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._coil_step = wp.zeros(model.coil_count, dtype=wp.float64, device=dev)  # mm, per coil (walk_neighbours)

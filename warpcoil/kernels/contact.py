@@ -12,6 +12,8 @@ With clearance h (mm, > 0 apart) and u = 1 − h/c0::
 
 import warp as wp
 
+from .rod import F64_0, F64_1
+
 E_MINUS_1 = wp.constant(wp.float64(1.718281828459045))
 U_LINEAR = wp.constant(wp.float64(7.0))
 
@@ -665,8 +667,6 @@ def build_neighbours(
 
 WALK_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of mm-scale midpoint distances
 SQUARED_ROUNDING = wp.constant(wp.float64(1.0e-12))  # relative: ≫ a squared distance's rounding against its length's
-F64_0 = wp.constant(wp.float64(0.0))
-F64_1 = wp.constant(wp.float64(1.0))
 
 
 @wp.kernel
@@ -793,7 +793,7 @@ def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
 
 @wp.func
 def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
-                      coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                      node_radius: wp.array(dtype=wp.float64),
                       contact_share: wp.array(dtype=wp.float64), j: int, b: int, p0: wp.float64, c0: wp.float64,
                       u_linear: wp.float64, rest_near: bool):
     """½ s_j × the law of the gap between node sphere j and capsule b (|x_j − closest
@@ -824,7 +824,7 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
 
 @wp.func
 def node_node_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
-                   coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                   node_radius: wp.array(dtype=wp.float64),
                    j: int, k: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                    rest_near: bool) -> wp.vec3d:
     """The law of the gap between node spheres j and k (with a same-coil pair's rest
@@ -980,16 +980,16 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             two_a = owned_nodes(has_next, a) == 2
             two_b = owned_nodes(has_next, b) == 2
             # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
-            ta0, sa0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a, b, p0, c0, u_linear, rest_near)
+            ta0, sa0 = node_segment_term(x, rest_x, node_radius, contact_share, a, b, p0, c0, u_linear, rest_near)
             ta1 = zero
             sa1 = wp.float64(0.0)
             if two_a:
-                ta1, sa1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, a + 1, b, p0, c0, u_linear, rest_near)
-            tb0, sb0 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b, a, p0, c0, u_linear, rest_near)
+                ta1, sa1 = node_segment_term(x, rest_x, node_radius, contact_share, a + 1, b, p0, c0, u_linear, rest_near)
+            tb0, sb0 = node_segment_term(x, rest_x, node_radius, contact_share, b, a, p0, c0, u_linear, rest_near)
             tb1 = zero
             sb1 = wp.float64(0.0)
             if two_b:
-                tb1, sb1 = node_segment_term(x, rest_x, coil_of, node_radius, contact_share, b + 1, a, p0, c0, u_linear, rest_near)
+                tb1, sb1 = node_segment_term(x, rest_x, node_radius, contact_share, b + 1, a, p0, c0, u_linear, rest_near)
             # joint corrections w_mq φ(a + m, b + q) (force on a + m)
             ja0 = joint(free, has_next, fixed, coil_of, exclusion, a, b)
             ja1 = joint(free, has_next, fixed, coil_of, exclusion, a + 1, b)
@@ -1010,13 +1010,13 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             n10 = zero
             n11 = zero
             if w00 > wp.float64(0.0):
-                n00 = node_node_term(x, rest_x, coil_of, node_radius, a, b, p0, c0, u_linear, rest_near)
+                n00 = node_node_term(x, rest_x, node_radius, a, b, p0, c0, u_linear, rest_near)
             if w01 > wp.float64(0.0):
-                n01 = node_node_term(x, rest_x, coil_of, node_radius, a, b + 1, p0, c0, u_linear, rest_near)
+                n01 = node_node_term(x, rest_x, node_radius, a, b + 1, p0, c0, u_linear, rest_near)
             if w10 > wp.float64(0.0):
-                n10 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b, p0, c0, u_linear, rest_near)
+                n10 = node_node_term(x, rest_x, node_radius, a + 1, b, p0, c0, u_linear, rest_near)
             if w11 > wp.float64(0.0):
-                n11 = node_node_term(x, rest_x, coil_of, node_radius, a + 1, b + 1, p0, c0, u_linear, rest_near)
+                n11 = node_node_term(x, rest_x, node_radius, a + 1, b + 1, p0, c0, u_linear, rest_near)
             # a's side: its nodes' terms with their joint corrections, then the reactions of b's nodes
             f = ta0
             if w00 > wp.float64(0.0):
