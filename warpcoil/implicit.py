@@ -157,7 +157,7 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 CHORD_CANDIDATES_PER_EDGE = 32
 # the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "euler" the defaults
 # above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity and turn gates
-# and the chord stiffness (closer push force and free releases at 0.8 c0, at ~1.15–1.25× Euler's run time; unstable on a
+# and the chord stiffness (closer push force and free releases at 0.8 c0, at ~1.1–1.25× Euler's run time; unstable on a
 # slowly pushed helix until the turn gate: docs/FORMULATION.md "Implicit step: the default scheme", "Unseen cases",
 # "Implicit step: the turn gate"), "bdf2" linearly implicit BDF2 (tangent)
 EULER = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
