@@ -10,7 +10,7 @@
 2. The seed case's states 15 mm out, 15 mm left and settling (most edges strung
    along the catheter while pushing).
 
-Each build: the captured rebuild (``Solver._build_grid``) replayed ten times, CPU
+Each build: the captured rebuild (``Solver._build_neighbour_lists``) replayed ten times, CPU
 time of this process (``time.process_time``), the fastest of ``--repeats``
 alternated replays per setting; the two lists are checked equal as sets. µs.
 """
@@ -39,7 +39,7 @@ def captured_builds(solver: Solver):
     solver._rebuild.fill_(1)
     with wp.ScopedCapture(device=solver.model.device) as capture:
         for _ in range(BUILDS_PER_GRAPH):
-            solver._build_grid()
+            solver._build_neighbour_lists()
     wp.capture_launch(capture.graph)
     return capture.graph
 

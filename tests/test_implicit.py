@@ -373,13 +373,11 @@ def test_a_free_release_comes_to_rest_in_the_helix_at_a_fine_enough_push_step():
         assert all(r.passed for r in rows), validation.format_table(rows)
 
 
-@pytest.mark.parametrize("options", [{}, GATED_CHORD], ids=["euler", "gated_chord"])
-def test_a_helix_pushed_slowly_into_free_space_stays_quasi_static(options):
+def test_the_default_pushes_a_helix_slowly_into_free_space_quasi_statically():
     """A 30 mm helix (d 0.254 mm, loop 3.5 mm) pushed at 25 mm/s into empty space: the
     pusher barely works, so the coil's kinetic energy must stay a small part of its elastic
     energy (MODEL.md's quasi-static report, ≤ 0.1) in every frame of the push. Linearly
-    implicit Euler: 0.013. The θ-method at 0.65 (gated_chord) reached 0.83 here before the
-    turn gate: at the curling front edges turn ~0.01–0.2 rad a step, the straight-line step
-    stretches them by α²/2, and θ 0.65 returns that error instead of removing it; the turn
-    gate steps those nodes at θ 1 (docs/FORMULATION.md "Implicit step: the turn gate")."""
-    assert slow_helix_kinetic_ratio(options) <= QUASI_STATIC
+    implicit Euler: 0.013. The same case under gated_chord (0.83 before its turn gate, 0.041
+    with it) is `validate node-theta`'s, asserted by
+    test_node_theta.py::test_validate_node_theta_rows (docs/FORMULATION.md "the turn gate")."""
+    assert slow_helix_kinetic_ratio({}) <= QUASI_STATIC

@@ -386,9 +386,12 @@ class Ensemble:
         in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
         sac = member.anatomy.sac_volume_mm3
         packing = in_sac / sac if sac else 0.0
-        where = lambda: (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "  # noqa: E731
-                         f"{member.coil_lengths_mm.sum():.2f} mm deployed"
-                         + (f", packing density {100 * packing:.1f} %" if sac else ""))
+
+        def where() -> str:  # built only when the run stalls (every frame checks)
+            return (f"coil {k} ({member.scene.coils[k].name}) with {frame.deployed_length_mm:.2f} of "
+                    f"{member.coil_lengths_mm.sum():.2f} mm deployed"
+                    + (f", packing density {100 * packing:.1f} %" if sac else ""))
+
         fix = "deploy less coil (coil.length_mm) or a loop that fits the sac (coil.loop_diameter_mm)"
         if sac and packing > sim.stall_packing:
             return (f"stalled: {where()}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "

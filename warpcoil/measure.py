@@ -162,9 +162,7 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
         gaps = centre - member.radius[free]
         wall_gap = float(gaps.min())
         wall_contacts = int(np.count_nonzero(gaps < c0))
-        force = snap.wall_force[sl][free]
-        # the largest |force|: sqrt is monotone and correctly rounded, so this is np.linalg.norm's max exactly
-        max_wall_force = float(np.sqrt(np.add.reduce(force * force, axis=1).max()))
+        max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
         if member.anatomy.sac is None:
             outside = float(member.segment[free][centre < 0.0].sum())
     if member.anatomy.sac is not None and any_free:

@@ -34,7 +34,8 @@ TOUCHING_PER_EDGE = 16  # touching partners an edge's record holds (more: the im
 WALL_GUARD_STEPS = 1000  # a node anchored away from the wall is searched again at least this often
 NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built (Solver's neighbour_build)
 # "auto" walks the edges (contact.walk_neighbours) on the CPU for a single world of at most this many nodes (an
-# ensemble keeps the grid: one sort for all its worlds against a walk per world, not measured), else builds the hash grid (Warp's CPU build sorts 65 536 buckets whatever the point count). Measured, one
+# ensemble keeps the grid: one sort for all its worlds against a walk per world, not measured), else builds the hash
+# grid (Warp's CPU build sorts 65 536 buckets whatever the point count). Measured, one
 # world packed dense (a coil at its pre-shape): walk / grid 68 / 143 µs at 206 nodes, 153 / 186 at 309, 267 / 236 at
 # 412; in the push (most edges strung along the catheter) the walk is cheaper still (docs/FORMULATION.md "Implicit
 # step: the neighbour lists without the hash grid")
@@ -371,7 +372,7 @@ class Solver:
         wp.launch(contact.edge_midpoints, m.node_count, device=m.device, inputs=[
             state.x, m.has_next, self._built_midpoints, 0.5 * self.neighbour_skin_mm, self._midpoints, self._rebuild])
 
-    def _build_grid(self, allocate: bool = False) -> None:
+    def _build_neighbour_lists(self, allocate: bool = False) -> None:
         """Neighbour lists at the current midpoints: from the hash grid, or walked
         (``walk_neighbours``; the grid then built only when a list overflowed, or to
         size its buffers: ``allocate``)."""
@@ -385,9 +386,7 @@ class Solver:
                 self._built_midpoints, m.has_next, m.coil_of, m.world_of, m.world_node_range, self._coil_last,
                 self._coil_step, m.contact.exclusion_edges, self._list_radius, self._neighbours,
                 self._neighbour_count, self._list_overflow])
-            if allocate:
-                self._build_hash_grid()
-            elif self._conditional_rebuild:
+            if self._conditional_rebuild and not allocate:
                 wp.capture_if(self._list_overflow, on_true=self._build_hash_grid)
             else:
                 self._build_hash_grid()
@@ -432,9 +431,9 @@ class Solver:
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:
-                wp.capture_if(self._rebuild, on_true=self._build_grid)
+                wp.capture_if(self._rebuild, on_true=self._build_neighbour_lists)
             else:
-                self._build_grid()
+                self._build_neighbour_lists()
             sums = (self._edge_sum_start, self._edge_sum_end)
             wp.launch(contact.clear_edge_sums, n, device=dev, inputs=[
                 m.world_of, m.query_radius_of, *sums, self.coil_gap, self.coil_contacts, self._edge_bad,
@@ -625,7 +624,7 @@ class Solver:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
         if self.coil_contact:
             self._launch_midpoints(state)
-            self._build_grid(allocate=True)
+            self._build_neighbour_lists(allocate=True)
             self._rebuild.fill_(1)
 
     # --- measurements ------------------------------------------------------

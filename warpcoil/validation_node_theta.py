@@ -77,8 +77,8 @@ def turn_gate_rows() -> list[CaseResult]:
     for label, options in (("gated_chord, turn gate 0.01 rad", GATED_CHORD),
                            ("gated_chord, turn gate 0.003 rad", {**GATED_CHORD, "turn_gate_rad": 0.003})):
         ratio = slow_helix_kinetic_ratio(options)
-        rows.append(CaseResult(f"{label}: 30 mm helix pushed at 25 mm/s into free space: max kinetic/elastic",
-                               0.0, ratio, ratio, QUASI_STATIC))
+        rows.append(_row(f"{label}: 30 mm helix pushed at 25 mm/s into free space: max kinetic/elastic", 0.0, ratio,
+                         QUASI_STATIC))
     return rows
 
 

@@ -66,18 +66,13 @@ def proximity_theta(
     near = bool(False)
     if free[i] != 0:
         near = gate(wall_distance[i] - node_radius[i], reach)
-        if coil_contact != 0:
-            if has_next[i] != 0:
-                near = near or gate(coil_gap[i], reach)
-            if i >= 1:
-                if has_next[i - 1] != 0:
-                    near = near or gate(coil_gap[i - 1], reach)
-        if turn_rad > F64_0:
-            if has_next[i] != 0:
-                near = near or edge_turn(x, v, i, dt) > turn_rad
-            if i >= 1:
-                if has_next[i - 1] != 0:
-                    near = near or edge_turn(x, v, i - 1, dt) > turn_rad
+        for e in range(i - 1, i + 1):  # the node's edges i − 1 and i, where they exist
+            if e >= 0:
+                if has_next[e] != 0:
+                    if coil_contact != 0:
+                        near = near or gate(coil_gap[e], reach)
+                    if turn_rad > F64_0:
+                        near = near or edge_turn(x, v, e, dt) > turn_rad
     node_theta[i] = wp.where(near, near_theta, theta)
 
 
