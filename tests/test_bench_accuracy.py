@@ -12,7 +12,7 @@ def row(setting: str, time_s: float, error: float, default: bool = False, not_de
 
 def test_the_implicit_default_is_judged_beside_the_default():
     rows = [row("symplectic default", 18.0, 0.03, default=True),
-            row(IMPLICIT_DEFAULT_ROW + "Euler, tangent)", 2.0, 0.05),
+            row(IMPLICIT_DEFAULT_ROW + "gated_chord: θ 0.65 gated, chord)", 2.0, 0.05),
             row("implicit BDF2", 1.4, 0.06, not_default="push force off by 0.53 F0 (> 0.25 F0)"),
             row("implicit θ 0.7, 1.2 c0", 1.0, 0.06),
             row("implicit θ 0.7, 2.4 c0", 1.9, 0.20)]  # above the chaotic spread: not equal

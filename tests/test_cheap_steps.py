@@ -138,7 +138,7 @@ def test_skipping_the_signed_wall_query_in_the_lumen_is_bit_identical_to_the_ful
     """400 implicit steps of a deployment pressing the coil along the wall: the same
     state bit for bit whether a node in contact that cannot have left the lumen skips
     its signed BVH query or not (gated_chord, whose chord pass reads the wall
-    distances too, and linearly implicit Euler, the default); and the skip is taken: over 100 more
+    distances too, the default, and linearly implicit Euler); and the skip is taken: over 100 more
     steps of the Euler run, which keeps nodes pressed against the wall there, the nodes
     in contact throughout were searched in full in under 5 % of their steps (each
     skip's exact distance certifies the next, so a node sliding along the wall is

@@ -419,15 +419,18 @@ def test_varying_a_neck_placement_key_of_an_explicit_catheter_is_refused(tmp_pat
     assert not (tmp_path / "never").exists()
 
 
-# --- the implicit step's scheme: the default (Euler), gated_chord by name, and bad values ---------------
+# --- the implicit step's scheme: the default (gated_chord), euler by name, and bad values ---------------
+GATED_CHORD_SCHEME = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "turn_gate_rad": 0.01,
+                      "contact_stiffness": "chord", "chord_end": "flight"}
+
+
 @pytest.mark.parametrize("key, expected", [
-    ("", {"method": "theta", "theta": 1.0, "near_theta": None, "turn_gate_rad": None, "contact_stiffness": "tangent",
-          "chord_end": None}),
-    ('implicit_scheme = "gated_chord"\n', {"method": "theta", "theta": 0.65, "near_theta": 1.0, "turn_gate_rad": 0.01,
-                                           "contact_stiffness": "chord", "chord_end": "flight"})])
-def test_an_implicit_run_reports_its_scheme_and_gated_chord_is_chosen_by_name(tmp_path, key, expected):
-    """integrator = "implicit": the default scheme (linearly implicit Euler) or, named,
-    gated_chord (θ 0.65 gated, chord); result.json's "scheme" says which ran the push."""
+    ("", GATED_CHORD_SCHEME), ('implicit_scheme = "gated_chord"\n', GATED_CHORD_SCHEME),
+    ('implicit_scheme = "euler"\n', {"method": "theta", "theta": 1.0, "near_theta": None, "turn_gate_rad": None,
+                                     "contact_stiffness": "tangent", "chord_end": None})])
+def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path, key, expected):
+    """integrator = "implicit": the default scheme (gated_chord: θ 0.65 gated, chord) or, named,
+    linearly implicit Euler; result.json's "scheme" says which ran the push."""
     lines = f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'
     path = scene(tmp_path, **{"frame_interval_s = 0.005\n": lines})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "run")

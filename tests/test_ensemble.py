@@ -136,7 +136,7 @@ def test_members_with_their_own_step_bound_and_search_radius():
 
 @pytest.mark.parametrize("scheme, push_mm_s", [("euler", 600.0), ("gated_chord", 400.0)])
 def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch, scheme, push_mm_s):
-    """Implicit step, Euler (the default) and gated_chord (at 600 mm/s its members settle at one
+    """Implicit step, Euler and gated_chord (the default; at 600 mm/s its members settle at one
     step in every shared frame, so 400): after the push each member steps at the settling step its
     own fastest node sets (implicit.settle_level); members at different steps in the
     same frame advance apart, so each still equals its single run."""

@@ -13,7 +13,7 @@ from warpcoil import validation
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Deployment, Ensemble
 from warpcoil.implicit import (DEFAULT_IMPLICIT_SCHEME, EULER, GATED_CHORD, IMPLICIT_DT_MAX_S, IMPLICIT_SCHEMES, ImplicitSolver,
-                               make_solver)
+                               TURN_GATE_RAD, make_solver)
 from warpcoil.model import ModelBuilder
 from warpcoil.scene import SceneError, load_scene
 from warpcoil.settings import CatheterSpec, SimulationSettings
@@ -85,7 +85,7 @@ def test_banded_solve_satisfies_the_system_with_held_nodes():
     builder.add_coil(spec)
     model = builder.finalize()
     control = Control.create(model, active_coil=0, push_speed_mm_s=50.0)
-    solver = ImplicitSolver(model, dt_s=2.0e-4, coil_contact=False, cg_iterations=40)
+    solver = ImplicitSolver(model, dt_s=2.0e-4, coil_contact=False, cg_iterations=40, **EULER)  # θ 1: the system above
     stepper = Stepper(solver, packed_state(model), control, chunk=20)
     stepper.run_steps(300)  # 3 mm out
     state_in = stepper.state
@@ -122,16 +122,16 @@ def test_stable_far_beyond_the_explicit_bound():
     assert energies[-1] < 1e-3 * energies[0]
 
 
-@pytest.mark.parametrize("scheme", ["default", "gated_chord"])
+@pytest.mark.parametrize("scheme", ["default", "euler"])
 def test_converges_to_the_reference_at_first_order(scheme):
-    """The default scheme (linearly implicit Euler) and gated_chord (θ 0.65; no obstacle, so
-    no node gated) against the reference as dt shrinks: first order at the finest pair. Euler's
+    """The default scheme (gated_chord, θ 0.65; no obstacle, so no node gated) and linearly
+    implicit Euler against the reference as dt shrinks: first order at the finest pair. Euler's
     order still rises towards 1 across these steps (0.73 → 0.80); gated_chord's is already near 1
     there (0.91 → 0.93: within 0.1 of 1), so the "rises" row is Euler's (the full sweep of
     `warpcoil validate implicit` shows gated_chord rising from its coarser steps)."""
-    labelled = validation.GATED_CHORD_LABELLED if scheme == "gated_chord" else None
+    labelled = validation.EULER_LABELLED if scheme == "euler" else None
     rows = validation.implicit_convergence(factors=(0.1, 0.05, 0.025), labelled_options=labelled)
-    if labelled is not None:
+    if labelled is None:
         rows = [r for r in rows if "rises" not in r.case]
         assert abs(rows[-1].result - 1.0) < 0.1
     failed = [r for r in rows if not r.passed]
@@ -201,26 +201,30 @@ def test_scene_key_integrator(tmp_path: Path):
 
 
 def test_named_schemes_build_their_solvers_and_bdf2_takes_its_own_defaults():
-    """simulation.implicit_scheme names each of implicit.IMPLICIT_SCHEMES (the default: linearly
-    implicit Euler, tangent); method "bdf2" alone takes θ 1, no gate, the tangent stiffness; the θ-method's
+    """simulation.implicit_scheme names each of implicit.IMPLICIT_SCHEMES (the default: gated_chord,
+    θ 0.65 gated, chord); method "bdf2" alone takes θ 1, no gate, the tangent stiffness; the θ-method's
     options given to BDF2 are refused by name; explicit solver options override the scheme."""
     for name, options in IMPLICIT_SCHEMES.items():
         s = implicit_scene()
         s = replace(s, simulation=replace(s.simulation, implicit_scheme=name))
         scheme = Deployment(s).solver.scheme
         assert {key: scheme[key] for key in options} == options, name
-    assert IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME] == {"method": "theta", "theta": 1.0, "near_theta": None,
-                                                         "contact_stiffness": "tangent"}
-    assert IMPLICIT_SCHEMES["gated_chord"] == {"method": "theta", "theta": 0.65, "near_theta": 1.0,
-                                               "contact_stiffness": "chord"}
-    assert Deployment(implicit_scene()).solver.scheme["theta"] == 1.0  # the scene default is Euler
+    assert IMPLICIT_SCHEMES[DEFAULT_IMPLICIT_SCHEME] == {"method": "theta", "theta": 0.65, "near_theta": 1.0,
+                                                         "contact_stiffness": "chord"}
+    assert IMPLICIT_SCHEMES["euler"] == {"method": "theta", "theta": 1.0, "near_theta": None,
+                                         "contact_stiffness": "tangent"}
+    default = Deployment(implicit_scene()).solver  # the scene default is gated_chord, its turn gate on
+    assert (default.scheme["theta"], default.scheme["turn_gate_rad"]) == (0.65, TURN_GATE_RAD)
+    euler = ImplicitSolver(straight_rod()[0], dt_s=1e-4, **EULER)  # the solver's default is the scene's
+    assert (euler.theta, euler.near_theta, euler.chord) == (1.0, None, False)
+    assert ImplicitSolver(straight_rod()[0], dt_s=1e-4).scheme == default.scheme
     model, _ = straight_rod()
     bdf2 = ImplicitSolver(model, dt_s=1e-4, method="bdf2")
     assert (bdf2.theta, bdf2.near_theta, bdf2.chord) == (1.0, None, False)
     with pytest.raises(ValueError, match="near_theta"):
         ImplicitSolver(model, dt_s=1e-4, method="bdf2", near_theta=1.0)
     s = replace(implicit_scene(), simulation=replace(implicit_scene().simulation, implicit_scheme="gated_chord"))
-    overridden = Deployment(s, solver_options={"theta": 0.7}).solver.scheme  # key by key: the gate and chord stay
+    overridden = Deployment(s, solver_options={"theta": 0.7}).solver.scheme  # key by key: the gates and chord stay
     assert (overridden["theta"], overridden["near_theta"], overridden["contact_stiffness"]) == (0.7, 1.0, "chord")
 
 
@@ -373,11 +377,11 @@ def test_a_free_release_comes_to_rest_in_the_helix_at_a_fine_enough_push_step():
         assert all(r.passed for r in rows), validation.format_table(rows)
 
 
-def test_the_default_pushes_a_helix_slowly_into_free_space_quasi_statically():
+def test_euler_pushes_a_helix_slowly_into_free_space_quasi_statically():
     """A 30 mm helix (d 0.254 mm, loop 3.5 mm) pushed at 25 mm/s into empty space: the
     pusher barely works, so the coil's kinetic energy must stay a small part of its elastic
     energy (MODEL.md's quasi-static report, ≤ 0.1) in every frame of the push. Linearly
-    implicit Euler: 0.013. The same case under gated_chord (0.83 before its turn gate, 0.041
-    with it) is `validate node-theta`'s, asserted by
+    implicit Euler: 0.013. The same case under the default gated_chord (0.83 before its turn
+    gate, 0.041 with it) is `validate node-theta`'s, asserted by
     test_node_theta.py::test_validate_node_theta_rows (docs/FORMULATION.md "the turn gate")."""
-    assert slow_helix_kinetic_ratio({}) <= QUASI_STATIC
+    assert slow_helix_kinetic_ratio(EULER) <= QUASI_STATIC

@@ -20,7 +20,7 @@ RADIUS_MM = 0.5 * wc.CoilSpec().d
 
 def released_fast(angle_deg: float, scheme: str = "euler") -> wc.Scene:
     """A 6 mm helix shot out at 2 m/s into a 3.5 mm sphere on the implicit default step,
-    linearly implicit Euler (``scheme``, the default; gated_chord tunnels here too, at the settling
+    linearly implicit Euler by default here (``scheme``; gated_chord, the scenes' default, tunnels here too, at the settling
     step: test_gated_chord_tunnels_too_and_the_check_redoes_the_frame): the coil is out after
     3.5 ms and still whips at ~10³ mm/s when the settling step takes over (pinned at its
     coarsest, 2.5 ms, by ``coarsest_settling``: 2.5 mm per step against c0 = 0.029 mm)."""

@@ -2,11 +2,11 @@
 Witkin 1998) beside the reference symplectic Euler: the step is set by accuracy,
 not by the stiffest spring.
 
-The default scheme ("euler"): θ = 1 (linearly implicit Euler), no gate, the tangent contact
-stiffness, the pusher 0.8 c0 per step; "gated_chord" (θ 0.65, θ_i = 1 at nodes near an obstacle
-(``near_theta``) or whose edges turn fast (``turn_gate_rad``), the chord contact stiffness) and
+The default scheme ("gated_chord"): θ 0.65, θ_i = 1 at nodes near an obstacle (``near_theta``)
+or whose edges turn fast (``turn_gate_rad``), the chord contact stiffness, the pusher 0.8 c0 per
+step; "euler" (θ = 1, linearly implicit Euler, no gate, the tangent contact stiffness) and
 "bdf2" are named options (IMPLICIT_SCHEMES; scene key ``simulation.implicit_scheme``;
-docs/FORMULATION.md "Implicit step: the default back to Euler (stability)", "the turn gate").
+docs/FORMULATION.md "the turn gate", "Implicit step: gated_chord the default").
 
 Forces, contact search, catheter kinematics and push accounting are the
 reference's (for θ < 1 each step's push force reading is (1 − θ) P_{n−1} + θ P_n, the force
@@ -105,12 +105,13 @@ DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
 # is rebuilt less often with a wider skin (the fixed-point sums keep every force bit-identical)
 IMPLICIT_NEIGHBOUR_SKIN_MM = 0.2
-# θ of the linearly implicit θ-method (1: linearly implicit Euler, the default). Below 1 the straight-line step's error
-# on fast-turning edges (their stretch α²/2) is returned instead of removed: ungated θ 0.65 blows up a helix pushed
-# slowly into free space, Euler does not; the turn gate (TURN_GATE_RAD) steps those nodes at θ 1 (docs/FORMULATION.md
-# "Unseen cases", "Implicit step: the turn gate"). A deployment settles with θ = 1 (deploy.Ensemble._settle_step;
-# docs/FORMULATION.md "Implicit step: push force and the θ-method")
-IMPLICIT_THETA = 1.0
+# θ of the linearly implicit θ-method (1: linearly implicit Euler; the default 0.65, gated_chord's: its push force is
+# within 0.25 F0 of the finest reference where Euler's numerical damping is 0.53 F0 off). Below 1 the straight-line
+# step's error on fast-turning edges (their stretch α²/2) is returned instead of removed: ungated θ 0.65 blows up a
+# helix pushed slowly into free space, Euler does not; the turn gate (TURN_GATE_RAD) steps those nodes at θ 1
+# (docs/FORMULATION.md "Unseen cases", "Implicit step: the turn gate"). A deployment settles with θ = 1
+# (deploy.Ensemble._settle_step; docs/FORMULATION.md "Implicit step: push force and the θ-method")
+IMPLICIT_THETA = 0.65
 # θ once nothing is pushed (deploy.Ensemble._settle_step): the θ-method at 0.65 (gated_chord) damps the stiff modes by only
 # (1 − θ)/θ = 0.54 a step and brings a free coil to rest slowly (the 60 mm helix recovered from straight at the
 # default step: 62 000 steps against Euler's 3 000); Euler (θ 1) settles it, with the gate a no-op and the chord on
@@ -118,8 +119,8 @@ IMPLICIT_SETTLE_THETA = 1.0
 # proximity-gated θ (solver option near_theta): θ_i = near_theta (1: the node moves with its new velocity alone) for
 # every node whose wall, stent strut, balloon or other coil edge lies within the contact range c0 plus a margin
 # PROXIMITY_MARGIN_C0 · c0 + |v_i| dt of its surface at the step start, θ elsewhere (kernels/node_theta.py;
-# docs/FORMULATION.md "Implicit step: proximity-gated θ"). None (the default): every node at θ; GATED_CHORD uses 1
-IMPLICIT_NEAR_THETA: float | None = None
+# docs/FORMULATION.md "Implicit step: proximity-gated θ"). The default 1 (gated_chord); None: every node at θ
+IMPLICIT_NEAR_THETA: float | None = 1.0
 PROXIMITY_MARGIN_C0 = 2.0
 # the turn gate of a gated run (solver option turn_gate_rad): θ_i = near_theta also for every node whose edge turns by
 # more than this angle in the step at the step start's velocities. The linearly implicit step moves nodes on straight
@@ -143,9 +144,9 @@ CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHM
 PUSH_CG_ITERATIONS = CG_ITERATIONS
 # each contact's stiffness along its normal: "tangent" (the law's slope at the step start) or "chord" (the law's
 # secant between the step start and the predicted end, where steeper: contacts that enter during the step are
-# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness"). The default: "tangent"
+# seen; kernels/chord.py, docs/FORMULATION.md "Implicit step: chord contact stiffness"). The default: "chord"
 CONTACT_STIFFNESS = ("tangent", "chord")
-IMPLICIT_CONTACT_STIFFNESS = "tangent"
+IMPLICIT_CONTACT_STIFFNESS = "chord"
 # the chord's predicted end: "flight" (each node's damped free flight x + dt m v/(m + dt β): no extra solve) or
 # "solve" (the tangent step's solution: a second assembly and solve per step; sees force-driven approaches too)
 CHORD_ENDS = ("flight", "solve")
@@ -155,21 +156,22 @@ PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exac
 # chord candidates the contact pass notes per edge for the chord pass (more: it walks the edge's neighbour list;
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
-# the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "euler" the defaults
-# above (linearly implicit Euler, tangent contact stiffness), "gated_chord" θ 0.65 with the proximity and turn gates
-# and the chord stiffness (closer push force and free releases at 0.8 c0, at ~1.1–1.25× Euler's run time; unstable on a
-# slowly pushed helix until the turn gate: docs/FORMULATION.md "Implicit step: the default scheme", "Unseen cases",
-# "Implicit step: the turn gate"), "bdf2" linearly implicit BDF2 (tangent)
-EULER = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
-         "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS}  # the θ-method defaults above
-GATED_CHORD = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "contact_stiffness": "chord"}
-BDF2_DEFAULTS = {"theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+# the implicit step's named schemes (scene key simulation.implicit_scheme; solver options): "gated_chord" the θ-method
+# defaults above (θ 0.65 with the proximity and turn gates, the chord stiffness: the push force within 0.25 F0 of the
+# finest reference and free releases that come to rest in their helix at 0.8 c0, at ~1.1–1.25× Euler's run time;
+# docs/FORMULATION.md "Implicit step: gated_chord the default"), "euler" linearly implicit Euler with the tangent
+# stiffness (stable without gates, but its numerical damping bends the push force 0.53 F0 off and tangles a fast
+# free release), "bdf2" linearly implicit BDF2 (tangent)
+GATED_CHORD = {"method": "theta", "theta": IMPLICIT_THETA, "near_theta": IMPLICIT_NEAR_THETA,
+               "contact_stiffness": IMPLICIT_CONTACT_STIFFNESS}  # the θ-method defaults above
+EULER = {"method": "theta", "theta": 1.0, "near_theta": None, "contact_stiffness": "tangent"}
+BDF2_DEFAULTS = {key: EULER[key] for key in ("theta", "near_theta", "contact_stiffness")}  # Euler's
 IMPLICIT_SCHEMES = {
     "euler": EULER,
     "gated_chord": GATED_CHORD,
     "bdf2": {"method": "bdf2", **BDF2_DEFAULTS},
 }
-DEFAULT_IMPLICIT_SCHEME = "euler"
+DEFAULT_IMPLICIT_SCHEME = "gated_chord"
 _UNSET = object()  # a solver option not given: the method's default
 
 
@@ -242,8 +244,9 @@ def implicit_options(method: str, theta=_UNSET, near_theta=_UNSET, contact_stiff
 
 
 class ImplicitSolver(Solver):
-    """A :class:`Solver` whose step is the linearly implicit θ-method (by default θ 1,
-    ungated, tangent contact stiffness: linearly implicit Euler) or BDF2 (module docstring).
+    """A :class:`Solver` whose step is the linearly implicit θ-method (by default gated_chord:
+    θ 0.65, proximity and turn gates, chord contact stiffness; θ 1 ungated with the tangent
+    stiffness: linearly implicit Euler) or BDF2 (module docstring).
 
     ``dt_s`` has no stability limit; the contact law's linear onset is the one the
     reference takes at ``dt_safety`` × its explicit bound."""

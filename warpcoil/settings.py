@@ -154,11 +154,11 @@ class SimulationSettings:
     * integrator: "symplectic" (the reference: semi-implicit Euler under the
       explicit stability bound) or "implicit" (the linearly implicit θ-method,
       warpcoil/implicit.py: no stability bound, step set by accuracy).
-    * implicit_scheme (integrator "implicit" only): "euler" (the default: linearly implicit
-      Euler, tangent contact stiffness), "gated_chord" (θ 0.65, θ_i = 1 near an obstacle
-      or where an edge turns fast, chord contact stiffness) or "bdf2"
-      (implicit.IMPLICIT_SCHEMES; docs/FORMULATION.md "Implicit step: the default back to
-      Euler (stability)", "Implicit step: the turn gate").
+    * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
+      θ_i = 1 near an obstacle or where an edge turns fast, chord contact stiffness),
+      "euler" (linearly implicit Euler, tangent contact stiffness) or "bdf2"
+      (implicit.IMPLICIT_SCHEMES; docs/FORMULATION.md "Implicit step: the turn gate",
+      "Implicit step: gated_chord the default").
     * dt_s: step; None → dt_safety (default 0.9) × the stable bound (symplectic), or
       the implicit default (the pusher advances 0.8 c0 per step, at most 0.5 ms; once every
       coil is out, frame / (2k), the longest moving the fastest node ≤ c0, 1.67–2.5 ms at
@@ -192,7 +192,7 @@ class SimulationSettings:
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
     integrator: str = "symplectic"
-    implicit_scheme: str = "euler"
+    implicit_scheme: str = "gated_chord"
     dt_s: float | None = None
     dt_safety: float = DEFAULT_DT_SAFETY
     allow_unstable_dt: bool = False

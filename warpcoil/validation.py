@@ -19,7 +19,7 @@ from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
 from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
-from .implicit import EULER, GATED_CHORD, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA, implicit_step_s, make_solver
+from .implicit import EULER, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA, implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
 
@@ -823,16 +823,16 @@ def euler_loss_per_period(w: float) -> float:
 
 def _implicit_label(theta: float | None, method: str | None) -> tuple[str, dict]:
     """A validation row's label and the solver options: the default scheme (``theta`` None:
-    linearly implicit Euler), the plain θ-method at ``theta`` (no gate, tangent stiffness) or BDF2."""
+    gated_chord), the plain θ-method at ``theta`` (no gate, tangent stiffness) or BDF2."""
     if method == "bdf2":
         return "implicit BDF2", {"method": "bdf2"}
     if theta is None:
-        return "implicit default (Euler)", {}
+        return f"implicit default (gated_chord, θ {IMPLICIT_THETA:g} gated, chord)", {}
     return f"implicit θ {theta:g}", {**EULER, "theta": theta}
 
 
-# the named scheme "gated_chord" (θ 0.65, gated, chord) as implicit_convergence / implicit_damping's labelled_options
-GATED_CHORD_LABELLED = (f"implicit gated_chord (θ {GATED_CHORD['theta']:g} gated, chord)", GATED_CHORD)
+# the named scheme "euler" (linearly implicit Euler, tangent) as implicit_convergence / implicit_damping's labelled_options
+EULER_LABELLED = ("implicit Euler (θ 1, tangent)", EULER)
 
 
 def _theta_errors(model, start, x_ref, scale, bound, factors, time_s) -> list[float]:
@@ -892,9 +892,9 @@ def implicit_damping(theta: float | None = None, labelled_options: tuple[str, di
     """Numerical damping of the implicit step at its default dt (:func:`cantilever_vibration_loss`)
     against the linear theory of the θ-method, 1 − |R|^(2π/(ω dt)) with
     |R|² = (1 + (1−θ)² ω²dt²)/(1 + θ² ω²dt²) (θ = 1: 1 − (1 + ω² dt²)^(−π/(ω dt)) ≈ π ω dt),
-    ω measured (BDF2: validation_bdf2). ``theta`` None: the default scheme (Euler); else the
+    ω measured (BDF2: validation_bdf2). ``theta`` None: the default scheme (gated_chord); else the
     plain θ-method at ``theta``; ``labelled_options``: (row label, solver options) of another
-    θ-method variant (gated_chord: no node is gated in free space, so the θ-method at its θ)."""
+    θ-method variant (the default gated_chord: no node is gated in free space, so the θ-method at its θ)."""
     label, options = labelled_options or _implicit_label(theta, None)
     loss, omega, dt, omega_ref = cantilever_vibration_loss(options)
     w = omega * dt
@@ -919,9 +919,9 @@ def chord() -> list[CaseResult]:
 def implicit_cases() -> list[CaseResult]:
     """The implicit step: convergence to the reference, numerical damping, and the
     cantilever and helix recovery at its default step."""
-    rows = (implicit_convergence() + implicit_convergence(labelled_options=GATED_CHORD_LABELLED)
+    rows = (implicit_convergence() + implicit_convergence(labelled_options=EULER_LABELLED)
             + implicit_convergence(theta=0.7) + implicit_damping()
-            + implicit_damping(labelled_options=GATED_CHORD_LABELLED) + implicit_damping(theta=0.7))
+            + implicit_damping(labelled_options=EULER_LABELLED) + implicit_damping(theta=0.7))
     result, reference = cantilever_deflection(50, 5.0, integrator="implicit")
     rows.append(_row("implicit default step (settling θ): cantilever PL²/EI=5, 50 segments: δ/L", reference, result,
                      5e-3))

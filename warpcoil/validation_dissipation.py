@@ -1,8 +1,8 @@
 """Validation of the numerical-dissipation ledger (dissipation.py), each row running the
 meter on the solver: on a clamped straight 3-node chain oscillating along its axis (a linear
 system: stretching only) the meter's books equal the θ-method's analytic loss
-(θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (θ = 1: backward Euler's, the default;
-gated_chord's θ 0.65 too), and with the model's damping its ratio
+(θ − ½) Σ (Δvᵀ M Δv + Δxᵀ K Δx) of the trajectory (θ = 1: linearly implicit Euler's;
+the default gated_chord's θ 0.65 too), and with the model's damping its ratio
 numerical / physical falls at order 1 with the step; the same ratio on a released coil
 (docs/FORMULATION.md "Implicit step: numerical dissipation")."""
 
@@ -62,7 +62,7 @@ def chain_run(damped: bool, omega_dt: float, steps: int, options: dict | None = 
     M Δv = −dt K (x + θ Δx) and Δx = dt ((1 − θ) v + θ v'), ΔE = ½ (v + v')ᵀ M Δv +
     ½ (x + x')ᵀ K Δx = (½ − θ) (Δvᵀ M Δv + Δxᵀ K Δx); no node is gated (no obstacle)."""
     options = EULER if options is None else options
-    theta = options.get("theta", IMPLICIT_THETA)  # not given: the default's (Euler)
+    theta = options.get("theta", IMPLICIT_THETA)  # not given: the default's (gated_chord)
     model, stiffness, mass, omega = axial_chain(damped)
     start = model.rest_x.numpy().copy()
     start[1:3, 0] += CHAIN_START_MM

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .coil import CoilSpec
-from .implicit import GATED_CHORD, implicit_step_s, make_solver
+from .implicit import EULER, GATED_CHORD, implicit_step_s, make_solver
 from .kernels import contact
 from .model import ModelBuilder
 from .settings import CatheterSpec, ContactSettings
@@ -119,9 +119,9 @@ def wall_push_force(integrator: str, dt_s: float | None = None, overlap_c0: floa
 def push_force_cases() -> list[CaseResult]:
     rows = []
     variants = (("symplectic", {}, "reference step"),
-                ("implicit", {}, "implicit Euler default step"),
+                ("implicit", EULER, "implicit Euler default step"),
                 ("implicit", {"method": "bdf2"}, "implicit BDF2 default step"),
-                ("implicit", GATED_CHORD, f"implicit gated_chord default step, θ {GATED_CHORD['theta']:g} gated, chord"))  # θ < 1: the blended reading
+                ("implicit", {}, f"implicit default step, gated_chord θ {GATED_CHORD['theta']:g} gated, chord"))  # θ < 1: the blended reading
     for integrator, options, label in variants:
         push, damping = free_space_push_force(integrator, **options)
         rows.append(_row(f"push force, straight coil into free space ({label}): = damping (µN)", damping, push, 5e-2))

@@ -17,8 +17,8 @@ Cases and their references:
   energy ≤ 0.1 while pushing, MODEL.md).
 
 Knobs: step size (dt_safety × the stable bound), the integrator (the implicit
-step at its default — linearly implicit Euler, tangent contact stiffness — beside the named scheme
-gated_chord (θ 0.65, proximity-gated, chord contact stiffness) at the same push step, Euler's push
+step at its default — gated_chord: θ 0.65, proximity- and turn-gated, chord contact stiffness — beside
+the named scheme linearly implicit Euler (tangent contact stiffness) at the same push step, Euler's push
 advance per step from 0.4 to 2.4 c0,
 the plain θ-method at θ = 0.7, the gated θ 0.7 with either contact stiffness, linearly implicit
 BDF2, and Euler with the chord contact stiffness to either predicted end), push advance per step (push
@@ -63,10 +63,10 @@ THETA_LOW = 0.7  # the plain θ-method's setting shown beside the default and li
 PLAIN_THETA = {"near_theta": None, "contact_stiffness": "tangent"}
 # the proximity-gated θ at THETA_LOW with the tangent stiffness (FORMULATION.md "proximity-gated θ")
 GATED_THETA = {"theta": THETA_LOW, "near_theta": 1.0, "contact_stiffness": "tangent"}
-# the implicit default: linearly implicit Euler (implicit.IMPLICIT_SCHEMES["euler"]); beside it the named scheme
-# gated_chord (θ 0.65, proximity and turn gates, chord; docs/FORMULATION.md "Unseen cases", "the turn gate")
-DEFAULT_LABEL = "Euler, tangent"
-GATED_CHORD_LABEL = f"gated_chord: θ {GATED_CHORD['theta']:g} gated, chord"
+# the implicit default: gated_chord (θ 0.65, proximity and turn gates, chord; docs/FORMULATION.md "the turn gate",
+# "Implicit step: gated_chord the default"); beside it the named scheme "euler" (linearly implicit Euler, tangent)
+DEFAULT_LABEL = f"gated_chord: θ {GATED_CHORD['theta']:g} gated, chord"
+EULER_LABEL = "Euler, tangent"
 IMPLICIT_DEFAULT_ROW = "implicit, default step ("  # the deployment's implicit default row, also checked for the front
 
 
@@ -167,10 +167,10 @@ def release_rows(quick: bool, repeats: int) -> list[Row]:
         rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step ({DEFAULT_LABEL})", False, 0, t,
                         _helix_error(res), detail, not_default=tangled))
     for speed in () if quick else (100.0, 150.0):  # Euler tangles at the default push step (FORMULATION.md "the
-        # free release that comes to rest tangled"): Euler at half of it, and gated_chord at it
-        for label, advance, options in ((f"implicit Euler {0.5 * IMPLICIT_ADVANCE_PER_C0:g} c0 per push step",
-                                         0.5 * IMPLICIT_ADVANCE_PER_C0, EULER),
-                                        (f"implicit {GATED_CHORD_LABEL}", IMPLICIT_ADVANCE_PER_C0, GATED_CHORD)):
+        # free release that comes to rest tangled"): Euler at it, and at half of it
+        for label, advance, options in ((f"implicit {EULER_LABEL}", IMPLICIT_ADVANCE_PER_C0, EULER),
+                                        (f"implicit Euler {0.5 * IMPLICIT_ADVANCE_PER_C0:g} c0 per push step",
+                                         0.5 * IMPLICIT_ADVANCE_PER_C0, EULER)):
             res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit",
                                                            advance_per_c0=advance, solver_options=options), repeats)
             detail, tangled = _release_detail(res, speed, "implicit", 4, advance, solver_options=options)
@@ -288,8 +288,8 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         f"implicit, default step ({DEFAULT_LABEL}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0 per step, then "
         f"the settling step, ≤ {IMPLICIT_SETTLE_DT_MAX_S * 1e3:g} ms)": (variant(integrator="implicit"), None),
     }
-    settings[f"implicit {GATED_CHORD_LABEL}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0"] = (
-        variant(integrator="implicit"), GATED_CHORD)
+    settings[f"implicit {EULER_LABEL}, push advance {IMPLICIT_ADVANCE_PER_C0:g} c0"] = (
+        variant(integrator="implicit"), EULER)
     settings[f"implicit, default step, gated θ {THETA_LOW:g} (θ_i 1 near an obstacle), tangent stiffness"] = (
         variant(integrator="implicit"), GATED_THETA)
     settings[f"implicit, default step, gated θ {THETA_LOW:g}, chord contact stiffness"] = (
