@@ -24,8 +24,9 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s, make_solver, scheme_options,
-                       SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
+from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
+                       make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
+                       settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
