@@ -24,8 +24,9 @@ from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
-from .implicit import (DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s, make_solver, scheme_options,
-                       SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled, settle_step_s)
+from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
+                       make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
+                       settle_step_s)
 from .settings import Scene
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
@@ -69,6 +70,9 @@ class Member:
         self.coils = model.world_coils(world)
         self.coil_nodes = [model.node_slice(c) for c in self.coils]
         self.coil_lengths_mm = np.array([host["arc_s"][model.coil_last[c]] for c in self.coils])
+        # each coil's last edge (mm): the detachment frames of a θ < 1 push open DETACH_LEAD_SEGMENTS of it earlier
+        self.last_edge_mm = np.array([host["arc_s"][model.coil_last[c]] - host["arc_s"][model.coil_last[c] - 1]
+                                      for c in self.coils])
         self.wire_areas_mm2 = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in scene.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
@@ -277,11 +281,15 @@ class Ensemble:
         """Whether the member's frame about to run (from ``start_s``, ``frame_s`` long) is a
         detachment frame: its active coil's last node is released in it (the advance reaches
         the coil's length, kernels/integrate.hold_node; then member.detach_until_s is set to
-        that moment + DETACH_WHIP_S), or it starts before member.detach_until_s."""
+        that moment + DETACH_WHIP_S), or it starts before member.detach_until_s. On a θ < 1
+        push (gated_chord) also the frames in which the coil's last DETACH_LEAD_SEGMENTS edges
+        leave (implicit.DETACH_LEAD_SEGMENTS)."""
         if member.active >= 0:
             speed = member.scene.simulation.push_speed_mm_s
             left_mm = member.coil_lengths_mm[member.active] - advance[member.coils.start + member.active]
-            if left_mm <= speed * frame_s * (1.0 + 1e-9):
+            lead_mm = (DETACH_LEAD_SEGMENTS * member.last_edge_mm[member.active]
+                       if getattr(self.solver, "theta", 1.0) < 1.0 else 0.0)  # θ < 1: the last nodes' releases too
+            if left_mm <= speed * frame_s * (1.0 + 1e-9) + lead_mm:
                 member.detach_until_s = start_s + left_mm / speed + DETACH_WHIP_S
                 return True
         return start_s < member.detach_until_s

@@ -100,6 +100,13 @@ SETTLE_REFINE_MAX = 3
 # helix into a 3.5 mm sphere; k = 2 and 3 were 1.5 and 0.8 c0 deeper than the push step's, whose numerical
 # damping slows the whip) (docs/FORMULATION.md "Implicit step: the detachment step")
 DETACH_WHIP_S = 0.015
+# ... and on the θ-method below θ 1 (gated_chord) from DETACH_LEAD_SEGMENTS of the coil's last edges before that
+# frame: releasing the last nodes snaps them toward the pre-shape in one push step (an edge turned ~50° and
+# stretched 40-70 % by the straight-line step), which Euler's step removes at once but θ 0.65 returns at 0.54 a
+# step with the sign flipped: in a 2 mm sphere the penultimate node's release rang through the pack (kinetic
+# energy 13 → 998 nJ in two steps, coils 0.18 mm (7 c0) deep, −0.091 mm at the frame end; Euler −0.030 mm);
+# resolved at dt / k from two edges before, −0.018 mm (docs/FORMULATION.md "Implicit step: the release lead")
+DETACH_LEAD_SEGMENTS = 2
 DETACH_ADVANCE_PER_C0 = 0.2
 DETACH_LEVEL_MAX = 16
 # coil–coil neighbour skin (mm): a step moves a node ~12 × farther than the explicit one, so the grid
