@@ -303,6 +303,7 @@ class ImplicitSolver(Solver):
         self._end_half = wp.zeros(n, dtype=wp.float64, device=dev)
         self._sweep = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
         self._end_move = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
+        self._node_move = vecs()  # per node: kernels.edge_ends (mm)
         # the free-flight end is known before the contact pass, which then notes the chord candidates (Solver)
         self._noted_chord = self.chord and chord_end == "flight" and self.coil_contact
         self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE if self._noted_chord else 1), dtype=wp.int32, device=dev)
@@ -421,7 +422,8 @@ class ImplicitSolver(Solver):
         move from ``x`` (kernels.edge_ends: the chord pass's and the contact pass's filters)."""
         m = self.model
         wp.launch(kernels.edge_ends, m.node_count, device=m.device, inputs=[
-            x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep, self._end_move])
+            x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep, self._end_move,
+            self._node_move])
 
     def _predict_end(self, state_in: State, state_out: State, dt: float) -> None:
         """The chord's free-flight end into ``self._x_end`` (after _hold_nodes)."""
@@ -447,7 +449,7 @@ class ImplicitSolver(Solver):
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n, x_end, self._end_mid, self._end_half, self._sweep,
-                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted)])
+                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted), self._node_move])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

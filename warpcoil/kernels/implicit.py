@@ -58,6 +58,7 @@ from .contact import (
     from_fixed,
     next_partner,
     pair_in_reach_at_end,
+    relative_move,
     rest_offset,
     swept_apart,
     segment_closest_params,
@@ -209,13 +210,15 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
 def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
               node_radius: wp.array(dtype=wp.float64), end_mid: wp.array(dtype=wp.vec3d),
               end_half: wp.array(dtype=wp.float64), sweep: wp.array(dtype=wp.float64),
-              end_move: wp.array(dtype=wp.float64)):
+              end_move: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d)):
     """Each edge at the chord's predicted end: its midpoint (mm) and half-length plus
     radius (mm), for pair_in_reach_at_end; and ``sweep`` (mm): the larger half-length
     plus radius at x and x_end, plus how far the midpoint moves between them, for
     swept_apart; ``end_move`` (mm): the larger of its two nodes' moves from x to x_end, for
-    pair_stiffness (a coil's last node: its position, 0, 0, 0)."""
+    pair_stiffness (a coil's last node: its position, 0, 0, 0); ``node_move`` (mm): each node's
+    move x_end − x, for contact.relative_move."""
     e = wp.tid()
+    node_move[e] = x_end[e] - x[e]
     if has_next[e] == 0:
         end_mid[e] = x_end[e]
         end_half[e] = F64_0
@@ -238,7 +241,7 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64, x_end: wp.array(dtype=wp.vec3d),
                    end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64),
-                   end_move: wp.array(dtype=wp.float64), chord: int):
+                   end_move: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d), chord: int):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
@@ -247,9 +250,10 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     force does. With ``chord`` the stiffness is the law's chord between the gap at x
     and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
     x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal);
-    ``end_mid``, ``end_half``, ``end_move``: edge_ends. A pair whose gap at x exceeds c0 by
-    more than both edges' moves (and ``REACH_MARGIN_MM``) stays out of range at x_end (the
-    segments' distance moves no more than their nodes): no gap there is computed."""
+    ``end_mid``, ``end_half``, ``end_move``, ``node_move``: edge_ends. A pair whose gap at x exceeds
+    c0 by more than both edges' moves, or by more than their nodes' largest relative move
+    (contact.relative_move; and ``REACH_MARGIN_MM``), stays out of range at x_end (the segments'
+    distance moves no more): no gap there is computed."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -268,6 +272,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
             gap_end = gap
             if chord != 0:
                 if gap >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM:
+                    near_end = False
+                elif near_end and gap >= c0 and gap >= c0 + relative_move(node_move, a, b) + REACH_MARGIN_MM:
                     near_end = False
                 gap_end = c0  # out of reach at x_end: its gap is ≥ c0 there (no entry, the tangent)
                 st_end = st
@@ -355,6 +361,7 @@ def edge_contact_stiffness(
     chord_count: wp.array(dtype=wp.int32),
     chord_b: wp.array2d(dtype=wp.int32),
     noted_chord: int,
+    node_move: wp.array(dtype=wp.vec3d),
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
     partners that contact.edge_contact noted within a hair of touching at the same
@@ -366,7 +373,7 @@ def edge_contact_stiffness(
     the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
     every neighbour-list partner is a candidate (a pair may enter the contact range
     on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
-    ``end_half``, ``sweep``, ``end_move``: edge_ends); with ``noted_chord``, only those
+    ``end_half``, ``sweep``, ``end_move``, ``node_move``: edge_ends); with ``noted_chord``, only those
     contact.edge_contact noted as chord candidates at this step's predicted end
     (``chord_count``, ``chord_b``; every pair with a block is among them), or, when
     more than the record holds, every listed partner."""
@@ -397,7 +404,7 @@ def edge_contact_stiffness(
                 continue
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius, x_end, end_mid,
-                                                             end_half, end_move, chord)
+                                                             end_half, end_move, node_move, chord)
             if hit == 0:  # zero blocks: their fixed-point sums add 0
                 continue
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
