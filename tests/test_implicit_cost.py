@@ -34,7 +34,8 @@ def stiffness(solver: ImplicitSolver, state, touch_count: wp.array, chord: int =
         m.query_radius_of, solver._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, solver.contact_u_linear,
         touch_count, solver._touch_b, solver._stiff_start, solver._stiff_end, solver._pair_count, solver._pair_b,
         solver._pair_st, solver._pair_k, solver._pair_n, state.x, solver._end_mid, solver._end_half, solver._sweep,
-        solver._end_move, chord, solver._chord_count, solver._chord_b, 0, solver._node_move])
+        solver._end_move, chord, solver._chord_count, solver._chord_b, 0, solver._node_move, solver._rest_count,
+        solver._rest_b, solver._rest_value])
     out = {k: getattr(solver, k).numpy().copy() for k in ("_stiff_start", "_stiff_end", "_pair_count")}
     count = np.maximum(out["_pair_count"], 0)
     for k in ("_pair_b", "_pair_st", "_pair_k", "_pair_n"):  # the recorded slots
