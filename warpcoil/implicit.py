@@ -160,6 +160,9 @@ CHORD_ENDS = ("flight", "solve")
 CHORD_END = "flight"
 CHORD_END_CG_ITERATIONS = 1  # conjugate-gradient iterations of the "solve" end's first solve (a predictor)
 PAIRS_PER_EDGE = 16  # touching coil–coil pairs recorded per edge for the exact contact product
+# same-coil partners with a nonzero rest offset recorded per edge (kernels.rest_offsets; more: computed per pair):
+# a close-wound helix (turns 5 µm apart at rest) ≤ 6 an edge, the seed case's spherical coil none
+REST_PARTNERS_PER_EDGE = 16
 # chord candidates the contact pass notes per edge for the chord pass (more: it walks the edge's neighbour list;
 # seed case late in the push: ≤ 12 an edge; docs/FORMULATION.md "Implicit step: the chord pass over noted candidates")
 CHORD_CANDIDATES_PER_EDGE = 32
@@ -313,6 +316,7 @@ class ImplicitSolver(Solver):
         self._end_half = wp.zeros(n, dtype=wp.float64, device=dev)
         self._sweep = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
         self._end_move = wp.zeros(n, dtype=wp.float64, device=dev)  # per edge: kernels.edge_ends (mm)
+        self._node_move = vecs()  # per node: kernels.edge_ends (mm)
         # the free-flight end is known before the contact pass, which then notes the chord candidates (Solver)
         self._noted_chord = self.chord and chord_end == "flight" and self.coil_contact
         self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE if self._noted_chord else 1), dtype=wp.int32, device=dev)
@@ -327,6 +331,13 @@ class ImplicitSolver(Solver):
         self._pair_st = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec2d, device=dev)
         self._pair_k = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.float64, device=dev)
         self._pair_n = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec3d, device=dev)
+        # per edge, its same-coil partners' rest offsets (the rest shape's: once)
+        self._rest_count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self._rest_b = wp.zeros((n, REST_PARTNERS_PER_EDGE), dtype=wp.int32, device=dev)
+        self._rest_value = wp.zeros((n, REST_PARTNERS_PER_EDGE), dtype=wp.float64, device=dev)
+        wp.launch(kernels.rest_offsets, n, device=dev, inputs=[
+            model.rest_x, model.coil_of, model.has_next, model.node_radius, self._coil_first, self._coil_last,
+            model.contact.exclusion_edges, model.contact.c0_mm, self._rest_count, self._rest_b, self._rest_value])
         self._spin_c, self._spin_d = wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.float64,
                                                                                          device=dev)
         self._devices = ImplicitDeviceStiffness(model) if self.has_balloon or self.has_stent else None
@@ -431,7 +442,8 @@ class ImplicitSolver(Solver):
         move from ``x`` (kernels.edge_ends: the chord pass's and the contact pass's filters)."""
         m = self.model
         wp.launch(kernels.edge_ends, m.node_count, device=m.device, inputs=[
-            x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep, self._end_move])
+            x, x_end, m.has_next, m.node_radius, self._end_mid, self._end_half, self._sweep, self._end_move,
+            self._node_move])
 
     def _predict_end(self, state_in: State, state_out: State, dt: float) -> None:
         """The chord's free-flight end into ``self._x_end`` (after _hold_nodes)."""
@@ -457,7 +469,8 @@ class ImplicitSolver(Solver):
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
                 self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
                 self._pair_st, self._pair_k, self._pair_n, x_end, self._end_mid, self._end_half, self._sweep,
-                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted)])
+                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted), self._node_move,
+                self._rest_count, self._rest_b, self._rest_value])
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,

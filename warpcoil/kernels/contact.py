@@ -1131,22 +1131,40 @@ def swept_apart(mid: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.float64)
 
 
 @wp.func
+def relative_move(node_move: wp.array(dtype=wp.vec3d), a: int, b: int) -> wp.float64:
+    """The largest move (mm) of one of edge a's nodes relative to one of edge b's between x and
+    the predicted end (``node_move``: kernels/implicit.edge_ends). The two segments' distance
+    changes by no more: a point of each moves by a convex combination of its nodes' moves, so
+    their difference is a convex combination of the four differences."""
+    largest = F64_0
+    for i in range(2):
+        for j in range(2):
+            d = node_move[a + i] - node_move[b + j]
+            largest = wp.max(largest, wp.dot(d, d))
+    return wp.sqrt(largest)
+
+
+@wp.func
 def chord_candidate(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                     fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
                     mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, far: wp.float64,
                     raw: wp.float64, c0: wp.float64, end_mid: wp.array(dtype=wp.vec3d),
                     end_half: wp.array(dtype=wp.float64), end_move: wp.array(dtype=wp.float64),
-                    sweep: wp.array(dtype=wp.float64)) -> bool:
+                    sweep: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d)) -> bool:
     """Pair (a, b) may have a chord stiffness on either side (kernels/implicit.pair_stiffness
     from a and from b): in reach at x (the bounding spheres, widened by SIDE_MARGIN_MM for
     b's own sum of the same lengths) or at the predicted end (symmetric), and its gap at x
     (``raw``, pair_forces' segment gap from a; −FAR_MM: not evaluated) not above c0 and both
     edges' moves (+ REACH_MARGIN_MM, the stiffness pass's own test, + SIDE_MARGIN_MM: b's
     closest points may round differently; a rest offset only adds). A pair it rejects adds
-    zero blocks on both sides (``sweep``: kernels/implicit.edge_ends, for :func:`swept_apart`)."""
+    zero blocks on both sides (``sweep``: kernels/implicit.edge_ends, for :func:`swept_apart`). An
+    evaluated pair out of range at x whose gap exceeds c0 by more than the edges' :func:`relative_move`
+    (+ the same margins) stays out of range at the end too (the stiffness pass's own test)."""
     if not edge_is_obstacle(free, has_next, fixed, b):
         return False
     if raw >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM + SIDE_MARGIN_MM:
+        return False
+    if raw >= c0 and raw >= c0 + relative_move(node_move, a, b) + REACH_MARGIN_MM + SIDE_MARGIN_MM:
         return False
     if raw > -FAR_MM or raw != raw:  # evaluated (in reach at x from a) and not too far, or not finite
         return True
@@ -1249,6 +1267,7 @@ def edge_contact(
     chord_count: wp.array(dtype=wp.int32),
     chord_b: wp.array2d(dtype=wp.int32),
     note_chord: int,
+    node_move: wp.array(dtype=wp.vec3d),
 ):
     """Coil–coil contact: the node–capsule terms (:func:`pair_forces`) joining edge a
     and every other edge b of the same ensemble member near it, each pair evaluated
@@ -1267,8 +1286,8 @@ def edge_contact(
     implicit step's contact stiffness. With ``note_chord``, also each pair that may have a
     chord stiffness in the implicit step, on both sides (:func:`chord_candidate`;
     ``chord_count``, ``chord_b``, cleared by :func:`clear_edge_sums`; ``end_mid``,
-    ``end_half``, ``end_move``, ``sweep``: kernels/implicit.edge_ends at this step's predicted
-    end). An edge whose list overflowed, one with a partner whose list overflowed that the
+    ``end_half``, ``end_move``, ``sweep``, ``node_move``: kernels/implicit.edge_ends at this step's
+    predicted end). An edge whose list overflowed, one with a partner whose list overflowed that the
     partner's grid search evaluates (it may miss the pair), and one that such a grid search
     found (the grid returns whole cells, which the found edge's own list may not hold)
     overflows its record: its chord pass walks its whole list then, as without the notes."""
@@ -1291,7 +1310,7 @@ def edge_contact(
                 continue
             if handled:
                 if chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, radius, raw, c0,
-                                   end_mid, end_half, end_move, sweep):
+                                   end_mid, end_half, end_move, sweep, node_move):
                     note_touching(a, b, chord_count, chord_b)
                     if b_runs:
                         if listed == NO_LIST:  # a's grid search found b, which b's own list may not hold

@@ -52,12 +52,14 @@ import warp as wp
 from .contact import (
     NO_LIST,
     REACH_MARGIN_MM,
+    bonded,
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
     from_fixed,
     next_partner,
     pair_in_reach_at_end,
+    relative_move,
     rest_offset,
     swept_apart,
     segment_closest_params,
@@ -186,6 +188,49 @@ def pair_rest_offset(rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=w
     return rest_offset(rest_gap, c0)
 
 
+@wp.kernel
+def rest_offsets(rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                 has_next: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
+                 coil_first: wp.array(dtype=wp.int32), coil_last: wp.array(dtype=wp.int32), exclusion: int,
+                 c0: wp.float64, count: wp.array(dtype=wp.int32), partner: wp.array2d(dtype=wp.int32),
+                 offset: wp.array2d(dtype=wp.float64)):
+    """Each edge a's same-coil partners b (not bonded) with a nonzero :func:`pair_rest_offset`
+    (a, b) (mm), in partner order (the rest shape's: once per model); more than the record
+    holds: count OVERFLOW (the offsets are then computed: :func:`noted_rest_offset`)."""
+    a = wp.tid()
+    found = int(0)
+    if has_next[a] != 0:
+        c = coil_of[a]
+        for b in range(coil_first[c], coil_last[c]):
+            if has_next[b] != 0 and not bonded(coil_of, exclusion, a, b) and found != OVERFLOW:
+                value = pair_rest_offset(rest_x, coil_of, node_radius, a, b, c0)
+                if value != F64_0:
+                    if found == partner.shape[1]:
+                        found = OVERFLOW
+                    else:
+                        partner[a, found] = b
+                        offset[a, found] = value
+                        found += 1
+    count[a] = found
+
+
+@wp.func
+def noted_rest_offset(rest_count: wp.array(dtype=wp.int32), rest_b: wp.array2d(dtype=wp.int32),
+                      rest_value: wp.array2d(dtype=wp.float64), rest_x: wp.array(dtype=wp.vec3d),
+                      coil_of: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                      c0: wp.float64) -> wp.float64:
+    """:func:`pair_rest_offset` (a, b) (mm) of a pair that is not bonded, from a's record
+    (:func:`rest_offsets`: a partner it does not list has none), or computed where the
+    record overflowed."""
+    listed = rest_count[a]
+    if listed == OVERFLOW:
+        return pair_rest_offset(rest_x, coil_of, node_radius, a, b, c0)
+    for k in range(listed):
+        if rest_b[a, k] == b:
+            return rest_value[a, k]
+    return F64_0
+
+
 @wp.func
 def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
              node_radius: wp.array(dtype=wp.float64), a: int, b: int, offset: wp.float64):
@@ -209,13 +254,15 @@ def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
 def edge_ends(x: wp.array(dtype=wp.vec3d), x_end: wp.array(dtype=wp.vec3d), has_next: wp.array(dtype=wp.int32),
               node_radius: wp.array(dtype=wp.float64), end_mid: wp.array(dtype=wp.vec3d),
               end_half: wp.array(dtype=wp.float64), sweep: wp.array(dtype=wp.float64),
-              end_move: wp.array(dtype=wp.float64)):
+              end_move: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d)):
     """Each edge at the chord's predicted end: its midpoint (mm) and half-length plus
     radius (mm), for pair_in_reach_at_end; and ``sweep`` (mm): the larger half-length
     plus radius at x and x_end, plus how far the midpoint moves between them, for
     swept_apart; ``end_move`` (mm): the larger of its two nodes' moves from x to x_end, for
-    pair_stiffness (a coil's last node: its position, 0, 0, 0)."""
+    pair_stiffness (a coil's last node: its position, 0, 0, 0); ``node_move`` (mm): each node's
+    move x_end − x, for contact.relative_move."""
     e = wp.tid()
+    node_move[e] = x_end[e] - x[e]
     if has_next[e] == 0:
         end_mid[e] = x_end[e]
         end_half[e] = F64_0
@@ -238,7 +285,9 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    mid: wp.array(dtype=wp.vec3d), a: int, b: int, reach_a: wp.float64, p0: wp.float64,
                    c0: wp.float64, u_linear: wp.float64, far: wp.float64, x_end: wp.array(dtype=wp.vec3d),
                    end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64),
-                   end_move: wp.array(dtype=wp.float64), chord: int):
+                   end_move: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d), chord: int,
+                   rest_count: wp.array(dtype=wp.int32), rest_b: wp.array2d(dtype=wp.int32),
+                   rest_value: wp.array2d(dtype=wp.float64)):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
     pair itself (1 if touching, closest-point parameters (s, t), the law's
@@ -247,9 +296,11 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     force does. With ``chord`` the stiffness is the law's chord between the gap at x
     and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
     x that enters it at ``x_end`` is a contact too (with x_end's parameters and normal);
-    ``end_mid``, ``end_half``, ``end_move``: edge_ends. A pair whose gap at x exceeds c0 by
-    more than both edges' moves (and ``REACH_MARGIN_MM``) stays out of range at x_end (the
-    segments' distance moves no more than their nodes): no gap there is computed."""
+    ``end_mid``, ``end_half``, ``end_move``, ``node_move``: edge_ends. A pair whose gap at x exceeds
+    c0 by more than both edges' moves, or by more than their nodes' largest relative move
+    (contact.relative_move; and ``REACH_MARGIN_MM``), stays out of range at x_end (the segments'
+    distance moves no more): no gap there is computed. The rest offset from a's record
+    (``rest_count``, ``rest_b``, ``rest_value``: :func:`noted_rest_offset`)."""
     start = wp.mat33d()
     end = wp.mat33d()
     hit = int(0)
@@ -263,11 +314,13 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
         if chord != 0:
             near_end = pair_in_reach_at_end(end_mid, end_half, a, b, c0, far)
         if near or near_end:
-            offset = pair_rest_offset(rest_x, coil_of, node_radius, a, b, c0)
+            offset = noted_rest_offset(rest_count, rest_b, rest_value, rest_x, coil_of, node_radius, a, b, c0)
             st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset)
             gap_end = gap
             if chord != 0:
                 if gap >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM:
+                    near_end = False
+                elif near_end and gap >= c0 and gap >= c0 + relative_move(node_move, a, b) + REACH_MARGIN_MM:
                     near_end = False
                 gap_end = c0  # out of reach at x_end: its gap is ≥ c0 there (no entry, the tangent)
                 st_end = st
@@ -355,6 +408,10 @@ def edge_contact_stiffness(
     chord_count: wp.array(dtype=wp.int32),
     chord_b: wp.array2d(dtype=wp.int32),
     noted_chord: int,
+    node_move: wp.array(dtype=wp.vec3d),
+    rest_count: wp.array(dtype=wp.int32),
+    rest_b: wp.array2d(dtype=wp.int32),
+    rest_value: wp.array2d(dtype=wp.float64),
 ):
     """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
     partners that contact.edge_contact noted within a hair of touching at the same
@@ -366,7 +423,7 @@ def edge_contact_stiffness(
     the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
     every neighbour-list partner is a candidate (a pair may enter the contact range
     on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
-    ``end_half``, ``sweep``, ``end_move``: edge_ends); with ``noted_chord``, only those
+    ``end_half``, ``sweep``, ``end_move``, ``node_move``: edge_ends); with ``noted_chord``, only those
     contact.edge_contact noted as chord candidates at this step's predicted end
     (``chord_count``, ``chord_b``; every pair with a block is among them), or, when
     more than the record holds, every listed partner."""
@@ -397,7 +454,8 @@ def edge_contact_stiffness(
                 continue
             start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                              reach_a, p0, c0, u_linear, radius, x_end, end_mid,
-                                                             end_half, end_move, chord)
+                                                             end_half, end_move, node_move, chord, rest_count,
+                                                             rest_b, rest_value)
             if hit == 0:  # zero blocks: their fixed-point sums add 0
                 continue
             record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
