@@ -51,16 +51,22 @@ def _run(level=None, scene=None):
 
 def test_detachment_frames_are_the_release_frame_and_the_whip_after_it_with_the_pusher_unchanged():
     """The frames at push step / k are exactly those from the one in which the last node leaves
-    the tip to DETACH_WHIP_S after; each frame keeps its length and the pusher its advance."""
+    the tip (on the default gated_chord's θ < 1, the one in which the release lead opens:
+    DETACH_LEAD_SEGMENTS last edges earlier) to DETACH_WHIP_S after; each frame keeps its length
+    and the pusher its advance."""
     result, deployment, levels, advance = _run()
     plain, _, plain_levels, plain_advance = _run(1)
     frame_s = deployment.members[0].frames[1].time_s - deployment.members[0].frames[0].time_s
-    release_s = float(deployment.coil_lengths_mm[0]) / deployment.scene.simulation.push_speed_mm_s
-    k = detach_level(deployment.scene.simulation.push_speed_mm_s, result.dt_s, deployment.model.contact.c0_mm)
+    speed = deployment.scene.simulation.push_speed_mm_s
+    release_s = float(deployment.coil_lengths_mm[0]) / speed
+    assert deployment.solver.scheme["theta"] < 1.0  # the default gated_chord (its push): the release lead
+    arc = deployment.model.arc_s.numpy()
+    lead_s = DETACH_LEAD_SEGMENTS * (arc[-1] - arc[-2]) / speed
+    k = detach_level(speed, result.dt_s, deployment.model.contact.c0_mm)
     assert k == 4
     fine = [start for start, level in levels if level > 1]
     expected = [start for start, _ in levels
-                if start + frame_s > release_s - 1e-9 and start < release_s + DETACH_WHIP_S]
+                if start + frame_s > release_s - lead_s - 1e-9 and start < release_s + DETACH_WHIP_S]
     assert fine == pytest.approx(expected) and len(fine) >= 10
     assert all(level == k for _, level in levels if level > 1)
     assert all(level == 1 for _, level in plain_levels)
@@ -76,8 +82,8 @@ def test_detachment_frames_are_the_release_frame_and_the_whip_after_it_with_the_
 
 def test_the_whips_deepest_overlap_matches_the_finest_step_and_stays_within_c0():
     """validation_detach: two helices whose tails whip against a sphere's wall: the rule's deepest
-    overlap within 0.5 c0 of the k = 16 run's (and k doubled too), and no deeper than c0. (With the
-    push step throughout the 3 mm helix's is 1.2 c0 deep: docs/FORMULATION.md.)"""
+    overlap within 0.5 c0 of the range the k = 16, 32 and 64 runs span (and k doubled too), and no
+    deeper than c0. (With the push step throughout the 3 mm helix's is 1.2 c0 deep: docs/FORMULATION.md.)"""
     rows = detach_cases()
     assert len(rows) == 6
     for row in rows:

@@ -102,7 +102,7 @@ def test_seed_sphere_with_field_steps_node_by_node():
 
 
 def test_seed_sphere_with_bvh_steps_node_by_node():
-    seen = check_frames(Deployment(small_seed("bvh")))
+    seen = check_frames(Deployment(small_seed("bvh")), every=1)  # every frame: 3 of 58 have no node in contact
     assert_compared(seen)
     assert seen["apart"] > 0
 
