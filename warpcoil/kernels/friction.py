@@ -272,46 +272,105 @@ def friction_change(
 GUARD_PASSES = 16  # Jacobi passes of the normal guard (each restores 1/K of every remaining shortfall)
 
 
+GUARD_PAIRS = 8  # touching partners an edge records for the guard's passes (more: it searches each pass)
+GUARD_SEARCH = wp.constant(-1)  # an edge's record overflowed
+
+
 @wp.func
-def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
-               has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
-               node_radius: wp.array(dtype=wp.float64), inv_mass: wp.array(dtype=wp.float64),
-               contacts: wp.array(dtype=wp.int32), wall_force: wp.array(dtype=wp.vec3d),
-               device_force: wp.array(dtype=wp.vec3d), a: int, b: int, c0: wp.float64):
-    """Normal guard of the coil pair (a, b) seen from a: if the friction changes
-    ``change`` lower the rate at which the segments' closest points separate along
-    their axes' normal n (segment gap < c0), the impulse J n (J ≥ 0, equal and
-    opposite on b) that restores 1/K of the shortfall δ, K the most contacts of the
-    pair's nodes: the velocity changes of a's start and end node (mm/s)."""
-    zero = wp.vec3d(F64_0, F64_0, F64_0)
-    dv_start = zero
-    dv_end = zero
+def guard_touching(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                   fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                   c0: wp.float64) -> wp.vec2d:
+    """The closest-point parameters (s, t) of edges a and b when the guard watches
+    the pair (b can be touched, segment gap < c0, axes apart), else (−1, −1)."""
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
         pb0 = x[b]
         pb1 = x[b + 1]
         st = segment_closest_params(pa0, pa1, pb0, pb1)
-        s = st[0]
-        t = st[1]
-        delta = pa0 + s * (pa1 - pa0) - pb0 - t * (pb1 - pb0)
-        dist = wp.length(delta)
+        dist = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0))
         if dist - node_radius[a] - node_radius[b] < c0 and dist > wp.float64(1.0e-9):
-            n = delta / dist
-            rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
-            if rate < F64_0:
-                w_b = F64_0  # an edge in the catheter does not move
-                k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
-                           node_contacts(contacts, has_next, wall_force, device_force, a + 1))
-                if free[b] != 0 or free[b + 1] != 0:
-                    w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
-                    k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
-                                         node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
-                w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
-                impulse = (-rate / (wp.float64(wp.max(k, 1)) * (w_a + w_b))) * n  # on a's contact point, g·mm/s
-                dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
-                dv_end = (s * inv_mass[a + 1]) * impulse
+            return st
+    return wp.vec2d(-F64_1, -F64_1)
+
+
+@wp.func
+def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
+               has_next: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64),
+               contacts: wp.array(dtype=wp.int32), wall_force: wp.array(dtype=wp.vec3d),
+               device_force: wp.array(dtype=wp.vec3d), a: int, b: int, st: wp.vec2d):
+    """Normal guard of the watched coil pair (a, b) (closest-point parameters ``st``,
+    :func:`guard_touching`) seen from a: if the friction changes ``change`` lower the
+    rate at which the segments' closest points separate along their axes' normal n,
+    the impulse J n (J ≥ 0, equal and opposite on b) that restores 1/K of the
+    shortfall, K the most contacts of the pair's nodes: the velocity changes of a's
+    start and end node (mm/s)."""
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    dv_start = zero
+    dv_end = zero
+    s = st[0]
+    t = st[1]
+    delta = x[a] + s * (x[a + 1] - x[a]) - x[b] - t * (x[b + 1] - x[b])
+    n = delta / wp.length(delta)
+    rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
+    if rate < F64_0:
+        w_b = F64_0  # an edge in the catheter does not move
+        k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
+                   node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+        if free[b] != 0 or free[b + 1] != 0:
+            w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
+            k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
+                                 node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+        w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+        impulse = (-rate / (wp.float64(wp.max(k, 1)) * (w_a + w_b))) * n  # on a's contact point, g·mm/s
+        dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
+        dv_end = (s * inv_mass[a + 1]) * impulse
     return dv_start, dv_end
+
+
+@wp.kernel(enable_backward=False)
+def record_guard_pairs(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    grid_radius: wp.float64,
+    exclusion: int,
+    c0: wp.float64,
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_count: wp.array(dtype=wp.int32),
+):
+    """Edge a's coil pairs the guard watches (:func:`guard_touching`), found as
+    :func:`edge_friction` finds them: up to GUARD_PAIRS, else GUARD_SEARCH (the
+    passes then search again, so the result never depends on the order found)."""
+    a = wp.tid()
+    count = int(0)
+    w = world_of[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+        listed = neighbour_count[a]
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            if st[0] >= F64_0 and count != GUARD_SEARCH:
+                if count < GUARD_PAIRS:
+                    pair_b[a, count] = b
+                    pair_st[a, count] = st
+                    count += 1
+                else:
+                    count = GUARD_SEARCH
+    pair_count[a] = count
 
 
 @wp.kernel(enable_backward=False)
@@ -322,7 +381,6 @@ def edge_normal_guard(
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
     world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     inv_mass: wp.array(dtype=wp.float64),
@@ -336,26 +394,35 @@ def edge_normal_guard(
     grid_radius: wp.float64,
     exclusion: int,
     c0: wp.float64,
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_count: wp.array(dtype=wp.int32),
     dv_start: wp.array(dtype=wp.vec3d),
     dv_end: wp.array(dtype=wp.vec3d),
 ):
-    """One Jacobi pass of the normal guard (:func:`pair_guard`) over edge a's coil
-    contacts, found as :func:`edge_friction` finds them: the corrections of a's
-    nodes (mm/s), fixed-point sums."""
+    """One Jacobi pass of the normal guard (:func:`pair_guard`) over edge a's watched
+    coil pairs (its record, or a search when that overflowed): the corrections of
+    a's nodes (mm/s), fixed-point sums."""
     a = wp.tid()
     sum_start = vec3l()
     sum_end = vec3l()
-    w = world_of[a]
-    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+    count = pair_count[a]
+    if count == GUARD_SEARCH:
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, world_of[a])
         listed = neighbour_count[a]
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            d0, d1 = pair_guard(x, change, free, has_next, fixed, node_radius, inv_mass, contacts, wall_force,
-                                device_force, a, b, c0)
-            sum_start = sum_start + to_fixed(d0)
-            sum_end = sum_end + to_fixed(d1)
+            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            if st[0] >= F64_0:
+                d0, d1 = pair_guard(x, change, free, has_next, inv_mass, contacts, wall_force, device_force, a, b, st)
+                sum_start = sum_start + to_fixed(d0)
+                sum_end = sum_end + to_fixed(d1)
+    for j in range(count):
+        d0, d1 = pair_guard(x, change, free, has_next, inv_mass, contacts, wall_force, device_force, a, pair_b[a, j],
+                            pair_st[a, j])
+        sum_start = sum_start + to_fixed(d0)
+        sum_end = sum_end + to_fixed(d1)
     dv_start[a] = from_fixed(sum_start)
     dv_end[a] = from_fixed(sum_end)
 
