@@ -345,6 +345,12 @@ class Solver:
         self.friction = self.coil_friction or (
             (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
         self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
+        self._guard_start, self._guard_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
+        self._friction_change = zeros(wp.vec3d)  # per node, mm/s
+        guarded = (n, friction.GUARD_PAIRS) if self.friction and coil_contact else (1, 1)  # the guard's pair record
+        self._guard_b = wp.zeros(guarded, dtype=wp.int32, device=dev)
+        self._guard_st = wp.zeros(guarded, dtype=wp.vec2d, device=dev)
+        self._guard_count = zeros(wp.int32)
         # per world: Σ, max, Σ² of the step push force, and the steps counted
         self.push_accumulator = wp.zeros((model.world_count, 4), dtype=wp.float64, device=dev)
         # per world: the previous step's push force (µN) and whether there is one (θ-method reading, θ < 1)
@@ -616,10 +622,28 @@ class Solver:
                 self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
                 c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])
+        wp.launch(friction.friction_change, n, device=dev, inputs=[
+            state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts, self.wall_force,
+            self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start, self._friction_end,
+            int(self.coil_friction), dt, state_out.v, self._friction_change])
+        # no contact's normal separation rate lowered by friction (kernels/friction.py)
+        if self.coil_contact:
+            wp.launch(friction.record_guard_pairs, n, device=dev, inputs=[
+                state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,
+                self.coil_contacts, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                self._grid_radius, c.exclusion_edges, c.c0_mm, self._guard_b, self._guard_st, self._guard_count])
+        for _ in range(friction.GUARD_PASSES if self.coil_contact else 1):
+            if self.coil_contact:
+                wp.launch(friction.edge_normal_guard, n, device=dev, inputs=[
+                    state_in.x, self._friction_change, state_in.free, m.has_next, m.coil_of, m.world_of, m.fixed,
+                    m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
+                    self._neighbours, self._neighbour_count, self._midpoints, self._grid_radius, c.exclusion_edges,
+                    c.c0_mm, self._guard_b, self._guard_st, self._guard_count, self._guard_start, self._guard_end])
+            wp.launch(friction.add_guard, n, device=dev, inputs=[
+                state_out.free, m.has_next, m.world_of, running, self.wall_force, self.device_force, self._guard_start,
+                self._guard_end, int(self.coil_contact), self._friction_change])
         wp.launch(friction.apply_friction, n, device=dev, inputs=[
-            state_in.x, state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts,
-            self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start,
-            self._friction_end, int(self.coil_friction), dt, state_out.v, state_out.x])
+            state_in.x, state_out.free, m.world_of, running, self._friction_change, dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""

@@ -7,8 +7,9 @@ impulse along its tangential relative velocity w* at the contact points. With W
 the contact's inverse effective mass (Σ of the squared barycentric weights over
 the node masses; 0 for the wall, a device and the catheter) and N its normal
 load (its actual normal force: the wall's or device's contact force; for a coil
-edge pair the net force of the pair's node–capsule terms, contact.pair_contact,
-so rest-touching turns carry none), the regularised implicit law of one contact is
+edge pair the component, along the segment axes' closest-point normal, of the net
+force of the pair's node–capsule terms, contact.pair_contact, so rest-touching
+turns carry none), the regularised implicit law of one contact is
 
     w' = w* / (1 + dt c W),   c = μ N / max(|w*| − dt μ N W, v_reg)
 
@@ -27,6 +28,18 @@ kinetic energy never rises — whatever the contact network — and, being impli
 friction sets no step limit. A node with at most two contacts (every validation
 case) gets each contact's exact law.
 
+Normal guard: a contact's impulse is tangential to its own normal, but its
+neighbours' impulses on shared nodes (other coil pairs, the wall) are not, and
+summed they can slow or reverse a pair's separation (so crossing coils sank
+through each other, held by friction). After the friction changes, GUARD_PASSES
+Jacobi passes give each touching coil pair (segment gap < c0) whose closest points
+now separate more slowly along its axes' normal an equal and opposite normal
+impulse restoring 1/K of that shortfall, and take out any component of a node's
+change into the wall or a device touching it: friction never drives a contact
+into its obstacle (up to (1 − 1/K)^passes of a coil pair's shortfall). The
+energy bound above does not cover these impulses (measured: no step raised the
+kinetic energy; docs/FORMULATION.md).
+
 Sums over partners are fixed-point (int64), as for the contact forces, so the
 result does not depend on the order partners are found (CPU = CUDA, an ensemble
 member = its single run).
@@ -42,6 +55,18 @@ from .rod import F64_0, F64_1
 @wp.func
 def tangential(v: wp.vec3d, n: wp.vec3d) -> wp.vec3d:
     return v - wp.dot(v, n) * n
+
+
+@wp.func
+def contact_normal(pa0: wp.vec3d, pa1: wp.vec3d, pb0: wp.vec3d, pb1: wp.vec3d, s: wp.float64, t: wp.float64,
+                   fallback: wp.vec3d) -> wp.vec3d:
+    """Unit normal from edge b to edge a: the direction between the segment axes'
+    closest points (parameters s, t), or ``fallback`` where the axes meet (< 1e-9 mm)."""
+    delta = pa0 + s * (pa1 - pa0) - pb0 - t * (pb1 - pb0)
+    dist = wp.length(delta)
+    if dist > wp.float64(1.0e-9):
+        return delta / dist
+    return fallback
 
 
 @wp.func
@@ -89,12 +114,14 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                  exclusion: int, far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                  mu_coil: wp.float64, mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
     """Friction of edge b on edge a: the velocity changes of a's start and end node
-    (mm/s). The load N and normal are those of the normal force itself: the net
-    force that the node–capsule terms of contact.pair_contact joining a and b put
-    on a's nodes (½-weighted, with the joint corrections and a same-coil pair's
-    rest offset, so turns that touch in the rest shape carry no load and get no
-    friction); equal and opposite from b's side. The slip is that of the
-    segments' closest points."""
+    (mm/s). The normal n is the segment axes' closest-point direction (the force's
+    where the axes meet); the load N is the normal component of the net force that
+    the node–capsule terms of contact.pair_contact joining a and b put on a's nodes
+    (½-weighted, with the joint corrections and a same-coil pair's rest offset, so
+    turns that touch in the rest shape carry no load and get no friction); equal
+    and opposite from b's side. The slip is that of the segments' closest points,
+    less its part along n. (The force's own direction, up to ~40° off n in a deep
+    overlap, let friction brake the pair's separation.)"""
     zero = wp.vec3d(F64_0, F64_0, F64_0)
     dv_start = zero
     dv_end = zero
@@ -123,8 +150,9 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                 w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
                 k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
                                      node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
-            if mu > F64_0:
-                n = force / load
+            n = contact_normal(pa0, pa1, pb0, pb1, s, t, force / load)
+            load = wp.dot(force, n)  # its normal component: Coulomb's cone about the true normal
+            if mu > F64_0 and load > F64_0:
                 w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
                 slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
                 inv_m = w_a + w_b
@@ -204,8 +232,7 @@ def obstacle_change(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64,
 
 
 @wp.kernel
-def apply_friction(
-    x_in: wp.array(dtype=wp.vec3d),
+def friction_change(
     free_out: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     world_of: wp.array(dtype=wp.int32),
@@ -221,25 +248,234 @@ def apply_friction(
     with_coil_terms: int,
     dt: wp.float64,
     v_out: wp.array(dtype=wp.vec3d),
-    x_out: wp.array(dtype=wp.vec3d),
+    change: wp.array(dtype=wp.vec3d),
 ):
-    """v' = v* + the friction changes of node i (wall, device: with the wall's
-    coefficient; coil pairs: its shares of edges i and i − 1), then x' = x + dt v'."""
+    """Friction velocity change of node i (mm/s; 0 unless free and running): wall and
+    device with the wall's coefficient, coil pairs its shares of edges i and i − 1."""
+    i = wp.tid()
+    dv = wp.vec3d(F64_0, F64_0, F64_0)
+    if running[world_of[i]] != 0 and free_out[i] != 0:
+        v = v_out[i]
+        if mu_wall > F64_0:
+            alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
+            dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
+                obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
+        if with_coil_terms != 0:
+            if has_next[i] != 0:
+                dv = dv + dv_start[i]
+            if i >= 1:
+                if has_next[i - 1] != 0:
+                    dv = dv + dv_end[i - 1]
+    change[i] = dv
+
+
+GUARD_PASSES = 16  # Jacobi passes of the normal guard (each restores 1/K of every remaining shortfall)
+
+
+GUARD_PAIRS = 8  # touching partners an edge records for the guard's passes (more: it searches each pass)
+GUARD_SEARCH = wp.constant(-1)  # an edge's record overflowed
+
+
+@wp.func
+def guard_touching(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                   fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
+                   c0: wp.float64) -> wp.vec2d:
+    """The closest-point parameters (s, t) of edges a and b when the guard watches
+    the pair (b can be touched, segment gap < c0, axes apart), else (−1, −1)."""
+    if edge_is_obstacle(free, has_next, fixed, b):
+        pa0 = x[a]
+        pa1 = x[a + 1]
+        pb0 = x[b]
+        pb1 = x[b + 1]
+        st = segment_closest_params(pa0, pa1, pb0, pb1)
+        dist = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0))
+        if dist - node_radius[a] - node_radius[b] < c0 and dist > wp.float64(1.0e-9):
+            return st
+    return wp.vec2d(-F64_1, -F64_1)
+
+
+@wp.func
+def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
+               has_next: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64),
+               contacts: wp.array(dtype=wp.int32), wall_force: wp.array(dtype=wp.vec3d),
+               device_force: wp.array(dtype=wp.vec3d), a: int, b: int, st: wp.vec2d):
+    """Normal guard of the watched coil pair (a, b) (closest-point parameters ``st``,
+    :func:`guard_touching`) seen from a: if the friction changes ``change`` lower the
+    rate at which the segments' closest points separate along their axes' normal n,
+    the impulse J n (J ≥ 0, equal and opposite on b) that restores 1/K of the
+    shortfall, K the most contacts of the pair's nodes: the velocity changes of a's
+    start and end node (mm/s)."""
+    zero = wp.vec3d(F64_0, F64_0, F64_0)
+    dv_start = zero
+    dv_end = zero
+    s = st[0]
+    t = st[1]
+    delta = x[a] + s * (x[a + 1] - x[a]) - x[b] - t * (x[b + 1] - x[b])
+    n = delta / wp.length(delta)
+    rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
+    if rate < F64_0:
+        w_b = F64_0  # an edge in the catheter does not move
+        k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
+                   node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+        if free[b] != 0 or free[b + 1] != 0:
+            w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
+            k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
+                                 node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+        w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+        impulse = (-rate / (wp.float64(wp.max(k, 1)) * (w_a + w_b))) * n  # on a's contact point, g·mm/s
+        dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
+        dv_end = (s * inv_mass[a + 1]) * impulse
+    return dv_start, dv_end
+
+
+@wp.kernel(enable_backward=False)
+def record_guard_pairs(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    grid_radius: wp.float64,
+    exclusion: int,
+    c0: wp.float64,
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_count: wp.array(dtype=wp.int32),
+):
+    """Edge a's coil pairs the guard watches (:func:`guard_touching`), found as
+    :func:`edge_friction` finds them: up to GUARD_PAIRS, else GUARD_SEARCH (the
+    passes then search again, so the result never depends on the order found)."""
+    a = wp.tid()
+    count = int(0)
+    w = world_of[a]
+    if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
+        listed = neighbour_count[a]
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            if st[0] >= F64_0 and count != GUARD_SEARCH:
+                if count < GUARD_PAIRS:
+                    pair_b[a, count] = b
+                    pair_st[a, count] = st
+                    count += 1
+                else:
+                    count = GUARD_SEARCH
+    pair_count[a] = count
+
+
+@wp.kernel(enable_backward=False)
+def edge_normal_guard(
+    x: wp.array(dtype=wp.vec3d),
+    change: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    coil_of: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
+    contacts: wp.array(dtype=wp.int32),
+    wall_force: wp.array(dtype=wp.vec3d),
+    device_force: wp.array(dtype=wp.vec3d),
+    grid: wp.uint64,
+    neighbours: wp.array2d(dtype=wp.int32),
+    neighbour_count: wp.array(dtype=wp.int32),
+    mid: wp.array(dtype=wp.vec3d),
+    grid_radius: wp.float64,
+    exclusion: int,
+    c0: wp.float64,
+    pair_b: wp.array2d(dtype=wp.int32),
+    pair_st: wp.array2d(dtype=wp.vec2d),
+    pair_count: wp.array(dtype=wp.int32),
+    dv_start: wp.array(dtype=wp.vec3d),
+    dv_end: wp.array(dtype=wp.vec3d),
+):
+    """One Jacobi pass of the normal guard (:func:`pair_guard`) over edge a's watched
+    coil pairs (its record, or a search when that overflowed): the corrections of
+    a's nodes (mm/s), fixed-point sums."""
+    a = wp.tid()
+    sum_start = vec3l()
+    sum_end = vec3l()
+    count = pair_count[a]
+    if count == GUARD_SEARCH:
+        query = wp.hash_grid_query(grid, mid[a], grid_radius, world_of[a])
+        listed = neighbour_count[a]
+        k = int(0)
+        b = int(0)
+        while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
+            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            if st[0] >= F64_0:
+                d0, d1 = pair_guard(x, change, free, has_next, inv_mass, contacts, wall_force, device_force, a, b, st)
+                sum_start = sum_start + to_fixed(d0)
+                sum_end = sum_end + to_fixed(d1)
+    for j in range(count):
+        d0, d1 = pair_guard(x, change, free, has_next, inv_mass, contacts, wall_force, device_force, a, pair_b[a, j],
+                            pair_st[a, j])
+        sum_start = sum_start + to_fixed(d0)
+        sum_end = sum_end + to_fixed(d1)
+    dv_start[a] = from_fixed(sum_start)
+    dv_end[a] = from_fixed(sum_end)
+
+
+@wp.func
+def obstacle_guard(dv: wp.vec3d, f: wp.vec3d) -> wp.vec3d:
+    """``dv`` less its component into a fixed obstacle pushing with force f."""
+    load = wp.length(f)
+    if load > F64_0:
+        n = f / load
+        rate = wp.dot(dv, n)
+        if rate < F64_0:
+            return dv - rate * n
+    return dv
+
+
+@wp.kernel
+def add_guard(free_out: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+              world_of: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32),
+              wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d),
+              dv_start: wp.array(dtype=wp.vec3d), dv_end: wp.array(dtype=wp.vec3d), with_coil_terms: int,
+              change: wp.array(dtype=wp.vec3d)):
+    """Adds node i's normal-guard corrections (edges i and i − 1; ``with_coil_terms``)
+    to its friction change, then takes out any component of it into the wall or a
+    device that touches the node (so friction never drives a node into them)."""
     i = wp.tid()
     if running[world_of[i]] == 0 or free_out[i] == 0:
         return
-    v = v_out[i]
-    change = wp.vec3d(F64_0, F64_0, F64_0)
-    if mu_wall > F64_0:
-        alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
-        change = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
-            obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
+    dv = change[i]
     if with_coil_terms != 0:
         if has_next[i] != 0:
-            change = change + dv_start[i]
+            dv = dv + dv_start[i]
         if i >= 1:
             if has_next[i - 1] != 0:
-                change = change + dv_end[i - 1]
-    v_new = v + change
+                dv = dv + dv_end[i - 1]
+    change[i] = obstacle_guard(obstacle_guard(dv, wall_force[i]), device_force[i])
+
+
+@wp.kernel
+def apply_friction(
+    x_in: wp.array(dtype=wp.vec3d),
+    free_out: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    change: wp.array(dtype=wp.vec3d),
+    dt: wp.float64,
+    v_out: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+):
+    """v' = v* + node i's friction change, then x' = x + dt v'."""
+    i = wp.tid()
+    if running[world_of[i]] == 0 or free_out[i] == 0:
+        return
+    v_new = v_out[i] + change[i]
     v_out[i] = v_new
     x_out[i] = x_in[i] + dt * v_new
