@@ -97,6 +97,25 @@ def node_contacts(contacts: wp.array(dtype=wp.int32), has_next: wp.array(dtype=w
 
 
 @wp.func
+def pair_weights(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                 inv_mass: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
+                 wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
+                 s: wp.float64, t: wp.float64):
+    """Edge pair (a, b) at closest-point parameters (s, t): a's and b's inverse effective
+    masses there (1/g; b's 0 while both its nodes are in the catheter, which does not move)
+    and the most contacts K of the pair's moving nodes."""
+    w_b = F64_0
+    k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
+               node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+    if free[b] != 0 or free[b + 1] != 0:
+        w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
+        k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
+                             node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+    w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+    return w_a, w_b, k
+
+
+@wp.func
 def share(k: int) -> wp.float64:
     """α = min(1, 2/K)."""
     if k <= 2:
@@ -140,20 +159,14 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
             s = st[0]
             t = st[1]
             mu = mu_catheter
-            w_b = F64_0  # the catheter does not move
-            vb = zero
-            k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
-                       node_contacts(contacts, has_next, wall_force, device_force, a + 1))
+            vb = zero  # the catheter does not move
+            w_a, w_b, k = pair_weights(free, has_next, inv_mass, contacts, wall_force, device_force, a, b, s, t)
             if free[b] != 0 or free[b + 1] != 0:
                 mu = mu_coil
                 vb = (F64_1 - t) * v[b] + t * v[b + 1]
-                w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
-                k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
-                                     node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
             n = contact_normal(pa0, pa1, pb0, pb1, s, t, force / load)
             load = wp.dot(force, n)  # its normal component: Coulomb's cone about the true normal
             if mu > F64_0 and load > F64_0:
-                w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
                 slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
                 inv_m = w_a + w_b
                 phi = share(k) * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
@@ -314,14 +327,7 @@ def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), fr
     n = delta / wp.length(delta)
     rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
     if rate < F64_0:
-        w_b = F64_0  # an edge in the catheter does not move
-        k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
-                   node_contacts(contacts, has_next, wall_force, device_force, a + 1))
-        if free[b] != 0 or free[b + 1] != 0:
-            w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
-            k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
-                                 node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
-        w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
+        w_a, w_b, k = pair_weights(free, has_next, inv_mass, contacts, wall_force, device_force, a, b, s, t)
         impulse = (-rate / (wp.float64(wp.max(k, 1)) * (w_a + w_b))) * n  # on a's contact point, g·mm/s
         dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
         dv_end = (s * inv_mass[a + 1]) * impulse
