@@ -61,7 +61,7 @@ def test_detachment_frames_are_the_release_frame_and_the_whip_after_it_with_the_
     release_s = float(deployment.coil_lengths_mm[0]) / speed
     assert deployment.solver.scheme["theta"] < 1.0  # the default gated_chord (its push): the release lead
     arc = deployment.model.arc_s.numpy()
-    lead_s = DETACH_LEAD_SEGMENTS * (arc[-1] - arc[-2]) / speed
+    lead_s = (arc[-1] - arc[-1 - DETACH_LEAD_SEGMENTS]) / speed
     k = detach_level(speed, result.dt_s, deployment.model.contact.c0_mm)
     assert k == 4
     fine = [start for start, level in levels if level > 1]
@@ -114,7 +114,7 @@ def test_a_gated_chord_push_steps_finely_through_its_last_nodes_releases_and_the
         frame_s = deployment.members[0].frames[1].time_s - deployment.members[0].frames[0].time_s
         speed = deployment.scene.simulation.push_speed_mm_s
         arc = deployment.model.arc_s.numpy()
-        lead_mm = DETACH_LEAD_SEGMENTS * (arc[-1] - arc[-2]) if scheme == "gated_chord" else 0.0
+        lead_mm = (arc[-1] - arc[-1 - DETACH_LEAD_SEGMENTS]) if scheme == "gated_chord" else 0.0
         opens_s = (float(deployment.coil_lengths_mm[0]) - lead_mm) / speed  # the lead's first release
         firsts[scheme] = first = min(start for start, level in levels if level > 1)
         assert first <= opens_s + 1e-9 < first + frame_s  # the frame in which it falls

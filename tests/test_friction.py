@@ -198,3 +198,36 @@ def test_coil_friction_never_lowers_a_contacts_normal_separation_rate(angle_deg)
     slide_before = velocities[nodes:, 1].mean() - velocities[:nodes, 1].mean()
     slide_after = after[nodes:, 1].mean() - after[:nodes, 1].mean()
     assert slide_after < 0.97 * slide_before  # friction brakes the slide (by 7 % here)
+
+
+def test_the_normal_guard_conserves_momentum_beside_turns_touching_at_rest():
+    """A tight-pitch helix (turns within c0 in the rest shape: no load between them) with a
+    straight coil pressed onto one turn and sliding across it, in free space: friction and its
+    normal guard are internal impulses, equal and opposite on each watched pair, so the total
+    momentum does not change. (A guard that watched a rest-touching turn pair from the loaded
+    turn's side only pushed that turn alone: a net impulse.)"""
+    from warpcoil.validation import TIGHT_HELIX
+    d, c0 = 0.2921, 0.02921
+    builder = wc.ModelBuilder(contact=wc.ContactSettings(friction_coil=0.5))
+    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, shape="helix", **TIGHT_HELIX))
+    helix = builder.finalize().rest_x.numpy()
+    nodes = 9
+    s = (np.arange(nodes) - nodes // 2) * d
+    top = helix[np.argmax(helix[:, 0])]  # the outermost point along x of a middle turn: B crosses it along z
+    b = np.stack([np.full(nodes, top[0] + d - c0), np.zeros(nodes) + top[1], s + top[2] + 0.5 * d], axis=1)
+    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d, segment_length_mm=d), b)
+    model = builder.finalize()
+    state = wc.state_from_positions(model, np.concatenate([helix, b]))
+    rng = np.random.default_rng(3)
+    velocities = rng.normal(scale=20.0, size=(model.node_count, 3))
+    velocities[len(helix):] += [0.0, 200.0, 0.0]  # B slides over the turn
+    solver, _, _ = _coil_friction_changes(model, state, velocities)
+    assert solver.coil_contacts.numpy().max() > 0
+    out = wc.state_from_positions(model, state.x.numpy())
+    out.v.assign(velocities)
+    solver._apply_friction(state, out, wc.Control.create(model).running, solver.dt_s)
+    mass = 1.0 / model.inv_mass.numpy()
+    change = (mass[:, None] * (out.v.numpy() - velocities)).sum(axis=0)  # g·mm/s
+    moved = (mass[:, None] * np.abs(out.v.numpy() - velocities)).sum()
+    assert moved > 0.0  # friction acted
+    assert np.linalg.norm(change) <= 1e-7 * moved  # (fixed-point sums: ~2e-9)

@@ -70,9 +70,10 @@ class Member:
         self.coils = model.world_coils(world)
         self.coil_nodes = [model.node_slice(c) for c in self.coils]
         self.coil_lengths_mm = np.array([host["arc_s"][model.coil_last[c]] for c in self.coils])
-        # each coil's last edge (mm): the detachment frames of a θ < 1 push open DETACH_LEAD_SEGMENTS of it earlier
-        self.last_edge_mm = np.array([host["arc_s"][model.coil_last[c]] - host["arc_s"][model.coil_last[c] - 1]
-                                      for c in self.coils])
+        # each coil's last DETACH_LEAD_SEGMENTS edges (mm): a θ < 1 push opens its detachment frames that much earlier
+        self.lead_mm = np.array([host["arc_s"][model.coil_last[c]]
+                                 - host["arc_s"][max(model.coil_last[c] - DETACH_LEAD_SEGMENTS, model.coil_first[c])]
+                                 for c in self.coils])
         self.wire_areas_mm2 = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in scene.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
@@ -287,7 +288,7 @@ class Ensemble:
         if member.active >= 0:
             speed = member.scene.simulation.push_speed_mm_s
             left_mm = member.coil_lengths_mm[member.active] - advance[member.coils.start + member.active]
-            lead_mm = (DETACH_LEAD_SEGMENTS * member.last_edge_mm[member.active]
+            lead_mm = (member.lead_mm[member.active]
                        if getattr(self.solver, "theta", 1.0) < 1.0 else 0.0)  # θ < 1: the last nodes' releases too
             if left_mm <= speed * frame_s * (1.0 + 1e-9) + lead_mm:
                 member.detach_until_s = start_s + left_mm / speed + DETACH_WHIP_S

@@ -255,8 +255,9 @@ def implicit_options(method: str, theta=_UNSET, near_theta=_UNSET, contact_stiff
 
 class ImplicitSolver(Solver):
     """A :class:`Solver` whose step is the linearly implicit θ-method (by default gated_chord:
-    θ 0.65, proximity and turn gates, chord contact stiffness; θ 1 ungated with the tangent
-    stiffness: linearly implicit Euler) or BDF2 (module docstring).
+    θ 0.65, proximity and turn gates, chord contact stiffness; linearly implicit Euler is
+    ``**EULER`` — θ 1, ``near_theta`` None, tangent — or the scheme name "euler": ``theta=1``
+    alone keeps the gates, a no-op at θ 1, and the chord) or BDF2 (module docstring).
 
     ``dt_s`` has no stability limit; the contact law's linear onset is the one the
     reference takes at ``dt_safety`` × its explicit bound."""

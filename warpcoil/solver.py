@@ -629,13 +629,13 @@ class Solver:
         # no contact's normal separation rate lowered by friction (kernels/friction.py)
         if self.coil_contact:
             wp.launch(friction.record_guard_pairs, n, device=dev, inputs=[
-                state_in.x, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,
+                state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,
                 self.coil_contacts, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 self._grid_radius, c.exclusion_edges, c.c0_mm, self._guard_b, self._guard_st, self._guard_count])
         for _ in range(friction.GUARD_PASSES if self.coil_contact else 1):
             if self.coil_contact:
                 wp.launch(friction.edge_normal_guard, n, device=dev, inputs=[
-                    state_in.x, self._friction_change, state_in.free, m.has_next, m.coil_of, m.world_of, m.fixed,
+                    state_in.x, m.rest_x, self._friction_change, state_in.free, m.has_next, m.coil_of, m.world_of, m.fixed,
                     m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
                     self._neighbours, self._neighbour_count, self._midpoints, self._grid_radius, c.exclusion_edges,
                     c.c0_mm, self._guard_b, self._guard_st, self._guard_count, self._guard_start, self._guard_end])

@@ -47,8 +47,8 @@ member = its single run).
 
 import warp as wp
 
-from .contact import (edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact,
-                      segment_closest_params, to_fixed, vec3l)
+from .contact import (edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact, rest_apart,
+                      rest_clearance_gap, segment_closest_params, to_fixed, vec3l)
 from .rod import F64_0, F64_1
 
 
@@ -290,11 +290,14 @@ GUARD_SEARCH = wp.constant(-1)  # an edge's record overflowed
 
 
 @wp.func
-def guard_touching(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+def guard_touching(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
+                   free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                    fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64), a: int, b: int,
                    c0: wp.float64) -> wp.vec2d:
     """The closest-point parameters (s, t) of edges a and b when the guard watches
-    the pair (b can be touched, segment gap < c0, axes apart), else (−1, −1)."""
+    the pair (b can be touched, the law's segment gap < c0 — a same-coil pair near in the
+    rest shape counted from its rest clearance, as contact.pair_forces counts it, so a
+    watched pair is a contact of both edges and both watch it — axes apart), else (−1, −1)."""
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
@@ -302,7 +305,10 @@ def guard_touching(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32), 
         pb1 = x[b + 1]
         st = segment_closest_params(pa0, pa1, pb0, pb1)
         dist = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0))
-        if dist - node_radius[a] - node_radius[b] < c0 and dist > wp.float64(1.0e-9):
+        gap = dist - node_radius[a] - node_radius[b]
+        if coil_of[a] == coil_of[b] and not rest_apart(rest_x, node_radius, a, b, c0):
+            gap = rest_clearance_gap(rest_x, node_radius, a, b, gap, c0)
+        if gap < c0 and dist > wp.float64(1.0e-9):
             return st
     return wp.vec2d(-F64_1, -F64_1)
 
@@ -337,6 +343,7 @@ def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), fr
 @wp.kernel(enable_backward=False)
 def record_guard_pairs(
     x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     coil_of: wp.array(dtype=wp.int32),
@@ -368,7 +375,7 @@ def record_guard_pairs(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            st = guard_touching(x, rest_x, coil_of, free, has_next, fixed, node_radius, a, b, c0)
             if st[0] >= F64_0 and count != GUARD_SEARCH:
                 if count < GUARD_PAIRS:
                     pair_b[a, count] = b
@@ -382,6 +389,7 @@ def record_guard_pairs(
 @wp.kernel(enable_backward=False)
 def edge_normal_guard(
     x: wp.array(dtype=wp.vec3d),
+    rest_x: wp.array(dtype=wp.vec3d),
     change: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
@@ -419,7 +427,7 @@ def edge_normal_guard(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            st = guard_touching(x, free, has_next, fixed, node_radius, a, b, c0)
+            st = guard_touching(x, rest_x, coil_of, free, has_next, fixed, node_radius, a, b, c0)
             if st[0] >= F64_0:
                 d0, d1 = pair_guard(x, change, free, has_next, inv_mass, contacts, wall_force, device_force, a, b, st)
                 sum_start = sum_start + to_fixed(d0)
