@@ -15,7 +15,9 @@ Per step n → n+1 of one world (energies nJ, forces µN, positions mm):
 For linearly implicit Euler on a linear system M Δv = dt (−K x' − C v') the balance is
 exactly numerical = ½ Δvᵀ M Δv + ½ Δxᵀ K Δx ≥ 0 (validation_dissipation.chain_rows):
 per unit time ≈ ½ dt ω² × (a mode's energy), first order in dt once dt ω ≪ 1, and all
-of a mode's energy when dt ω ≳ 1. The trapezoid terms are second order. Not booked: the
+of a mode's energy when dt ω ≳ 1. Under the θ-method (the default gated_chord, θ 0.65) the
+damping acts at (1 − θ) v + θ v', not at v': the difference between the two damping works is
+booked as numerical (first order in dt like the rest). The trapezoid terms are second order. Not booked: the
 fold force (a coil's contact with its own near neighbours, elastic.fold_force): its work
 on the free nodes counts as numerical dissipation.
 """
