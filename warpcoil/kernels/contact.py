@@ -1339,6 +1339,19 @@ def finish_edge_contact(sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtyp
     force_end[e] = f_end
 
 
+@wp.func
+def add_edge_shares(f: wp.vec3d, start: wp.array(dtype=wp.vec3d), end: wp.array(dtype=wp.vec3d),
+                    has_next: wp.array(dtype=wp.int32), i: int) -> wp.vec3d:
+    """``f`` plus node i's shares of per-edge sums: edge i's ``start`` and edge i − 1's ``end``
+    (in that order, each where the edge exists)."""
+    if has_next[i] != 0:
+        f = f + start[i]
+    if i >= 1:
+        if has_next[i - 1] != 0:
+            f = f + end[i - 1]
+    return f
+
+
 @wp.kernel
 def gather_contact(
     free: wp.array(dtype=wp.int32),
@@ -1352,9 +1365,5 @@ def gather_contact(
     i = wp.tid()
     f = wall_force[i]
     if free[i] != 0:
-        if has_next[i] != 0:
-            f = f + force_start[i]
-        if i >= 1:
-            if has_next[i - 1] != 0:
-                f = f + force_end[i - 1]
+        f = add_edge_shares(f, force_start, force_end, has_next, i)
     force[i] = f

@@ -13,8 +13,8 @@ segment where it is smallest, and the force is the contact law of that gap along
 
 import warp as wp
 
-from .contact import (FAR_MM, contact_force_magnitude, contact_stiffness, edge_in_contact_pass, from_fixed,
-                      segment_closest_params, to_fixed, vec3l, wall_query)
+from .contact import (FAR_MM, add_edge_shares, contact_force_magnitude, contact_stiffness, edge_in_contact_pass,
+                      from_fixed, segment_closest_params, to_fixed, vec3l, wall_query)
 from .chord import chord_stiffness
 from .implicit import from_fixed_sym, to_fixed_sym
 from .rod import F64_0, F64_1
@@ -154,11 +154,7 @@ def gather_edge_forces(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=
     i = wp.tid()
     f = wp.vec3d(F64_0, F64_0, F64_0)
     if free[i] != 0:
-        if has_next[i] != 0:
-            f = f + force_start[i]
-        if i >= 1:
-            if has_next[i - 1] != 0:
-                f = f + force_end[i - 1]
+        f = add_edge_shares(f, force_start, force_end, has_next, i)
     force[i] = f
 
 

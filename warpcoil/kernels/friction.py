@@ -47,8 +47,8 @@ member = its single run).
 
 import warp as wp
 
-from .contact import (edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact, rest_apart,
-                      rest_clearance_gap, segment_closest_params, to_fixed, vec3l)
+from .contact import (add_edge_shares, edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact,
+                      rest_apart, rest_clearance_gap, segment_closest_params, to_fixed, vec3l)
 from .rod import F64_0, F64_1
 
 
@@ -274,17 +274,11 @@ def friction_change(
             dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
                 obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
         if with_coil_terms != 0:
-            if has_next[i] != 0:
-                dv = dv + dv_start[i]
-            if i >= 1:
-                if has_next[i - 1] != 0:
-                    dv = dv + dv_end[i - 1]
+            dv = add_edge_shares(dv, dv_start, dv_end, has_next, i)
     change[i] = dv
 
 
 GUARD_PASSES = 16  # Jacobi passes of the normal guard (each restores 1/K of every remaining shortfall)
-
-
 GUARD_PAIRS = 8  # touching partners an edge records for the guard's passes (more: it searches each pass)
 GUARD_SEARCH = wp.constant(-1)  # an edge's record overflowed
 
@@ -329,8 +323,7 @@ def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), fr
     dv_end = zero
     s = st[0]
     t = st[1]
-    delta = x[a] + s * (x[a + 1] - x[a]) - x[b] - t * (x[b + 1] - x[b])
-    n = delta / wp.length(delta)
+    n = contact_normal(x[a], x[a + 1], x[b], x[b + 1], s, t, zero)  # the axes are apart (guard_touching)
     rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
     if rate < F64_0:
         w_a, w_b, k = pair_weights(free, has_next, inv_mass, contacts, wall_force, device_force, a, b, s, t)
@@ -467,11 +460,7 @@ def add_guard(free_out: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.in
         return
     dv = change[i]
     if with_coil_terms != 0:
-        if has_next[i] != 0:
-            dv = dv + dv_start[i]
-        if i >= 1:
-            if has_next[i - 1] != 0:
-                dv = dv + dv_end[i - 1]
+        dv = add_edge_shares(dv, dv_start, dv_end, has_next, i)
     change[i] = obstacle_guard(obstacle_guard(dv, wall_force[i]), device_force[i])
 
 
