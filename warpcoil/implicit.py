@@ -16,7 +16,10 @@ at the θ-method's evaluation point: Solver._accumulate_push_force); only the up
     (M + θ dt B + θ² dt² H) v' = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
     x' = x + dt ((1 − θ) v + θ v')
 
-(the forces linearised at x + θ Δx) is solved by a few preconditioned conjugate-gradient
+(the forces linearised at x + θ Δx; v on the right at the solve's start: held nodes at their
+new, prescribed velocities, so a catheter node's coupling is its step's own motion, and one
+product A v gives both the right side and the start's residual: kernels.theta_start)
+is solved by a few preconditioned conjugate-gradient
 iterations (B: the damping law's secant coefficient at the old speed; H: stretching,
 Gauss–Newton bending, contact along its normals, coil–coil pairs exactly;
 preconditioner: each coil's banded block factorisation); then, at the new
@@ -394,10 +397,13 @@ class ImplicitSolver(Solver):
             self._gate(state_in, dt)
         self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt, ends=not noted,
                        noted=noted)
-        if theta != 1.0:  # the θ-method's right side: A v at the old velocities
-            wp.launch(kernels.system_product, n, device=dev, inputs=[state_in.v, self._rhs, 0] + self._product_args(
+        started = theta != 1.0 and not bdf2
+        if started:  # the θ-method's right side and the solve's start residual from one product A v (theta_start)
+            self._start_velocity(state_in, state_out, control)
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
-            wp.launch(kernels.theta_rhs, n, device=dev, inputs=[self._rhs, self._q, theta])
+            wp.launch(kernels.theta_start, n, device=dev, inputs=[
+                self._rhs, self._q, theta, state_out.free, m.fixed, m.world_of, control.running, self._r])
         if gated:  # rows at θ_i ≠ θ: mass M θ/θ_i (kernels/node_theta.py)
             wp.launch(node_theta.shift_rows, n, device=dev, inputs=[
                 state_in.v, state_out.free, m.fixed, m.world_of, control.running, m.inv_mass, self.node_theta, theta,
@@ -408,7 +414,7 @@ class ImplicitSolver(Solver):
                 state_out, control, dt_m) + [self._q])
             wp.launch(kernels.bdf2_rhs, n, device=dev, inputs=[
                 state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m, self._rhs])
-        self._solve_velocities(state_in, state_out, control, dt_m)
+        self._solve_velocities(state_in, state_out, control, dt_m, started=started)
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
             self._apply_friction(state_in, state_out, control.running, dt_m if bdf2 else dt)
@@ -533,13 +539,20 @@ class ImplicitSolver(Solver):
                 self._upper2, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b, self._pair_st,
                 self._pair_k, self._pair_n, dt_m]
 
+    def _start_velocity(self, state_in: State, state_out: State, control: Control) -> None:
+        """The solve's start into ``self._v``: unknowns at their old velocities, held nodes at their new ones."""
+        m = self.model
+        wp.launch(kernels.start_velocity, m.node_count, device=m.device, inputs=[
+            state_in.v, state_out.v, state_out.free, m.fixed, m.world_of, control.running, self._v])
+
     def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float,
-                          iterations: int | None = None) -> None:
+                          iterations: int | None = None, started: bool = False) -> None:
         """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
         gradients per world, started at the old velocities, preconditioned by each
         coil's banded factorisation: ``cg_iterations`` iterations, ``push_cg_iterations``
         in a world whose pusher drives a coil (its later iterations' launches skip it);
-        ``iterations``: that many in every world instead."""
+        ``iterations``: that many in every world instead. ``started``: the start (``self._v``)
+        and its residual (``self._r``) are already there (kernels.theta_start)."""
         m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
         total = self.cg_iterations if iterations is None else iterations
         pushing = self.push_cg_iterations if iterations is None else iterations
@@ -547,11 +560,11 @@ class ImplicitSolver(Solver):
         coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
         wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
             self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
-        wp.launch(kernels.start_velocity, n, device=dev, inputs=[
-            state_in.v, state_out.v, free, m.fixed, m.world_of, running, self._v])
         product_args = self._product_args(state_out, control, dt)
         precondition_args = coil_args + [self._inv_d, self._lower1, self._lower2, self._r, self._y, self._z]
-        wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + product_args + [self._r])
+        if not started:
+            self._start_velocity(state_in, state_out, control)
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + product_args + [self._r])
         wp.launch(kernels.precondition, coils, device=dev, inputs=precondition_args)
         wp.launch(kernels.pcg_begin, m.world_count, device=dev, inputs=[
             m.world_node_range, running, self._r, self._z, self._p, self._rz])

@@ -916,13 +916,28 @@ def finish_nodes(
 
 
 @wp.kernel
-def theta_rhs(rhs: wp.array(dtype=wp.vec3d), a_v: wp.array(dtype=wp.vec3d), theta: wp.float64):
-    """The θ-method's right side from the one assembled at θ dt, M v + θ dt F, and
-    A v (A = M + θ dt B + θ² dt² H at the old velocities v):
-    (M v + θ dt F − (1 − θ) A v) / θ = M v + dt F − (1 − θ) dt B v − θ (1 − θ) dt² H v
-    (g·mm/s; only unknown rows are read)."""
+def theta_start(
+    rhs: wp.array(dtype=wp.vec3d),
+    a_v: wp.array(dtype=wp.vec3d),
+    theta: wp.float64,
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    residual: wp.array(dtype=wp.vec3d),
+):
+    """The θ-method's right side from the one assembled at θ dt, M v + θ dt F, and A v
+    (A = M + θ dt B + θ² dt² H at the solve's start v: the old velocities, held nodes at
+    their new ones): (M v + θ dt F − (1 − θ) A v) / θ = M v + dt F − (1 − θ) dt B v
+    − θ (1 − θ) dt² H v (g·mm/s), and the start's residual, that right side − A v (zero on
+    rows that are not unknowns): the one product serves both."""
     i = wp.tid()
-    rhs[i] = (rhs[i] - (F64_1 - theta) * a_v[i]) / theta
+    if not solving(free, fixed, world_of, running, i):
+        residual[i] = wp.vec3d(F64_0, F64_0, F64_0)
+        return
+    b = (rhs[i] - (F64_1 - theta) * a_v[i]) / theta
+    rhs[i] = b
+    residual[i] = b - a_v[i]
 
 
 @wp.kernel
