@@ -28,14 +28,7 @@ def stiffness(solver: ImplicitSolver, state, touch_count: wp.array, chord: int =
         wp.launch(kernels.edge_ends, m.node_count, inputs=[
             state.x, state.x, m.has_next, m.node_radius, solver._end_mid, solver._end_half, solver._sweep,
             solver._end_move, solver._node_move])
-    wp.launch(kernels.edge_contact_stiffness, m.node_count, inputs=[
-        state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, solver._running_all, m.fixed,
-        m.node_radius, solver._grid.id, solver._neighbours, solver._neighbour_count, solver._midpoints,
-        m.query_radius_of, solver._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, solver.contact_u_linear,
-        touch_count, solver._touch_b, solver._stiff_start, solver._stiff_end, solver._pair_count, solver._pair_b,
-        solver._pair_st, solver._pair_k, solver._pair_n, state.x, solver._end_mid, solver._end_half, solver._sweep,
-        solver._end_move, chord, solver._chord_count, solver._chord_b, 0, solver._node_move, solver._rest_count,
-        solver._rest_b, solver._rest_value])
+    solver._coil_stiffness(state, solver._running_all, state.x, chord, c.p0_uN, False, touch_count)
     out = {k: getattr(solver, k).numpy().copy() for k in ("_stiff_start", "_stiff_end", "_pair_count")}
     count = np.maximum(out["_pair_count"], 0)
     for k in ("_pair_b", "_pair_st", "_pair_k", "_pair_n"):  # the recorded slots

@@ -335,6 +335,7 @@ class ImplicitSolver(Solver):
         self._pair_st = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec2d, device=dev)
         self._pair_k = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.float64, device=dev)
         self._pair_n = wp.zeros((n, PAIRS_PER_EDGE), dtype=wp.vec3d, device=dev)
+        self._pair_sums = wp.zeros((n, 4), dtype=kernels.vec3l, device=dev)  # per edge: Gershgorin block sums
         # per edge, its same-coil partners' rest offsets (the rest shape's: once)
         self._rest_count = wp.zeros(n, dtype=wp.int32, device=dev)
         self._rest_b = wp.zeros((n, REST_PARTNERS_PER_EDGE), dtype=wp.int32, device=dev)
@@ -470,14 +471,7 @@ class ImplicitSolver(Solver):
         if self.coil_contact:
             if chord_on and ends:
                 self._edge_ends(state_in.x, x_end)
-            wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
-                state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, control.running, m.fixed,
-                m.node_radius, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
-                self._touch_count, self._touch_b, self._stiff_start, self._stiff_end, self._pair_count, self._pair_b,
-                self._pair_st, self._pair_k, self._pair_n, x_end, self._end_mid, self._end_half, self._sweep,
-                self._end_move, chord_on, self._chord_count, self._chord_b, int(noted), self._node_move,
-                self._rest_count, self._rest_b, self._rest_value])
+            self._coil_stiffness(state_in, control.running, x_end, chord_on, p0_stiff, noted)
         wp.launch(kernels.assemble_blocks, n, device=dev, inputs=[
             state_in.x, state_in.v, self.force, state_in.free, state_out.free, m.has_next, m.clamp_tangent,
             m.inv_mass, m.damping_c, m.damping_k, m.k_stretch,
@@ -487,6 +481,25 @@ class ImplicitSolver(Solver):
         if self._devices is not None:  # balloon and stent contact stiffness (devices.py)
             self._devices.add(self, state_in, control.running, device_dt, self._diag, self._diag_exact, self._upper1,
                               x_end if chord_on else None)
+
+    def _coil_stiffness(self, state: State, running: wp.array, x_end: wp.array, chord_on: int, p0_stiff: float,
+                        noted: bool, touch_count: wp.array | None = None) -> None:
+        """Coil–coil Gershgorin blocks (µN/mm, ``p0_stiff`` the law's P0) and pair records at ``state``
+        (kernels.edge_contact_stiffness: each pair once, both edges; ``chord_on``: the chord to ``x_end``;
+        ``noted``: over the contact pass's chord candidates; ``touch_count``: the touching record's counts,
+        default the contact pass's)."""
+        m, dev, n, c = self.model, self.model.device, self.model.node_count, self.model.contact
+        record = [self._pair_count, self._pair_b, self._pair_st, self._pair_k, self._pair_n]
+        wp.launch(kernels.clear_pair_records, n, device=dev, inputs=[self._pair_count, self._pair_sums])
+        wp.launch(kernels.edge_contact_stiffness, n, device=dev, inputs=[
+            state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,
+            self._grid.id, self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of,
+            self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
+            self._touch_count if touch_count is None else touch_count, self._touch_b, self._pair_sums, *record, x_end,
+            self._end_mid, self._end_half, self._sweep, self._end_move, chord_on, self._chord_count, self._chord_b,
+            int(noted), self._node_move, self._rest_count, self._rest_b, self._rest_value])
+        wp.launch(kernels.finish_pair_records, n, device=dev, inputs=[
+            self._pair_sums, *record, self._stiff_start, self._stiff_end])
 
     def needs_start(self, state: State) -> bool:
         """BDF2 without a history at this step (first step, a changed step, a restart):

@@ -56,6 +56,7 @@ from .contact import (
     contact_stiffness,
     edge_in_contact_pass,
     edge_is_obstacle,
+    fixed_outer,
     from_fixed,
     next_partner,
     pair_in_reach_at_end,
@@ -289,9 +290,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    rest_count: wp.array(dtype=wp.int32), rest_b: wp.array2d(dtype=wp.int32),
                    rest_value: wp.array2d(dtype=wp.float64)):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
-    evaluates: Gershgorin diagonal blocks (start, end node of edge a), and the
-    pair itself (1 if touching, closest-point parameters (s, t), the law's
-    stiffness k, the unit normal n from b to a). Two parts of one coil closer than
+    evaluates: 1 if touching, closest-point parameters (s on a, t on b), the law's
+    stiffness k (µN/mm) and the unit normal n from b to a. Two parts of one coil closer than
     c0 in the rest shape start at their rest clearance (contact.rest_offset), as the
     force does. With ``chord`` the stiffness is the law's chord between the gap at x
     and at the predicted end ``x_end`` (kernels/chord.py), and a pair out of range at
@@ -301,8 +301,6 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     (contact.relative_move; and ``REACH_MARGIN_MM``), stays out of range at x_end (the segments'
     distance moves no more): no gap there is computed. The rest offset from a's record
     (``rest_count``, ``rest_b``, ``rest_value``: :func:`noted_rest_offset`)."""
-    start = wp.mat33d()
-    end = wp.mat33d()
     hit = int(0)
     st = wp.vec2d(F64_0, F64_0)
     k = F64_0
@@ -334,39 +332,75 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                 hit = 1
                 k = chord_stiffness(gap, gap_end, p0, c0, u_linear)
                 normal = delta / dist
-                nn = sym_outer(normal, wp.float64(2.0) * k)
-                start = (F64_1 - st[0]) * nn
-                end = st[0] * nn
-    return start, end, hit, st, k, normal
+    return hit, st, k, normal
 
 
 @wp.func
-def record_pair(a: int, b: int, hit: int, st: wp.vec2d, k: wp.float64, normal: wp.vec3d,
-                pair_count: wp.array(dtype=wp.int32), pair_b: wp.array2d(dtype=wp.int32),
-                pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
-                pair_n: wp.array2d(dtype=wp.vec3d)):
-    """Keep edge a's touching pairs sorted by partner b (so sums over them run in
-    an order that does not depend on how the partners were found); more than
-    the record holds: count OVERFLOW (the pairs then enter only through the
-    Gershgorin diagonal)."""
+def add_pair(a: int, b: int, st: wp.vec2d, k: wp.float64, normal: wp.vec3d, sums: wp.array2d(dtype=vec3l),
+             pair_count: wp.array(dtype=wp.int32), pair_b: wp.array2d(dtype=wp.int32),
+             pair_st: wp.array2d(dtype=wp.vec2d), pair_k: wp.array2d(dtype=wp.float64),
+             pair_n: wp.array2d(dtype=wp.vec3d)):
+    """Edge a's side of a touching pair (partner b, closest-point parameters (s on a, t on b),
+    stiffness k µN/mm, unit normal n from b to a): its Gershgorin blocks (1 − s) 2k n nᵀ and
+    s 2k n nᵀ added to a's fixed-point sums (``sums`` row a: start diagonal, start upper, end
+    diagonal, end upper; integer addition, so any order gives the same sum) and the pair noted
+    in a's record at the next free slot (:func:`finish_pair_records` sorts it by partner; a
+    count beyond the record's width: overflowed)."""
+    d, o = fixed_outer((F64_1 - st[0]) * wp.float64(2.0) * k, normal)
+    wp.atomic_add(sums, a, 0, d)
+    wp.atomic_add(sums, a, 1, o)
+    d, o = fixed_outer(st[0] * wp.float64(2.0) * k, normal)
+    wp.atomic_add(sums, a, 2, d)
+    wp.atomic_add(sums, a, 3, o)
+    slot = wp.atomic_add(pair_count, a, 1)
+    if slot < pair_b.shape[1]:
+        pair_b[a, slot] = b
+        pair_st[a, slot] = st
+        pair_k[a, slot] = k
+        pair_n[a, slot] = normal
+
+
+@wp.kernel
+def clear_pair_records(pair_count: wp.array(dtype=wp.int32), sums: wp.array2d(dtype=vec3l)):
+    """Empty each edge's pair record and block sums before :func:`edge_contact_stiffness` adds to them."""
+    a = wp.tid()
+    pair_count[a] = 0
+    for j in range(4):
+        sums[a, j] = vec3l()
+
+
+@wp.kernel
+def finish_pair_records(sums: wp.array2d(dtype=vec3l), pair_count: wp.array(dtype=wp.int32),
+                        pair_b: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec2d),
+                        pair_k: wp.array2d(dtype=wp.float64), pair_n: wp.array2d(dtype=wp.vec3d),
+                        stiff_start: wp.array(dtype=wp.mat33d), stiff_end: wp.array(dtype=wp.mat33d)):
+    """Edge a's Gershgorin blocks on its start and end node (µN/mm) from its sums, and its
+    pair record sorted by partner (sums over it then run in an order that does not depend
+    on the order the pairs were added); more pairs than the record holds: count OVERFLOW
+    (they then enter only through the Gershgorin blocks)."""
+    a = wp.tid()
+    stiff_start[a] = from_fixed_sym(sums[a, 0], sums[a, 1])
+    stiff_end[a] = from_fixed_sym(sums[a, 2], sums[a, 3])
     count = pair_count[a]
-    if hit == 0 or count == OVERFLOW:
-        return
-    if count >= pair_b.shape[1]:
+    if count > pair_b.shape[1]:
         pair_count[a] = OVERFLOW
         return
-    slot = count
-    while slot > 0 and pair_b[a, slot - 1] > b:
-        pair_b[a, slot] = pair_b[a, slot - 1]
-        pair_st[a, slot] = pair_st[a, slot - 1]
-        pair_k[a, slot] = pair_k[a, slot - 1]
-        pair_n[a, slot] = pair_n[a, slot - 1]
-        slot = slot - 1
-    pair_b[a, slot] = b
-    pair_st[a, slot] = st
-    pair_k[a, slot] = k
-    pair_n[a, slot] = normal
-    pair_count[a] = count + 1
+    for i in range(1, count):
+        b = pair_b[a, i]
+        st = pair_st[a, i]
+        k = pair_k[a, i]
+        n = pair_n[a, i]
+        slot = i
+        while slot > 0 and pair_b[a, slot - 1] > b:
+            pair_b[a, slot] = pair_b[a, slot - 1]
+            pair_st[a, slot] = pair_st[a, slot - 1]
+            pair_k[a, slot] = pair_k[a, slot - 1]
+            pair_n[a, slot] = pair_n[a, slot - 1]
+            slot = slot - 1
+        pair_b[a, slot] = b
+        pair_st[a, slot] = st
+        pair_k[a, slot] = k
+        pair_n[a, slot] = n
 
 
 @wp.kernel(enable_backward=False)
@@ -392,8 +426,7 @@ def edge_contact_stiffness(
     u_linear: wp.float64,
     touch_count: wp.array(dtype=wp.int32),
     touch_b: wp.array2d(dtype=wp.int32),
-    stiff_start: wp.array(dtype=wp.mat33d),
-    stiff_end: wp.array(dtype=wp.mat33d),
+    sums: wp.array2d(dtype=vec3l),
     pair_count: wp.array(dtype=wp.int32),
     pair_b: wp.array2d(dtype=wp.int32),
     pair_st: wp.array2d(dtype=wp.vec2d),
@@ -413,26 +446,22 @@ def edge_contact_stiffness(
     rest_b: wp.array2d(dtype=wp.int32),
     rest_value: wp.array2d(dtype=wp.float64),
 ):
-    """Coil–coil contact stiffness on edge a's start and end node (µN/mm), over the
-    partners that contact.edge_contact noted within a hair of touching at the same
-    state (``touch_count``, ``touch_b``; every pair this finds touching is among
-    them), or, when more than the record holds, over a's partners found as
-    contact.edge_contact finds them; fixed-point sums, so the result does not
-    depend on the order the partners come in (a partner not touching adds zero).
-    Each touching pair is also recorded (``record_pair``, sorted by partner) for
-    the exact product with the contact stiffness. With ``chord`` (kernels/chord.py)
-    every neighbour-list partner is a candidate (a pair may enter the contact range
-    on the way to the predicted end ``x_end``), those swept_apart skipped (``end_mid``,
-    ``end_half``, ``sweep``, ``end_move``, ``node_move``: edge_ends); with ``noted_chord``, only those
+    """Coil–coil contact stiffness (µN/mm), each pair evaluated once (``pair_stiffness``
+    from its lower edge a, or from a when b runs no pass of its own: an edge in the
+    catheter) and added to both edges (:func:`add_pair`: a's side, and b's mirrored, with
+    (t, s) and −n, when b runs its pass): Gershgorin block sums and pair records, cleared by
+    :func:`clear_pair_records`, finished by :func:`finish_pair_records`. Edge a's candidates:
+    the partners that contact.edge_contact noted within a hair of touching at the same
+    state (``touch_count``, ``touch_b``, noted on both sides; every pair this finds touching
+    is among them), or, when more than the record holds, a's partners found as
+    contact.edge_contact finds them. With ``chord`` (kernels/chord.py) every neighbour-list
+    partner is a candidate (a pair may enter the contact range on the way to the predicted
+    end ``x_end``), those swept_apart skipped (``end_mid``, ``end_half``, ``sweep``,
+    ``end_move``, ``node_move``: edge_ends); with ``noted_chord``, only those
     contact.edge_contact noted as chord candidates at this step's predicted end
-    (``chord_count``, ``chord_b``; every pair with a block is among them), or, when
-    more than the record holds, every listed partner."""
+    (``chord_count``, ``chord_b``, noted on both sides; every pair with a block is among
+    them), or, when more than the record holds, every listed partner."""
     a = wp.tid()
-    pair_count[a] = 0
-    s_diag = vec3l()
-    s_off = vec3l()
-    e_diag = vec3l()
-    e_off = vec3l()
     w = world_of[a]
     radius = query_radius[w]
     noted = touch_count[a]
@@ -450,23 +479,20 @@ def edge_contact_stiffness(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
-            if chord != 0 and swept_apart(mid, sweep, a, b, c0):  # adds zero (pair_stiffness: neither near)
+            b_runs = edge_in_contact_pass(free, has_next, b)
+            if b < a and b_runs:  # b's own pass evaluates it
                 continue
-            start, end, hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
-                                                             reach_a, p0, c0, u_linear, radius, x_end, end_mid,
-                                                             end_half, end_move, node_move, chord, rest_count,
-                                                             rest_b, rest_value)
-            if hit == 0:  # zero blocks: their fixed-point sums add 0
+            if chord != 0 and swept_apart(mid, sweep, a, b, c0):  # neither near: no block
                 continue
-            record_pair(a, b, hit, st, kc, normal, pair_count, pair_b, pair_st, pair_k, pair_n)
-            d, o = to_fixed_sym(start)
-            s_diag = s_diag + d
-            s_off = s_off + o
-            d, o = to_fixed_sym(end)
-            e_diag = e_diag + d
-            e_off = e_off + o
-    stiff_start[a] = from_fixed_sym(s_diag, s_off)
-    stiff_end[a] = from_fixed_sym(e_diag, e_off)
+            hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
+                                                 reach_a, p0, c0, u_linear, radius, x_end, end_mid, end_half,
+                                                 end_move, node_move, chord, rest_count, rest_b, rest_value)
+            if hit == 0:
+                continue
+            add_pair(a, b, st, kc, normal, sums, pair_count, pair_b, pair_st, pair_k, pair_n)
+            if b_runs:
+                add_pair(b, a, wp.vec2d(st[1], st[0]), kc, -normal, sums, pair_count, pair_b, pair_st, pair_k,
+                         pair_n)
 
 
 @wp.func
