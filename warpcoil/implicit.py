@@ -324,6 +324,7 @@ class ImplicitSolver(Solver):
         # the free-flight end is known before the contact pass, which then notes the chord candidates (Solver)
         self._noted_chord = self.chord and chord_end == "flight" and self.coil_contact
         self._chord_b = wp.zeros((n, CHORD_CANDIDATES_PER_EDGE if self._noted_chord else 1), dtype=wp.int32, device=dev)
+        self._chord_st = wp.zeros(self._chord_b.shape, dtype=wp.vec2d, device=dev)  # their closest-point parameters
         self._diag, self._diag_exact, self._upper1, self._upper2 = mats(), mats(), mats(), mats()
         self._inv_d, self._lower1, self._lower2 = mats(), mats(), mats()
         self._stiff_start, self._stiff_end = mats(), mats()
@@ -497,7 +498,7 @@ class ImplicitSolver(Solver):
             self._grid_radius, c.exclusion_edges, p0_stiff, c.c0_mm, self.contact_u_linear,
             self._touch_count if touch_count is None else touch_count, self._touch_b, self._pair_sums, *record, x_end,
             self._end_mid, self._end_half, self._sweep, self._end_move, chord_on, self._chord_count, self._chord_b,
-            int(noted), self._node_move, self._rest_count, self._rest_b, self._rest_value])
+            self._chord_st, int(noted), self._node_move, self._rest_count, self._rest_b, self._rest_value])
         wp.launch(kernels.finish_pair_records, n, device=dev, inputs=[
             self._pair_sums, *record, self._stiff_start, self._stiff_end])
 

@@ -340,6 +340,7 @@ class Solver:
         self._end_half, self._end_move, self._sweep = wp.zeros(1, **one), wp.zeros(1, **one), wp.zeros(1, **one)
         self._node_move = wp.zeros(1, dtype=wp.vec3d, device=dev)
         self._chord_b = wp.zeros((1, 1), dtype=wp.int32, device=dev)
+        self._chord_st = wp.zeros((1, 1), dtype=wp.vec2d, device=dev)
         c = model.contact
         self.coil_friction = coil_contact and max(c.friction_coil, c.friction_catheter) > 0.0
         self.friction = self.coil_friction or (
@@ -453,7 +454,7 @@ class Solver:
                 self._touch_count, self._touch_b,
                 # the implicit step's chord candidates too, while its predicted end is known
                 self._end_mid, self._end_half, self._end_move, self._sweep, self._chord_count, self._chord_b,
-                int(self._note_chord), self._node_move]
+                self._chord_st, int(self._note_chord), self._node_move]
             wp.launch(contact.edge_contact, n, device=dev, inputs=pass_args)
             wp.launch(contact.finish_edge_contact, n, device=dev, inputs=[
                 *sums, self._edge_bad, self._edge_force_start, self._edge_force_end, self.coil_gap])

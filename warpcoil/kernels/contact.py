@@ -539,6 +539,7 @@ def wall_contact(
 
 # --- coil–coil -----------------------------------------------------------------
 TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of two evaluations of one gap
+NO_PARAMS = wp.constant(wp.vec2d(-1.0, -1.0))  # closest-point parameters (s, t) not known (they lie in [0, 1]²)
 
 
 @wp.func
@@ -927,7 +928,8 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     :func:`pair_contact` from that side sums them (node–node terms enter b's side
     negated: φ(|x_k − x_j|) is φ(|x_j − x_k|)), so they are bit-identical to
     evaluating the pair twice; the gap is evaluated once, for both (and returned a third time as
-    the segments' own gap, before any rest clearance: −FAR_MM when not evaluated). The gap of
+    the segments' own gap, before any rest clearance: −FAR_MM when not evaluated, with their closest points'
+    parameters (s, t) from a: NO_PARAMS when not evaluated). The gap of
     two parts of one coil closer than c0 at
     rest is counted from their rest clearance (``rest_offset`` of the capsules'
     rest gap, as the implicit step's ``pair_stiffness``): turns that touch in the
@@ -957,6 +959,7 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     gap_a = far
     gap_b = far
     raw = -FAR_MM
+    st = NO_PARAMS
     between = mid[a] - mid[b]
     beyond = far * (wp.float64(1.0) + SQUARED_ROUNDING)  # squared: surely farther than ``far`` (no square root)
     if wp.dot(between, between) <= beyond * beyond and edge_is_obstacle(free, has_next, fixed, b):
@@ -971,7 +974,7 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             gap_a = wp.length(pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)) - node_radius[a] - node_radius[b]
             raw = gap_a
             if gap_a >= c0 + TOUCH_MARGIN_MM:  # no term in range: every node is at least as far, offsets add
-                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a, raw
+                return fa_start, fa_end, fb_start, fb_end, gap_a, gap_a, raw, st
             # a same-coil pair near in the rest shape: its terms count from their rest clearances
             rest_near = coil_of[a] == coil_of[b] and not rest_apart(rest_x, node_radius, a, b, c0)
             if rest_near:  # beyond the rest clearance, as the law sees it
@@ -1055,7 +1058,7 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             if two_a:
                 fb_start = fb_start - (wp.float64(1.0) - sa1) * ta1
                 fb_end = fb_end - sa1 * ta1
-    return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw
+    return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw, st
 
 
 @wp.func
@@ -1067,7 +1070,7 @@ def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                  far: wp.float64):
     """Edge a's side of :func:`pair_forces`: (fixed-point forces on a's start and end
     node, segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite)."""
-    f_start, f_end, fb_start, fb_end, gap, gap_b, raw = pair_forces(
+    f_start, f_end, fb_start, fb_end, gap, gap_b, raw, st = pair_forces(
         x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a, p0, c0,
         u_linear, far)
     bad = int(0)
@@ -1101,6 +1104,17 @@ def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32), tou
     slot = wp.atomic_add(touch_count, e, 1)
     if slot < touch_b.shape[1]:
         touch_b[e, slot] = other
+
+
+@wp.func
+def note_candidate(e: int, other: int, st: wp.vec2d, chord_count: wp.array(dtype=wp.int32),
+                   chord_b: wp.array2d(dtype=wp.int32), chord_st: wp.array2d(dtype=wp.vec2d)):
+    """:func:`note_touching` into the chord-candidate record, with the pair's closest-point
+    parameters (s, t) from e at x (pair_forces', reused by the chord pass; NO_PARAMS: not known)."""
+    slot = wp.atomic_add(chord_count, e, 1)
+    if slot < chord_b.shape[1]:
+        chord_b[e, slot] = other
+        chord_st[e, slot] = st
 
 
 REACH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # mm: far above rounding of mm-scale lengths (pair_in_reach_at_end)
@@ -1160,14 +1174,12 @@ def chord_candidate(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
     zero blocks on both sides (``sweep``: kernels/implicit.edge_ends, for :func:`swept_apart`). An
     evaluated pair out of range at x whose gap exceeds c0 by more than the edges' :func:`relative_move`
     (+ the same margins) stays out of range at the end too (the stiffness pass's own test)."""
+    if raw != -FAR_MM:  # evaluated (in reach at x from a: b is an obstacle): not too far, or not finite
+        if raw >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM + SIDE_MARGIN_MM:
+            return False
+        return not (raw >= c0 and raw >= c0 + relative_move(node_move, a, b) + REACH_MARGIN_MM + SIDE_MARGIN_MM)
     if not edge_is_obstacle(free, has_next, fixed, b):
         return False
-    if raw >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM + SIDE_MARGIN_MM:
-        return False
-    if raw >= c0 and raw >= c0 + relative_move(node_move, a, b) + REACH_MARGIN_MM + SIDE_MARGIN_MM:
-        return False
-    if raw > -FAR_MM or raw != raw:  # evaluated (in reach at x from a) and not too far, or not finite
-        return True
     if swept_apart(mid, sweep, a, b, c0):  # the chord pass's own skip (symmetric)
         return False
     apart = wp.length(mid[a] - mid[b])
@@ -1190,17 +1202,24 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
     (an edge in the catheter: it runs no pass of its own), once for both sides;
     with ``record``, a pair within TOUCH_MARGIN_MM of touching is noted on both
     sides (:func:`note_touching`). Returns pair_forces' segment gap (−FAR_MM when not
-    evaluated), whether the pair was evaluated here, and whether b runs its own pass."""
+    evaluated) and closest-point parameters, whether the pair was evaluated here, and whether b
+    runs its own pass."""
     b_runs = edge_in_contact_pass(free, has_next, b)
     raw = -FAR_MM
+    st = NO_PARAMS
     handled = False
     if b > a or not b_runs:
         handled = True
-        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a = pair_forces(
+        fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a, st_a = pair_forces(
             x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
             p0, c0, u_linear, far)
         if raw_a == -FAR_MM:  # not evaluated: zero forces and the gap the sums start from (clear_edge_sums)
-            return raw_a, handled, b_runs
+            return raw_a, st_a, handled, b_runs
+        if raw_a >= c0 + TOUCH_MARGIN_MM:  # no term in range (pair_forces): zero forces (adding 0), not touching
+            wp.atomic_min(min_gap, a, gap_a)
+            if b_runs:
+                wp.atomic_min(min_gap, b, gap_b)
+            return raw_a, st_a, handled, b_runs
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
         if b_runs:
             add_side(b, fb_start, fb_end, gap_b, c0, sum_start, sum_end, min_gap, contacts, bad)
@@ -1209,7 +1228,8 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
             if b_runs:
                 note_touching(b, a, touch_count, touch_b)
         raw = raw_a
-    return raw, handled, b_runs
+        st = st_a
+    return raw, st, handled, b_runs
 
 
 @wp.kernel
@@ -1266,6 +1286,7 @@ def edge_contact(
     sweep: wp.array(dtype=wp.float64),
     chord_count: wp.array(dtype=wp.int32),
     chord_b: wp.array2d(dtype=wp.int32),
+    chord_st: wp.array2d(dtype=wp.vec2d),
     note_chord: int,
     node_move: wp.array(dtype=wp.vec3d),
 ):
@@ -1285,7 +1306,8 @@ def edge_contact(
     TOUCH_MARGIN_MM of touching are noted (``touch_count``, ``touch_b``) for the
     implicit step's contact stiffness. With ``note_chord``, also each pair that may have a
     chord stiffness in the implicit step, on both sides (:func:`chord_candidate`;
-    ``chord_count``, ``chord_b``, cleared by :func:`clear_edge_sums`; ``end_mid``,
+    ``chord_count``, ``chord_b``, cleared by :func:`clear_edge_sums`, and ``chord_st``: the
+    closest-point parameters from the side that evaluated the pair, :func:`note_candidate`; ``end_mid``,
     ``end_half``, ``end_move``, ``sweep``, ``node_move``: kernels/implicit.edge_ends at this step's
     predicted end). An edge whose list overflowed, one with a partner whose list overflowed that the
     partner's grid search evaluates (it may miss the pair), and one that such a grid search
@@ -1303,7 +1325,7 @@ def edge_contact(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            raw, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
+            raw, st, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
                                               mid, a, b, exclusion, reach_a, p0, c0, u_linear, radius, sum_start,
                                               sum_end, min_gap, contacts, bad, record, touch_count, touch_b)
             if note_chord == 0:
@@ -1311,12 +1333,12 @@ def edge_contact(
             if handled:
                 if chord_candidate(x, free, has_next, fixed, node_radius, mid, a, b, reach_a, radius, raw, c0,
                                    end_mid, end_half, end_move, sweep, node_move):
-                    note_touching(a, b, chord_count, chord_b)
+                    note_candidate(a, b, st, chord_count, chord_b, chord_st)
                     if b_runs:
                         if listed == NO_LIST:  # a's grid search found b, which b's own list may not hold
                             wp.atomic_add(chord_count, b, chord_b.shape[1] + 1)
                         else:
-                            note_touching(b, a, chord_count, chord_b)
+                            note_candidate(b, a, NO_PARAMS, chord_count, chord_b, chord_st)
             elif neighbour_count[b] == NO_LIST:
                 wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
 

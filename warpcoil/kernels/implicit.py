@@ -51,6 +51,7 @@ import warp as wp
 
 from .contact import (
     NO_LIST,
+    NO_PARAMS,
     REACH_MARGIN_MM,
     bonded,
     contact_stiffness,
@@ -234,15 +235,18 @@ def noted_rest_offset(rest_count: wp.array(dtype=wp.int32), rest_b: wp.array2d(d
 
 @wp.func
 def pair_gap(x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
-             node_radius: wp.array(dtype=wp.float64), a: int, b: int, offset: wp.float64):
-    """Edges a and b at positions ``x``: closest-point parameters (s, t), the vector from
-    b's closest point to a's (mm), its length and the gap (mm; a same-coil pair counted
-    from its rest clearance: ``offset``, pair_rest_offset)."""
+             node_radius: wp.array(dtype=wp.float64), a: int, b: int, offset: wp.float64, known: wp.vec2d):
+    """Edges a and b at positions ``x``: closest-point parameters (s, t) (``known`` unless
+    NO_PARAMS: segment_closest_params' own at ``x``), the vector from b's closest point to a's (mm),
+    its length and the gap (mm; a same-coil pair counted from its rest clearance: ``offset``,
+    pair_rest_offset)."""
     pa0 = x[a]
     pa1 = x[a + 1]
     pb0 = x[b]
     pb1 = x[b + 1]
-    st = segment_closest_params(pa0, pa1, pb0, pb1)
+    st = known
+    if known[0] < F64_0:
+        st = segment_closest_params(pa0, pa1, pb0, pb1)
     delta = pa0 + st[0] * (pa1 - pa0) - pb0 - st[1] * (pb1 - pb0)
     dist = wp.length(delta)
     gap = dist - node_radius[a] - node_radius[b]
@@ -288,7 +292,7 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    end_mid: wp.array(dtype=wp.vec3d), end_half: wp.array(dtype=wp.float64),
                    end_move: wp.array(dtype=wp.float64), node_move: wp.array(dtype=wp.vec3d), chord: int,
                    rest_count: wp.array(dtype=wp.int32), rest_b: wp.array2d(dtype=wp.int32),
-                   rest_value: wp.array2d(dtype=wp.float64)):
+                   rest_value: wp.array2d(dtype=wp.float64), known_st: wp.vec2d):
     """Edge b's contact on edge a, for exactly the pairs contact.pair_contact
     evaluates: 1 if touching, closest-point parameters (s on a, t on b), the law's
     stiffness k (µN/mm) and the unit normal n from b to a. Two parts of one coil closer than
@@ -300,7 +304,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
     c0 by more than both edges' moves, or by more than their nodes' largest relative move
     (contact.relative_move; and ``REACH_MARGIN_MM``), stays out of range at x_end (the segments'
     distance moves no more): no gap there is computed. The rest offset from a's record
-    (``rest_count``, ``rest_b``, ``rest_value``: :func:`noted_rest_offset`)."""
+    (``rest_count``, ``rest_b``, ``rest_value``: :func:`noted_rest_offset`). ``known_st``: the closest-point
+    parameters at x where known (the contact pass's: contact.note_candidate), else NO_PARAMS."""
     hit = int(0)
     st = wp.vec2d(F64_0, F64_0)
     k = F64_0
@@ -313,7 +318,7 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
             near_end = pair_in_reach_at_end(end_mid, end_half, a, b, c0, far)
         if near or near_end:
             offset = noted_rest_offset(rest_count, rest_b, rest_value, rest_x, coil_of, node_radius, a, b, c0)
-            st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset)
+            st, delta, dist, gap = pair_gap(x, coil_of, node_radius, a, b, offset, known_st)
             gap_end = gap
             if chord != 0:
                 if gap >= c0 + end_move[a] + end_move[b] + REACH_MARGIN_MM:
@@ -325,7 +330,8 @@ def pair_stiffness(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                 delta_end = delta
                 dist_end = dist
                 if near_end:
-                    st_end, delta_end, dist_end, gap_end = pair_gap(x_end, coil_of, node_radius, a, b, offset)
+                    st_end, delta_end, dist_end, gap_end = pair_gap(x_end, coil_of, node_radius, a, b, offset,
+                                                                    NO_PARAMS)
                 if near_end and not (gap < c0 and dist > wp.float64(1.0e-12)) and gap_end < c0 and dist_end > wp.float64(1.0e-12):
                     st, delta, dist = st_end, delta_end, dist_end  # enters during the step
             if (gap < c0 or gap_end < c0) and dist > wp.float64(1.0e-12):
@@ -440,6 +446,7 @@ def edge_contact_stiffness(
     chord: int,
     chord_count: wp.array(dtype=wp.int32),
     chord_b: wp.array2d(dtype=wp.int32),
+    chord_st: wp.array2d(dtype=wp.vec2d),
     noted_chord: int,
     node_move: wp.array(dtype=wp.vec3d),
     rest_count: wp.array(dtype=wp.int32),
@@ -460,7 +467,8 @@ def edge_contact_stiffness(
     ``end_move``, ``node_move``: edge_ends); with ``noted_chord``, only those
     contact.edge_contact noted as chord candidates at this step's predicted end
     (``chord_count``, ``chord_b``, noted on both sides; every pair with a block is among
-    them), or, when more than the record holds, every listed partner."""
+    them; ``chord_st``: the closest-point parameters at x where the contact pass evaluated the
+    pair from a), or, when more than the record holds, every listed partner."""
     a = wp.tid()
     w = world_of[a]
     radius = query_radius[w]
@@ -473,7 +481,8 @@ def edge_contact_stiffness(
         if noted <= touch_b.shape[1] and chord == 0:  # the partners the contact pass noted touching
             candidates = touch_b
             listed = noted
-        if chord != 0 and noted_chord != 0 and chord_count[a] <= chord_b.shape[1]:  # the noted chord candidates
+        over_noted = chord != 0 and noted_chord != 0 and chord_count[a] <= chord_b.shape[1]
+        if over_noted:  # the noted chord candidates
             candidates = chord_b
             listed = chord_count[a]
         k = int(0)
@@ -484,9 +493,12 @@ def edge_contact_stiffness(
                 continue
             if chord != 0 and swept_apart(mid, sweep, a, b, c0):  # neither near: no block
                 continue
+            known_st = NO_PARAMS
+            if over_noted:
+                known_st = chord_st[a, k - 1]
             hit, st, kc, normal = pair_stiffness(x, rest_x, coil_of, free, has_next, fixed, node_radius, mid, a, b,
                                                  reach_a, p0, c0, u_linear, radius, x_end, end_mid, end_half,
-                                                 end_move, node_move, chord, rest_count, rest_b, rest_value)
+                                                 end_move, node_move, chord, rest_count, rest_b, rest_value, known_st)
             if hit == 0:
                 continue
             add_pair(a, b, st, kc, normal, sums, pair_count, pair_b, pair_st, pair_k, pair_n)
