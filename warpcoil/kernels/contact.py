@@ -1318,8 +1318,9 @@ def edge_contact(
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0:
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)  # the grid is grouped by world
         listed = neighbour_count[a]
+        if listed == NO_LIST:  # the grid, grouped by world (built only here: next_partner reads it only then)
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         if note_chord != 0 and listed == NO_LIST:
             wp.atomic_add(chord_count, a, chord_b.shape[1] + 1)
         k = int(0)

@@ -475,7 +475,6 @@ def edge_contact_stiffness(
     noted = touch_count[a]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and (noted > 0 or chord != 0):
         reach_a = wp.float64(0.5) * wp.length(x[a + 1] - x[a]) + node_radius[a] + c0
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         candidates = neighbours  # a's neighbour list (NO_LIST: the grid)
         listed = neighbour_count[a]
         if noted <= touch_b.shape[1] and chord == 0:  # the partners the contact pass noted touching
@@ -485,6 +484,8 @@ def edge_contact_stiffness(
         if over_noted:  # the noted chord candidates
             candidates = chord_b
             listed = chord_count[a]
+        if listed == NO_LIST:  # the grid (built only here: next_partner reads it only then)
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
