@@ -1326,9 +1326,10 @@ def edge_contact(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            raw, st, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share,
-                                              mid, a, b, exclusion, reach_a, p0, c0, u_linear, radius, sum_start,
-                                              sum_end, min_gap, contacts, bad, record, touch_count, touch_b)
+            raw, st, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius,
+                                                  contact_share, mid, a, b, exclusion, reach_a, p0, c0, u_linear,
+                                                  radius, sum_start, sum_end, min_gap, contacts, bad, record,
+                                                  touch_count, touch_b)
             if note_chord == 0:
                 continue
             if handled:
