@@ -47,8 +47,8 @@ member = its single run).
 
 import warp as wp
 
-from .contact import (add_edge_shares, edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner, pair_contact,
-                      rest_apart, rest_clearance_gap, segment_closest_params, to_fixed, vec3l)
+from .contact import (NO_LIST, add_edge_shares, edge_in_contact_pass, edge_is_obstacle, from_fixed, next_partner,
+                      pair_contact, rest_apart, rest_clearance_gap, segment_closest_params, to_fixed, vec3l)
 from .rod import F64_0, F64_1
 
 
@@ -219,8 +219,9 @@ def edge_friction(
     w = world_of[a]
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         listed = neighbour_count[a]
+        if listed == NO_LIST:  # the grid (built only here: next_partner reads it only then)
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
@@ -363,8 +364,9 @@ def record_guard_pairs(
     count = int(0)
     w = world_of[a]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         listed = neighbour_count[a]
+        if listed == NO_LIST:  # the grid (built only here: next_partner reads it only then)
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, w)
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
@@ -415,8 +417,9 @@ def edge_normal_guard(
     sum_end = vec3l()
     count = pair_count[a]
     if count == GUARD_SEARCH:
-        query = wp.hash_grid_query(grid, mid[a], grid_radius, world_of[a])
         listed = neighbour_count[a]
+        if listed == NO_LIST:  # the grid (built only here: next_partner reads it only then)
+            query = wp.hash_grid_query(grid, mid[a], grid_radius, world_of[a])
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
