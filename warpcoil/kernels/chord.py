@@ -80,17 +80,20 @@ def feature_excess(p_end: wp.vec3d, closest: wp.vec3d, p: wp.vec3d, radius: wp.f
     """One wall feature's chord excess along its normal ñ at the predicted end, fixed point
     (diagonal, upper): gap h̃ = |p̃ − closest| − r there, and at the step start the gap
     along that normal, h = h̃ − ñ·(p̃ − p) (exact for a flat face; a function of (p̃,
-    closest) alone, so the feature sum's repeated terms cancel as in the force)."""
+    closest) alone, so the feature sum's repeated terms cancel as in the force). None
+    where the gap opens along ñ (ñ·(p̃ − p) ≥ 0: h ≤ h̃ is no closing, the excess is 0)."""
     delta = p_end - closest
     dist = wp.length(delta)
     diagonal = vec3l()
     upper = vec3l()
     if dist < radius + c0 and dist > wp.float64(1.0e-12):
         n = delta / dist
-        h_end = dist - radius
-        k = chord_excess(h_end - wp.dot(n, p_end - p), h_end, p0, c0, u_linear)
-        if k > F64_0:
-            diagonal, upper = fixed_outer(k, n)
+        opening = wp.dot(n, p_end - p)
+        if opening < F64_0:
+            h_end = dist - radius
+            k = chord_excess(h_end - opening, h_end, p0, c0, u_linear)
+            if k > F64_0:
+                diagonal, upper = fixed_outer(k, n)
     return diagonal, upper
 
 
