@@ -29,7 +29,7 @@ from .contact import (
     closest_on_segment,
     closest_on_triangle,
     contact_force_magnitude,
-    contact_stiffness,
+    contact_law,
     field_sample,
     fixed_outer,
     from_fixed,
@@ -46,24 +46,32 @@ CHORD_WALL_SKIP_C0 = wp.constant(wp.float64(0.02))
 
 
 @wp.func
+def chord_and_tangent(h: wp.float64, h_end: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
+    """Contact stiffness (µN/mm) between gap ``h`` (mm, step start) and ``h_end``
+    (predicted end) — the law's chord where the gap closes and the chord is steeper
+    than the tangent at h, else the tangent k(h) — and the tangent k(h)."""
+    f, k = contact_law(h, p0, c0, u_linear)
+    chord = k
+    closing = h - h_end
+    if h_end < c0 and closing > CHORD_MIN_CLOSING_MM:
+        chord = wp.max(k, (contact_force_magnitude(h_end, p0, c0, u_linear) - f) / closing)
+    return chord, k
+
+
+@wp.func
 def chord_stiffness(h: wp.float64, h_end: wp.float64, p0: wp.float64, c0: wp.float64,
                     u_linear: wp.float64) -> wp.float64:
     """Contact stiffness (µN/mm) between gap ``h`` (mm, step start) and ``h_end``
-    (predicted end): the law's chord where the gap closes and the chord is steeper
-    than the tangent at h, else the tangent k(h)."""
-    k = contact_stiffness(h, p0, c0, u_linear)
-    closing = h - h_end
-    if h_end < c0 and closing > CHORD_MIN_CLOSING_MM:
-        chord = (contact_force_magnitude(h_end, p0, c0, u_linear) - contact_force_magnitude(h, p0, c0, u_linear)) \
-            / closing
-        k = wp.max(k, chord)
-    return k
+    (predicted end): :func:`chord_and_tangent`'s chord."""
+    chord, k = chord_and_tangent(h, h_end, p0, c0, u_linear)
+    return chord
 
 
 @wp.func
 def chord_excess(h: wp.float64, h_end: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
     """What the chord adds to the tangent k(h) (µN/mm, ≥ 0)."""
-    return chord_stiffness(h, h_end, p0, c0, u_linear) - contact_stiffness(h, p0, c0, u_linear)
+    chord, k = chord_and_tangent(h, h_end, p0, c0, u_linear)
+    return chord - k
 
 
 @wp.func
@@ -72,17 +80,20 @@ def feature_excess(p_end: wp.vec3d, closest: wp.vec3d, p: wp.vec3d, radius: wp.f
     """One wall feature's chord excess along its normal ñ at the predicted end, fixed point
     (diagonal, upper): gap h̃ = |p̃ − closest| − r there, and at the step start the gap
     along that normal, h = h̃ − ñ·(p̃ − p) (exact for a flat face; a function of (p̃,
-    closest) alone, so the feature sum's repeated terms cancel as in the force)."""
+    closest) alone, so the feature sum's repeated terms cancel as in the force). None
+    where the gap opens along ñ (ñ·(p̃ − p) ≥ 0: h ≤ h̃ is no closing, the excess is 0)."""
     delta = p_end - closest
     dist = wp.length(delta)
     diagonal = vec3l()
     upper = vec3l()
     if dist < radius + c0 and dist > wp.float64(1.0e-12):
         n = delta / dist
-        h_end = dist - radius
-        k = chord_excess(h_end - wp.dot(n, p_end - p), h_end, p0, c0, u_linear)
-        if k > F64_0:
-            diagonal, upper = fixed_outer(k, n)
+        opening = wp.dot(n, p_end - p)
+        if opening < F64_0:
+            h_end = dist - radius
+            k = chord_excess(h_end - opening, h_end, p0, c0, u_linear)
+            if k > F64_0:
+                diagonal, upper = fixed_outer(k, n)
     return diagonal, upper
 
 

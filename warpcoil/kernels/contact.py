@@ -19,29 +19,37 @@ U_LINEAR = wp.constant(wp.float64(7.0))
 
 
 @wp.func
-def contact_force_magnitude(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
-    """|F| (µN) at clearance h (mm) for force P0 (µN) at zero clearance and onset c0 (mm).
+def contact_law(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64):
+    """|F| (µN) and its stiffness −d|F|/dh (µN/mm) at clearance h (mm) for force P0 (µN)
+    at zero clearance and onset c0 (mm), from one exponential.
 
     ``u_linear`` is where the exponential gives way to its tangent line: 7 in
     MODEL.md; a solver may start it earlier (see Solver.contact_u_linear) so the
     law's stiffness never exceeds what its explicit step can integrate."""
     if h >= c0:
-        return wp.float64(0.0)
+        return wp.float64(0.0), wp.float64(0.0)
     u = wp.float64(1.0) - h / c0
+    u_exp = wp.min(u, u_linear)
+    e = wp.exp(u_exp)
+    k = p0 / (E_MINUS_1 * c0) * (e * (wp.float64(1.0) + u_exp) - wp.float64(1.0))
     if u < u_linear:
-        return p0 / E_MINUS_1 * u * (wp.exp(u) - wp.float64(1.0))
-    e = wp.exp(u_linear)
+        return p0 / E_MINUS_1 * u * (e - wp.float64(1.0)), k
     return p0 / E_MINUS_1 * (u_linear * (e - wp.float64(1.0)) + (e * (wp.float64(1.0) + u_linear) - wp.float64(1.0))
-                             * (u - u_linear))
+                             * (u - u_linear)), k
+
+
+@wp.func
+def contact_force_magnitude(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
+    """|F| (µN) at clearance h (mm): :func:`contact_law`'s force."""
+    f, k = contact_law(h, p0, c0, u_linear)
+    return f
 
 
 @wp.func
 def contact_stiffness(h: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64) -> wp.float64:
-    """−d|F|/dh (µN/mm): the law's local stiffness."""
-    if h >= c0:
-        return wp.float64(0.0)
-    u = wp.min(wp.float64(1.0) - h / c0, u_linear)
-    return p0 / (E_MINUS_1 * c0) * (wp.exp(u) * (wp.float64(1.0) + u) - wp.float64(1.0))
+    """−d|F|/dh (µN/mm): :func:`contact_law`'s local stiffness."""
+    f, k = contact_law(h, p0, c0, u_linear)
+    return k
 
 
 @wp.kernel
@@ -220,18 +228,6 @@ def closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> w
 
 
 @wp.func
-def feature_force(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
-                  u_linear: wp.float64) -> vec3l:
-    """The law of the gap |p − closest| − radius along (p − closest)/|p − closest|, fixed point."""
-    delta = p - closest
-    dist = wp.length(delta)
-    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    if dist < radius + c0 and dist > wp.float64(1.0e-12):
-        f = (contact_force_magnitude(dist - radius, p0, c0, u_linear) / dist) * delta
-    return to_fixed(f)
-
-
-@wp.func
 def wall_feature_sum(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
                      owners: wp.array(dtype=wp.int32), face_first: int, p: wp.vec3d, radius: wp.float64,
                      p0: wp.float64, c0: wp.float64, u_linear: wp.float64, with_stiffness: int):
@@ -305,29 +301,22 @@ def fixed_outer(k: wp.float64, n: wp.vec3d):
 
 
 @wp.func
-def feature_stiffness(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
-                      u_linear: wp.float64):
-    """−∂F/∂p of :func:`feature_force` along its normal, k(h) n nᵀ (µN/mm; the turn of n
-    left out), fixed point: its diagonal (xx, yy, zz) and upper (xy, xz, yz) entries."""
+def feature_terms(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
+                  u_linear: wp.float64, with_stiffness: int):
+    """One feature's force (µN) and, with ``with_stiffness``, its stiffness −∂F/∂p along
+    its normal, k(h) n nᵀ (µN/mm; the turn of n left out), fixed point: force, then the
+    stiffness's diagonal (xx, yy, zz) and upper (xy, xz, yz) entries."""
     delta = p - closest
     dist = wp.length(delta)
+    force = vec3l()
     diagonal = vec3l()
     upper = vec3l()
     if dist < radius + c0 and dist > wp.float64(1.0e-12):
-        n = delta / dist
-        diagonal, upper = fixed_outer(contact_stiffness(dist - radius, p0, c0, u_linear), n)
-    return diagonal, upper
-
-
-@wp.func
-def feature_terms(p: wp.vec3d, closest: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
-                  u_linear: wp.float64, with_stiffness: int):
-    """One feature's force and (with ``with_stiffness``) stiffness entries, fixed point."""
-    diagonal = vec3l()
-    upper = vec3l()
-    if with_stiffness != 0:
-        diagonal, upper = feature_stiffness(p, closest, radius, p0, c0, u_linear)
-    return feature_force(p, closest, radius, p0, c0, u_linear), diagonal, upper
+        magnitude, k = contact_law(dist - radius, p0, c0, u_linear)
+        force = to_fixed((magnitude / dist) * delta)
+        if with_stiffness != 0:
+            diagonal, upper = fixed_outer(k, delta / dist)
+    return force, diagonal, upper
 
 
 @wp.func
