@@ -366,6 +366,21 @@ def add_pair(a: int, b: int, st: wp.vec2d, k: wp.float64, normal: wp.vec3d, sums
         pair_n[a, slot] = normal
 
 
+@wp.func
+def evaluates_pair(a: int, b: int, chord: int, neighbour_count: wp.array(dtype=wp.int32)) -> bool:
+    """Edge a's chord pass evaluates its pair with edge b (both in the pass): the lower edge does
+    (contact.visit_pair's side), except, with the chord, where one of the two searches the grid (its
+    neighbour list overflowed: NO_LIST) and the other walks a list: then the one with the list, which
+    holds every partner within the list radius, while the grid, searched around the edge's midpoint at
+    x, may miss a pair that comes into reach only at the predicted end (contact.edge_contact then
+    overflows the list side's chord record, so it walks its whole list)."""
+    a_grid = neighbour_count[a] == NO_LIST
+    b_grid = neighbour_count[b] == NO_LIST
+    if chord != 0 and a_grid != b_grid:
+        return b_grid
+    return b > a
+
+
 @wp.kernel
 def clear_pair_records(pair_count: wp.array(dtype=wp.int32), sums: wp.array2d(dtype=vec3l)):
     """Empty each edge's pair record and block sums before :func:`edge_contact_stiffness` adds to them."""
@@ -455,7 +470,7 @@ def edge_contact_stiffness(
 ):
     """Coil–coil contact stiffness (µN/mm), each pair evaluated once (``pair_stiffness``
     from its lower edge a, or from a when b runs no pass of its own: an edge in the
-    catheter) and added to both edges (:func:`add_pair`: a's side, and b's mirrored, with
+    catheter, or searches the grid where a walks a list: :func:`evaluates_pair`) and added to both edges (:func:`add_pair`: a's side, and b's mirrored, with
     (t, s) and −n, when b runs its pass): Gershgorin block sums and pair records, cleared by
     :func:`clear_pair_records`, finished by :func:`finish_pair_records`. Edge a's candidates:
     the partners that contact.edge_contact noted within a hair of touching at the same
@@ -490,7 +505,7 @@ def edge_contact_stiffness(
         b = int(0)
         while next_partner(query, k, b, a, candidates, listed, coil_of, exclusion):
             b_runs = edge_in_contact_pass(free, has_next, b)
-            if b < a and b_runs:  # b's own pass evaluates it
+            if b_runs and not evaluates_pair(a, b, chord, neighbour_count):  # b's own pass evaluates it
                 continue
             if chord != 0 and swept_apart(mid, sweep, a, b, c0):  # neither near: no block
                 continue
