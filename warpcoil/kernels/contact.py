@@ -1076,9 +1076,11 @@ def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp
              sum_start: wp.array(dtype=vec3l), sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
              contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
     """Adds one side of a pair to edge e's fixed-point sums (integer addition:
-    the result does not depend on the order), smallest gap and touching count."""
-    wp.atomic_add(sum_start, e, to_fixed(f_start))
-    wp.atomic_add(sum_end, e, to_fixed(f_end))
+    the result does not depend on the order; a side with no force, e.g. a pair with no
+    term in range, adds nothing to them), smallest gap and touching count."""
+    if wp.length_sq(f_start) + wp.length_sq(f_end) != wp.float64(0.0):  # NaN too
+        wp.atomic_add(sum_start, e, to_fixed(f_start))
+        wp.atomic_add(sum_end, e, to_fixed(f_end))
     wp.atomic_min(min_gap, e, gap)
     if gap < c0:
         wp.atomic_add(contacts, e, 1)
@@ -1087,12 +1089,15 @@ def add_side(e: int, f_start: wp.vec3d, f_end: wp.vec3d, gap: wp.float64, c0: wp
 
 
 @wp.func
-def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32), touch_b: wp.array2d(dtype=wp.int32)):
+def note_touching(e: int, other: int, touch_count: wp.array(dtype=wp.int32),
+                  touch_b: wp.array2d(dtype=wp.int32)) -> int:
     """Note ``other`` among edge e's touching partners, in whatever order they come
-    (readers must not depend on it); a count above the record's width means it overflowed."""
+    (readers must not depend on it); a count above the record's width means it overflowed.
+    Returns its slot (≥ the width: not recorded)."""
     slot = wp.atomic_add(touch_count, e, 1)
     if slot < touch_b.shape[1]:
         touch_b[e, slot] = other
+    return slot
 
 
 @wp.func
@@ -1100,9 +1105,8 @@ def note_candidate(e: int, other: int, st: wp.vec2d, chord_count: wp.array(dtype
                    chord_b: wp.array2d(dtype=wp.int32), chord_st: wp.array2d(dtype=wp.vec2d)):
     """:func:`note_touching` into the chord-candidate record, with the pair's closest-point
     parameters (s, t) from e at x (pair_forces', reused by the chord pass; NO_PARAMS: not known)."""
-    slot = wp.atomic_add(chord_count, e, 1)
+    slot = note_touching(e, other, chord_count, chord_b)
     if slot < chord_b.shape[1]:
-        chord_b[e, slot] = other
         chord_st[e, slot] = st
 
 
@@ -1203,11 +1207,6 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
             x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
             p0, c0, u_linear, far)
         if raw_a == -FAR_MM:  # not evaluated: zero forces and the gap the sums start from (clear_edge_sums)
-            return raw_a, st_a, handled, b_runs
-        if raw_a >= c0 + TOUCH_MARGIN_MM:  # no term in range (pair_forces): zero forces (adding 0), not touching
-            wp.atomic_min(min_gap, a, gap_a)
-            if b_runs:
-                wp.atomic_min(min_gap, b, gap_b)
             return raw_a, st_a, handled, b_runs
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
         if b_runs:

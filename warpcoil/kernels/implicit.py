@@ -470,8 +470,9 @@ def edge_contact_stiffness(
 ):
     """Coil–coil contact stiffness (µN/mm), each pair evaluated once (``pair_stiffness``
     from its lower edge a, or from a when b runs no pass of its own: an edge in the
-    catheter, or searches the grid where a walks a list: :func:`evaluates_pair`) and added to both edges (:func:`add_pair`: a's side, and b's mirrored, with
-    (t, s) and −n, when b runs its pass): Gershgorin block sums and pair records, cleared by
+    catheter, or searches the grid where a walks a list: :func:`evaluates_pair`) and
+    added to both edges (:func:`add_pair`: a's side, and b's mirrored, with (t, s) and
+    −n, when b runs its pass): Gershgorin block sums and pair records, cleared by
     :func:`clear_pair_records`, finished by :func:`finish_pair_records`. Edge a's candidates:
     the partners that contact.edge_contact noted within a hair of touching at the same
     state (``touch_count``, ``touch_b``, noted on both sides; every pair this finds touching
