@@ -138,3 +138,27 @@ def test_every_implicit_run_settles_at_the_settling_theta():
     before = (bdf2.solver.near_theta, bdf2.solver.chord)
     bdf2._halve_step(new_state_like(bdf2.model), "halved for the test while settling")
     assert (bdf2.solver.theta, bdf2.solver.near_theta, bdf2.solver.chord) == (IMPLICIT_SETTLE_THETA, *before)
+
+
+def test_a_run_settling_at_its_own_step_replays_the_settling_scheme(monkeypatch):
+    """A run that gives ``dt_s`` settles at that step, at θ = 1 after the push (Ensemble._settle_scheme):
+    the captured graph the push replayed holds the push's θ, so it is captured again. The run
+    equals the same run with every step launched directly, frame by frame."""
+    from dataclasses import replace
+
+    import warpcoil.solver as solver_mod
+
+    from test_ensemble import assert_same_run, scene
+
+    base = scene(0.0, dt_s=2.5e-4)
+    s = replace(base, simulation=replace(base.simulation, integrator="implicit", implicit_scheme="gated_chord"))
+    captured = Deployment(s).run()
+    launched = solver_mod.Stepper.__init__
+
+    def direct(self, *args, **kwargs):
+        kwargs["use_graph"] = False
+        launched(self, *args, **kwargs)
+
+    monkeypatch.setattr(solver_mod.Stepper, "__init__", direct)
+    assert captured.settle_dt_s is None  # (settled at the given step)
+    assert_same_run(Deployment(s).run(), captured)

@@ -241,10 +241,13 @@ class Ensemble:
         """Every coil is out: the implicit solver goes on at θ IMPLICIT_SETTLE_THETA, at the
         settling step or (a run that gave ``dt_s`` or halved its step) at its own."""
         self._push_over = True
-        if getattr(self.solver, "theta", 1.0) != IMPLICIT_SETTLE_THETA:  # the θ-method does not bring a coil to rest
+        scheme = (getattr(self.solver, "theta", 1.0), getattr(self.solver, "method", "theta"))
+        if scheme[0] != IMPLICIT_SETTLE_THETA:  # the θ-method does not bring a coil to rest
             self.solver.theta = IMPLICIT_SETTLE_THETA  # (FORMULATION.md "Implicit step: push force"): Euler settles it
-        if getattr(self.solver, "method", "theta") == "bdf2":  # BDF2's history would restart at every change of
+        if scheme[1] == "bdf2":  # BDF2's history would restart at every change of
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
+        if scheme != (getattr(self.solver, "theta", 1.0), getattr(self.solver, "method", "theta")):
+            self.stepper.forget_graph()  # its graph holds the push's θ and method (the settling steppers capture anew)
 
     def _settle_chunk(self, live: list[Member]) -> None:
         """One frame of settling: each live member at the step its fastest free node sets

@@ -843,6 +843,11 @@ class Stepper:
     def state(self) -> State:
         return self._a
 
+    def forget_graph(self) -> None:
+        """Drop the captured graph: the solver's settings changed (θ, method), which a graph
+        holds as they were at its capture; the next chunk captures it again."""
+        self._graph = None
+
     def _launch_steps(self, steps: int) -> None:
         for _ in range(steps // 2):
             self.solver.step(self._a, self._b, self.control)
