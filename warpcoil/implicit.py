@@ -60,7 +60,7 @@ from .devices import ImplicitDeviceStiffness
 from .kernels import chord
 from .kernels import implicit as kernels
 from .kernels import node_theta
-from .kernels import elastic, integrate
+from .kernels import elastic, friction, integrate
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
@@ -309,6 +309,11 @@ class ImplicitSolver(Solver):
                              f"{turn_gate_rad}")
         self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
+        carried = n if self.friction else 1  # friction through the system: no change before its first pass, the second's
+        self._no_change, self._intended, self._second_change = (wp.zeros(carried, dtype=wp.vec3d, device=dev)
+                                                                for _ in range(3))
+        self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and (
+            self.has_wall or self.has_balloon or self.has_stent)
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
@@ -418,8 +423,11 @@ class ImplicitSolver(Solver):
                 state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt_m, started=started)
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
-        if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py)
-            self._apply_friction(state_in, state_out, control.running, dt_m if bdf2 else dt)
+        if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py), its
+            friction_dt = dt_m if bdf2 else dt  # impulse carried through this step's system
+            self._friction_changes(state_in, state_out, control.running, friction_dt)
+            self._friction_through_system(state_in, state_out, control, dt_m, friction_dt, gated)
+            self._launch_friction_apply(state_in, state_out, control.running, friction_dt)
             if theta != 1.0 or bdf2 or gated:  # the positions from the scheme's combination of the old and new velocities
                 self._finish_positions(state_in, state_out, control, state_out.v, dt, dt_m, bdf2, gated, False)
         # twist after the positions (Gauss–Seidel): directors carried to the new tangents, the
@@ -546,6 +554,40 @@ class ImplicitSolver(Solver):
             state_in.x, state_in.v, v_new, state_out.free, m.fixed, m.world_of, control.running, dt, self.theta,
             state_out.x, state_out.v])
 
+    def _friction_through_system(self, state_in: State, state_out: State, control: Control, dt_m: float,
+                                 friction_dt: float, gated: bool) -> None:
+        """The friction change Δv_f as an impulse on this step's system: y = A⁻¹ (M + dt B) Δv_f
+        (the step's matrix and factorisation, started at y = Δv_f; kernels.impulse_start), so
+        that the stiff terms coupling a contact node to its neighbours carry the impulse with
+        it instead of being strained by dt Δv_f and ringing the step after. A stuck wall or
+        device contact whose neighbours took part of its change gets a second pass of its law
+        on the slip left, with the budget left (friction.second_obstacle_change), through the
+        system too. A world whose kinetic energy a pass would raise keeps what it had
+        (docs/FORMULATION.md "Friction through the step's system")."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+
+        def through(impulse: wp.array, before: wp.array) -> None:
+            wp.launch(kernels.impulse_start, n, device=dev, inputs=[
+                impulse, state_in.v, m.inv_mass, m.damping_c, m.damping_k, dt_m, state_out.free, m.fixed,
+                m.world_of, control.running, self.node_theta, self.theta, int(gated), self._v, self._rhs])
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
+                state_out, control, dt_m) + [self._r])
+            self._solve_velocities(state_in, state_out, control, dt_m, started=True, factored=True)
+            wp.launch(kernels.keep_dissipative_change, m.world_count, device=dev, inputs=[
+                m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
+                self.node_theta, self.theta, int(gated), before, self._friction_change])
+
+        if self.obstacle_friction:
+            wp.copy(self._intended, self._friction_change)
+        through(self._friction_change, self._no_change)
+        if self.obstacle_friction:
+            c = m.contact
+            wp.launch(friction.second_obstacle_change, n, device=dev, inputs=[
+                state_out.free, m.has_next, m.world_of, control.running, m.inv_mass, self.coil_contacts,
+                self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, friction_dt, state_out.v,
+                self._intended, self._friction_change, self._second_change])
+            through(self._second_change, self._friction_change)
+
     def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
         """The arguments of kernels.system_product after (x, b, residual), before out."""
         m = self.model
@@ -560,20 +602,22 @@ class ImplicitSolver(Solver):
             state_in.v, state_out.v, state_out.free, m.fixed, m.world_of, control.running, self._v])
 
     def _solve_velocities(self, state_in: State, state_out: State, control: Control, dt: float,
-                          iterations: int | None = None, started: bool = False) -> None:
+                          iterations: int | None = None, started: bool = False, factored: bool = False) -> None:
         """(M + dt² (H + K_c)) v* = M v + dt F into ``self._v``: preconditioned conjugate
         gradients per world, started at the old velocities, preconditioned by each
         coil's banded factorisation: ``cg_iterations`` iterations, ``push_cg_iterations``
         in a world whose pusher drives a coil (its later iterations' launches skip it);
         ``iterations``: that many in every world instead. ``started``: the start (``self._v``)
-        and its residual (``self._r``) are already there (kernels.theta_start)."""
+        and its residual (``self._r``) are already there (kernels.theta_start); ``factored``: so is
+        this step's factorisation (a second solve with the same matrix)."""
         m, dev, n, coils = self.model, self.model.device, self.model.node_count, self.model.coil_count
         total = self.cg_iterations if iterations is None else iterations
         pushing = self.push_cg_iterations if iterations is None else iterations
         free, running = state_out.free, control.running
         coil_args = [self._coil_first, self._coil_last, m.coil_world, running, free, m.fixed]
-        wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
-            self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
+        if not factored:
+            wp.launch(kernels.factor_coils, coils, device=dev, inputs=coil_args + [
+                self._diag, self._upper1, self._upper2, self._inv_d, self._lower1, self._lower2])
         product_args = self._product_args(state_out, control, dt)
         precondition_args = coil_args + [self._inv_d, self._lower1, self._lower2, self._r, self._y, self._z]
         if not started:

@@ -613,6 +613,17 @@ class Solver:
     def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
         """Implicit Coulomb friction on the velocities the integrator predicted
         (kernels/friction.py), with the contacts found at ``state_in``."""
+        self._friction_changes(state_in, state_out, running, dt)
+        self._launch_friction_apply(state_in, state_out, running, dt)
+
+    def _launch_friction_apply(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
+        """v' = v* + the friction change, x' = x + dt v'."""
+        m = self.model
+        wp.launch(friction.apply_friction, m.node_count, device=m.device, inputs=[
+            state_in.x, state_out.free, m.world_of, running, self._friction_change, dt, state_out.v, state_out.x])
+
+    def _friction_changes(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
+        """Each node's friction velocity change (mm/s), normal guard included, into ``_friction_change``."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         if self.coil_friction:
@@ -643,8 +654,6 @@ class Solver:
             wp.launch(friction.add_guard, n, device=dev, inputs=[
                 state_out.free, m.has_next, m.world_of, running, self.wall_force, self.device_force, self._guard_start,
                 self._guard_end, int(self.coil_contact), self._friction_change])
-        wp.launch(friction.apply_friction, n, device=dev, inputs=[
-            state_in.x, state_out.free, m.world_of, running, self._friction_change, dt, state_out.v, state_out.x])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""

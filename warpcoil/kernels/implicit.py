@@ -856,6 +856,84 @@ def settling_worlds(running: wp.array(dtype=wp.int32), active_coil: wp.array(dty
 
 
 @wp.kernel
+def impulse_start(
+    change: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    inv_mass: wp.array(dtype=wp.float64),
+    damping_c: wp.array(dtype=wp.float64),
+    damping_k: wp.float64,
+    dt: wp.float64,
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_theta: wp.array(dtype=wp.float64),
+    theta: wp.float64,
+    gated: int,
+    y: wp.array(dtype=wp.vec3d),
+    rhs: wp.array(dtype=wp.vec3d),
+):
+    """Start and right side of A y = (M + dt B) Δv_f: the friction change ``change`` (mm/s)
+    as the impulse that moves a node by Δv_f against its inertia and the step's damping
+    (B at the old velocities ``v``, as assemble_blocks has it) where no stiff term resists;
+    y = Δv_f on the unknowns (on a gated row θ_i ≠ θ, whose unknown is u with v' changing
+    by θ/θ_i of it: θ_i/θ Δv_f, its mass M θ/θ_i), 0 elsewhere (held nodes keep theirs)."""
+    i = wp.tid()
+    zv = wp.vec3d(F64_0, F64_0, F64_0)
+    y[i] = zv
+    rhs[i] = zv
+    if solving(free, fixed, world_of, running, i):
+        scale = F64_1
+        if gated != 0 and node_theta[i] != theta:
+            scale = node_theta[i] / theta
+        mass = F64_1 / inv_mass[i]
+        y[i] = scale * change[i]
+        rhs[i] = (mass + scale * dt * damping_rate(wp.length(v[i]), damping_c[i], damping_k)) * change[i]
+
+
+@wp.kernel
+def keep_dissipative_change(
+    world_node_range: wp.array2d(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    free: wp.array(dtype=wp.int32),
+    fixed: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    v_predicted: wp.array(dtype=wp.vec3d),
+    y: wp.array(dtype=wp.vec3d),
+    node_theta: wp.array(dtype=wp.float64),
+    theta: wp.float64,
+    gated: int,
+    before: wp.array(dtype=wp.vec3d),
+    change: wp.array(dtype=wp.vec3d),
+):
+    """One world: its velocities v_predicted + ``before`` change by y, the solve of
+    A y = (M + dt B) Δv_f (on a gated row θ_i ≠ θ the solve's unknown is u, and v' changes
+    by θ/θ_i of it), into ``change`` (= before + y), unless that leaves its kinetic energy
+    (translation, fixed-order sums) above theirs: then ``change`` keeps what it holds."""
+    w = wp.tid()
+    if running[w] == 0:
+        return
+    first = world_node_range[w, 0]
+    last = world_node_range[w, 1]
+    energy_before = F64_0
+    energy_after = F64_0
+    for i in range(first, last + 1):
+        if unknown(free, fixed, i):
+            d = y[i]
+            if gated != 0 and node_theta[i] != theta:
+                d = (theta / node_theta[i]) * d
+                y[i] = d
+            mass = F64_1 / inv_mass[i]
+            start = v_predicted[i] + before[i]
+            energy_before = energy_before + mass * wp.length_sq(start)
+            energy_after = energy_after + mass * wp.length_sq(start + d)
+    if energy_after <= energy_before:
+        for i in range(first, last + 1):
+            if unknown(free, fixed, i):
+                change[i] = before[i] + y[i]
+
+
+@wp.kernel
 def pcg_begin(
     world_node_range: wp.array2d(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
