@@ -42,11 +42,13 @@ def test_undamped_frictional_energy_never_rises_beyond_the_integrators_own_fluct
     assert dissipated > 5.0 * fluctuation
 
 
+@pytest.mark.parametrize("scheme", ["gated_chord", "euler", "bdf2"])
 @pytest.mark.parametrize("ratio", [0.8, 1.5])
-def test_the_implicit_step_sticks_and_slides_on_the_incline_as_the_reference_does(ratio):
+def test_the_implicit_step_sticks_and_slides_on_the_incline_as_the_reference_does(ratio, scheme):
     """At its default step, through its system: creep v_reg tanθ/μ below the friction angle,
-    the Coulomb acceleration above (a rigid change: the system passes it unchanged)."""
-    acceleration, reference, creep, _ = vf.incline_motion(0.3, ratio, steps=6000, implicit=True)
+    the Coulomb acceleration above (a rigid change: the system passes it unchanged), in
+    each scheme (gated rows, θ = 1, BDF2's step)."""
+    acceleration, reference, creep, _ = vf.incline_motion(0.3, ratio, steps=6000, implicit=True, scheme=scheme)
     if ratio < 1.0:
         assert creep == pytest.approx(ratio * wc.ContactSettings().friction_speed_mm_s, rel=1e-2)
     else:

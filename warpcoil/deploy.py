@@ -248,6 +248,7 @@ class Ensemble:
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
         if scheme != (getattr(self.solver, "theta", 1.0), getattr(self.solver, "method", "theta")):
             self.stepper.forget_graph()  # its graph holds the push's θ and method (the settling steppers capture anew)
+            self._fine = {}  # (so do the detachment frames' steppers)
 
     def _settle_chunk(self, live: list[Member]) -> None:
         """One frame of settling: each live member at the step its fastest free node sets

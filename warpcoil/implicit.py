@@ -310,8 +310,7 @@ class ImplicitSolver(Solver):
         self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         carried = n if self.friction else 1  # friction through the system: no change before its first pass, the second's
-        self._no_change, self._intended, self._second_change = (wp.zeros(carried, dtype=wp.vec3d, device=dev)
-                                                                for _ in range(3))
+        self._no_change, self._second_change = (wp.zeros(carried, dtype=wp.vec3d, device=dev) for _ in range(2))
         self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and (
             self.has_wall or self.has_balloon or self.has_stent)
         if contact_stiffness not in CONTACT_STIFFNESS:
@@ -425,7 +424,8 @@ class ImplicitSolver(Solver):
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py), its
             friction_dt = dt_m if bdf2 else dt  # impulse carried through this step's system
-            self._friction_changes(state_in, state_out, control.running, friction_dt)
+            self._friction_law(state_in, state_out, control.running, friction_dt)
+            self._friction_guard(state_in, state_out, control.running)
             self._friction_through_system(state_in, state_out, control, dt_m, friction_dt, gated)
             self._launch_friction_apply(state_in, state_out, control.running, friction_dt)
             if theta != 1.0 or bdf2 or gated:  # the positions from the scheme's combination of the old and new velocities
@@ -560,10 +560,13 @@ class ImplicitSolver(Solver):
         (the step's matrix and factorisation, started at y = Δv_f; kernels.impulse_start), so
         that the stiff terms coupling a contact node to its neighbours carry the impulse with
         it instead of being strained by dt Δv_f and ringing the step after. A stuck wall or
-        device contact whose neighbours took part of its change gets a second pass of its law
-        on the slip left, with the budget left (friction.second_obstacle_change), through the
-        system too. A world whose kinetic energy a pass would raise keeps what it had
-        (docs/FORMULATION.md "Friction through the step's system")."""
+        device contact whose neighbours took part of its change gets a second pass of its
+        shortfall, within its budget (friction.second_obstacle_change), through the system
+        too. A world whose kinetic energy a pass would raise keeps the change it had before
+        that pass (before the first: the law's guarded Δv_f at the nodes, as applied before
+        this existed). Δv_f comes with its normal guard (Solver._friction_guard); the change
+        applied loses any part into the wall or a device again (docs/FORMULATION.md
+        "Friction through the step's system")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
 
         def through(impulse: wp.array, before: wp.array) -> None:
@@ -577,16 +580,17 @@ class ImplicitSolver(Solver):
                 m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
                 self.node_theta, self.theta, int(gated), before, self._friction_change])
 
-        if self.obstacle_friction:
-            wp.copy(self._intended, self._friction_change)
         through(self._friction_change, self._no_change)
         if self.obstacle_friction:
             c = m.contact
             wp.launch(friction.second_obstacle_change, n, device=dev, inputs=[
                 state_out.free, m.has_next, m.world_of, control.running, m.inv_mass, self.coil_contacts,
                 self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, friction_dt, state_out.v,
-                self._intended, self._friction_change, self._second_change])
+                self._friction_change, self._second_change])
             through(self._second_change, self._friction_change)
+        wp.launch(friction.add_guard, n, device=dev, inputs=[  # nothing of it into the wall or a device
+            state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,
+            self._guard_start, self._guard_end, 0, self._friction_change])
 
     def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
         """The arguments of kernels.system_product after (x, b, residual), before out."""

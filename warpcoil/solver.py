@@ -613,7 +613,8 @@ class Solver:
     def _apply_friction(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
         """Implicit Coulomb friction on the velocities the integrator predicted
         (kernels/friction.py), with the contacts found at ``state_in``."""
-        self._friction_changes(state_in, state_out, running, dt)
+        self._friction_law(state_in, state_out, running, dt)
+        self._friction_guard(state_in, state_out, running)
         self._launch_friction_apply(state_in, state_out, running, dt)
 
     def _launch_friction_apply(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
@@ -622,8 +623,8 @@ class Solver:
         wp.launch(friction.apply_friction, m.node_count, device=m.device, inputs=[
             state_in.x, state_out.free, m.world_of, running, self._friction_change, dt, state_out.v, state_out.x])
 
-    def _friction_changes(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
-        """Each node's friction velocity change (mm/s), normal guard included, into ``_friction_change``."""
+    def _friction_law(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
+        """Each node's friction velocity change (mm/s) by the law, into ``_friction_change``."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         if self.coil_friction:
@@ -638,7 +639,12 @@ class Solver:
             state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts, self.wall_force,
             self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start, self._friction_end,
             int(self.coil_friction), dt, state_out.v, self._friction_change])
-        # no contact's normal separation rate lowered by friction (kernels/friction.py)
+
+    def _friction_guard(self, state_in: State, state_out: State, running: wp.array) -> None:
+        """The normal guard on ``_friction_change``: no contact's normal separation rate lowered
+        by it (kernels/friction.py)."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        c = m.contact
         if self.coil_contact:
             wp.launch(friction.record_guard_pairs, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,

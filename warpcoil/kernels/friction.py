@@ -299,17 +299,16 @@ def second_obstacle_change(
     v_reg: wp.float64,
     dt: wp.float64,
     v_first: wp.array(dtype=wp.vec3d),
-    intended: wp.array(dtype=wp.vec3d),
     achieved: wp.array(dtype=wp.vec3d),
     change: wp.array(dtype=wp.vec3d),
 ):
-    """Node i's second friction change (mm/s) on the implicit step, where the first,
-    ``intended`` (the law at the predicted velocities ``v_first``), reached it through the
-    step's system only in part (``achieved``: its stiff neighbours took the rest) and its
-    most loaded obstacle contact (wall or device) sticks: the tangential shortfall over the
-    share r of its own change the node kept (r ≥ SHORTFALL_RESPONSE_MIN), so that a second
-    pass through the system brings it near the first's intent; at most the contact's
-    budget dt μ N / m less the first change, times α (kernels: 0 unless free and running)."""
+    """Node i's second friction change (mm/s) on the implicit step, where its most loaded
+    obstacle contact (wall or device) sticks and its change by the law at the predicted
+    velocities ``v_first``, w, reached it through the step's system only in part (the node
+    kept the share r of it along w in ``achieved``, its stiff neighbours took the rest):
+    w (1 − r) / r with r ≥ SHORTFALL_RESPONSE_MIN, so that a second pass through the system
+    brings it near w; at most the contact's budget α dt μ N / m less |w| (0 unless free
+    and running)."""
     i = wp.tid()
     dv = wp.vec3d(F64_0, F64_0, F64_0)
     if running[world_of[i]] != 0 and free_out[i] != 0:
@@ -320,19 +319,16 @@ def second_obstacle_change(
         if load > F64_0:
             n = f / load
             a = dt * mu_wall * load * inv_mass[i]
-            alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
             if wp.length(tangential(v_first[i], n)) - a < v_reg:  # it sticks (a sliding contact spent its budget)
-                want = tangential(intended[i], n)
-                got = tangential(achieved[i], n)
+                alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
+                want = obstacle_change(f, v_first[i], mu_wall, v_reg, inv_mass[i], alpha, dt)
                 want_sq = wp.length_sq(want)
-                if want_sq > F64_0:
-                    kept = wp.clamp(wp.dot(want, got) / want_sq, wp.float64(SHORTFALL_RESPONSE_MIN), F64_1)
-                    dv = (alpha / kept) * (want - got)
-                    left = a - wp.length(obstacle_change(f, v_first[i], mu_wall, v_reg, inv_mass[i], alpha, dt))
+                left = alpha * a - wp.sqrt(want_sq)
+                if want_sq > F64_0 and left > F64_0:
+                    kept = wp.clamp(wp.dot(want, achieved[i]) / want_sq, wp.float64(SHORTFALL_RESPONSE_MIN), F64_1)
+                    dv = ((F64_1 - kept) / kept) * want
                     size = wp.length(dv)
-                    if left <= F64_0:
-                        dv = wp.vec3d(F64_0, F64_0, F64_0)
-                    elif size > left:
+                    if size > left:
                         dv = (left / size) * dv
     change[i] = dv
 
