@@ -279,9 +279,9 @@ def friction_change(
     change[i] = dv
 
 
-# the least share of its own first change a stuck node is taken to have kept (second pass: at most twice its
-# shortfall). Capstan at the default step / half / quarter: 0.5 gives +9.8 / +3.0 / −1.0 % (μ 0.2, π); 0.25 and
-# 0.05 the same at the first two but slip at once at the quarter step; 1 (the shortfall alone) slips at once
+# the least share of its own change a stuck node is taken to have kept (second pass: w (1 − r)/r, at most w).
+# Capstan (μ 0.2 φ π / μ 0.3 φ π/2) at the default step, half, quarter: r ≥ 0.5 +8.9 / −4.8, +3.0 / +0.1,
+# −1.0 / −10.6 %; r ≥ 0.25 +9.4 / −4.8, +3.0 / +0.1, −1.9 / −22.0 %; no second pass: the wrap slips at once
 SHORTFALL_RESPONSE_MIN = 0.5
 
 
