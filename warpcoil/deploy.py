@@ -241,12 +241,14 @@ class Ensemble:
         """Every coil is out: the implicit solver goes on at θ IMPLICIT_SETTLE_THETA, at the
         settling step or (a run that gave ``dt_s`` or halved its step) at its own."""
         self._push_over = True
-        scheme = (getattr(self.solver, "theta", 1.0), getattr(self.solver, "method", "theta"))
-        if scheme[0] != IMPLICIT_SETTLE_THETA:  # the θ-method does not bring a coil to rest
+        changed = False
+        if getattr(self.solver, "theta", 1.0) != IMPLICIT_SETTLE_THETA:  # the θ-method does not bring a coil to rest
             self.solver.theta = IMPLICIT_SETTLE_THETA  # (FORMULATION.md "Implicit step: push force"): Euler settles it
-        if scheme[1] == "bdf2":  # BDF2's history would restart at every change of
+            changed = True
+        if getattr(self.solver, "method", "theta") == "bdf2":  # BDF2's history would restart at every change of
             self.solver.method = "theta"  # a member's settling step: Euler settles it (FORMULATION "BDF2")
-        if scheme != (getattr(self.solver, "theta", 1.0), getattr(self.solver, "method", "theta")):
+            changed = True
+        if changed:
             self.stepper.forget_graph()  # its graph holds the push's θ and method (the settling steppers capture anew)
             self._fine = {}  # (so do the detachment frames' steppers)
 

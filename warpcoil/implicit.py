@@ -311,8 +311,8 @@ class ImplicitSolver(Solver):
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
         carried = n if self.friction else 1  # friction through the system: no change before its first pass, the second's
         self._no_change, self._second_change = (wp.zeros(carried, dtype=wp.vec3d, device=dev) for _ in range(2))
-        self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and (
-            self.has_wall or self.has_balloon or self.has_stent)
+        self._obstacles = self.has_wall or self.has_balloon or self.has_stent  # what friction must not push into
+        self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and self._obstacles
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
@@ -588,9 +588,10 @@ class ImplicitSolver(Solver):
                 self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, friction_dt, state_out.v,
                 self._friction_change, self._second_change])
             through(self._second_change, self._friction_change)
-        wp.launch(friction.add_guard, n, device=dev, inputs=[  # nothing of it into the wall or a device
-            state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,
-            self._guard_start, self._guard_end, 0, self._friction_change])
+        if self._obstacles:  # nothing of it into the wall or a device
+            wp.launch(friction.add_guard, n, device=dev, inputs=[
+                state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,
+                self._guard_start, self._guard_end, 0, self._friction_change])
 
     def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
         """The arguments of kernels.system_product after (x, b, residual), before out."""

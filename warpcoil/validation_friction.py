@@ -80,6 +80,11 @@ def _solver(model, implicit: bool, coil_contact: bool = True, scheme: str = "gat
                           coil_contact=coil_contact, **scheme_options(scheme))
 
 
+def _label(implicit: bool) -> str:
+    """A case's prefix: which step it runs on."""
+    return "implicit step, friction" if implicit else "friction"
+
+
 def _chunk(solver: Solver, explicit_steps: int) -> int:
     """Steps per chunk: ``explicit_steps`` of the reference's step, in the solver's."""
     return max(1, round(explicit_steps * DEFAULT_DT_SAFETY * solver.bound.dt_s / solver.dt_s))
@@ -124,7 +129,7 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
 def incline_cases(mu: float = 0.3, implicit: bool = False) -> list[CaseResult]:
     rows = []
     v_reg = ContactSettings().friction_speed_mm_s
-    label = "implicit step, friction" if implicit else "friction"
+    label = _label(implicit)
     for ratio in (0.8, 0.99):  # stuck: creeps at v_reg F_t/(μN) = v_reg tanθ/μ < v_reg
         _, _, creep, _ = incline_motion(mu, ratio, implicit=implicit)
         rows.append(_row(f"{label} incline tanθ = {ratio}μ: sticks, creep (mm/s)", ratio * v_reg, creep, 1e-2))
@@ -188,7 +193,7 @@ def capstan_slip_ratio(mu: float, wrap_rad: float, radius_mm: float = 5.0, t1_uN
 def capstan_cases(implicit: bool = False) -> list[CaseResult]:
     """Slip at e^{μφ} (the implicit step at its default step: IMPLICIT_CAPSTAN_TOLERANCE)."""
     rows = []
-    label = "implicit step, friction" if implicit else "friction"
+    label = _label(implicit)
     for mu, wrap in ((0.2, math.pi), (0.3, 0.5 * math.pi)):
         ratio, reference = capstan_slip_ratio(mu, wrap, implicit=implicit)
         rows.append(_row(f"{label} capstan μ={mu}, φ={wrap:.3f}: slip T2/T1", reference, ratio,
@@ -275,7 +280,7 @@ def energy_cases(implicit: bool = False) -> list[CaseResult]:
     (the reference, which conserves energy) dissipates ≫ that. (The implicit step loses energy
     itself, comparable to what friction dissipates here: only the first holds for it.)"""
     rise, fluctuation, dissipated = frictional_energy(implicit=implicit)
-    label = "implicit step, friction" if implicit else "friction"
+    label = _label(implicit)
     rows = [CaseResult(f"{label} energy: largest rise (nJ) ≤ frictionless fluctuation", 0.0, rise, rise, fluctuation)]
     if not implicit:
         rows.append(CaseResult(f"{label} energy: frictionless fluctuation / dissipated", 0.0, fluctuation / dissipated,
