@@ -24,7 +24,8 @@ import warp as wp
 
 KERNEL_MODULES = (
     "warpcoil.kernels.chord", "warpcoil.kernels.contact", "warpcoil.kernels.devices", "warpcoil.kernels.elastic",
-    "warpcoil.kernels.friction", "warpcoil.kernels.implicit", "warpcoil.kernels.integrate", "warpcoil.kernels.node_theta",
+    "warpcoil.kernels.friction", "warpcoil.kernels.friction_damping", "warpcoil.kernels.implicit",
+    "warpcoil.kernels.integrate", "warpcoil.kernels.node_theta",
     "warpcoil.kernels.wall_field", "warpcoil.kernels.wall_measure", "warpcoil.geometry", "warpcoil.porous", "warpcoil.preflight",
     "warpcoil.bench.steps",
 )

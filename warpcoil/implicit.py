@@ -57,7 +57,7 @@ import math
 import warp as wp
 
 from .devices import ImplicitDeviceStiffness
-from .kernels import chord
+from .kernels import chord, friction_damping
 from .kernels import implicit as kernels
 from .kernels import node_theta
 from .kernels import elastic, friction, integrate
@@ -147,6 +147,8 @@ IMPLICIT_METHODS = ("theta", "bdf2")
 IMPLICIT_METHOD = "theta"
 BDF2_SCALE = 2.0 / 3.0  # BDF2's implicit coefficient h = 2/3 dt
 CG_ITERATIONS = 3  # conjugate-gradient iterations per step (benchmarked: BENCHMARKS.md)
+# solves a step with wall or device friction: linearised about the old velocities, then about the solved ones
+OBSTACLE_FRICTION_SOLVES = 2
 # ... in a world whose pusher drives a coil (a solver option, push_cg_iterations; fewer there do not add
 # steps, the pusher sets them): 1 or 2 keep the seed case's shape and push force but let coils overlap
 # deeper in dense patient packs (C0031's smallest coil gap −0.048 → −0.061 / −0.092 mm at 2 / 1), so
@@ -267,7 +269,7 @@ class ImplicitSolver(Solver):
 
     integrator = "implicit"
     record_touching = True
-    kernel_modules = Solver.kernel_modules + (kernels, chord, node_theta)
+    kernel_modules = Solver.kernel_modules + (kernels, chord, node_theta, friction_damping)
 
     def __init__(self, model: Model, dt_s: float, dt_safety: float = DEFAULT_DT_SAFETY, coil_contact: bool = True,
                  cg_iterations: int = CG_ITERATIONS, push_cg_iterations: int = PUSH_CG_ITERATIONS,
@@ -309,10 +311,16 @@ class ImplicitSolver(Solver):
                              f"{turn_gate_rad}")
         self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
-        carried = n if self.friction else 1  # friction through the system: no change before its first pass, the second's
-        self._no_change, self._second_change = (wp.zeros(carried, dtype=wp.vec3d, device=dev) for _ in range(2))
+        self._no_change = wp.zeros(n if self.coil_friction else 1, dtype=wp.vec3d, device=dev)  # before the through pass
         self._obstacles = self.has_wall or self.has_balloon or self.has_stent  # what friction must not push into
+        # wall and device friction: linearised in the step's system (kernels/friction_damping.py)
         self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and self._obstacles
+        friction_nodes = n if self.obstacle_friction else 1
+        # per node and contact (wall, device): the linearisation's block (µN·s/mm), force (µN), slip (mm/s)
+        self._wall_block, self._device_block = (wp.zeros(friction_nodes, dtype=wp.mat33d, device=dev)
+                                                for _ in range(2))
+        self._wall_friction, self._device_friction, self._wall_slip, self._device_slip = (
+            wp.zeros(friction_nodes, dtype=wp.vec3d, device=dev) for _ in range(4))
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
@@ -403,6 +411,8 @@ class ImplicitSolver(Solver):
             self._gate(state_in, dt)
         self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt, ends=not noted,
                        noted=noted)
+        if self.obstacle_friction:  # linearised about the old velocities
+            self._obstacle_friction(state_in.v, state_in, state_out, control, dt_m, dt_m, True, 0.0)
         started = theta != 1.0 and not bdf2
         if started:  # the θ-method's right side and the solve's start residual from one product A v (theta_start)
             self._start_velocity(state_in, state_out, control)
@@ -419,14 +429,23 @@ class ImplicitSolver(Solver):
             wp.launch(kernels.system_product, n, device=dev, inputs=[self._z, self._rhs, 0] + self._product_args(
                 state_out, control, dt_m) + [self._q])
             wp.launch(kernels.bdf2_rhs, n, device=dev, inputs=[
-                state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m, self._rhs])
+                state_in.v, state_in.v_prev, self._z, self._q, m.inv_mass, m.damping_c, m.damping_k, dt_m,
+                int(self.obstacle_friction), self._wall_block, self._device_block, self._rhs])
         self._solve_velocities(state_in, state_out, control, dt_m, started=started)
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
-        if self.friction:  # implicit Coulomb friction on the new velocities (kernels/friction.py), its
-            friction_dt = dt_m if bdf2 else dt  # impulse carried through this step's system
-            self._friction_law(state_in, state_out, control.running, friction_dt)
+        force_dt = dt_m / theta if started else dt_m  # a force's weight on the right side (θ: dt)
+        for _ in range(OBSTACLE_FRICTION_SOLVES - 1 if self.obstacle_friction else 0):  # about the solved velocities
+            self._obstacle_friction(state_out.v, state_in, state_out, control, dt_m, force_dt, False,
+                                    (1.0 - theta) / theta if started else 0.0)
+            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
+                state_out, control, dt_m) + [self._r])
+            self._solve_velocities(state_in, state_out, control, dt_m, started=True)
+            self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
+        if self.coil_friction:  # implicit Coulomb friction of coil pairs on the new velocities (kernels/friction.py),
+            friction_dt = dt_m if bdf2 else dt  # its impulse carried through this step's system
+            self._friction_law(state_in, state_out, control.running, friction_dt, with_obstacles=False)
             self._friction_guard(state_in, state_out, control.running)
-            self._friction_through_system(state_in, state_out, control, dt_m, friction_dt, gated)
+            self._friction_through_system(state_in, state_out, control, dt_m, gated)
             self._launch_friction_apply(state_in, state_out, control.running, friction_dt)
             if theta != 1.0 or bdf2 or gated:  # the positions from the scheme's combination of the old and new velocities
                 self._finish_positions(state_in, state_out, control, state_out.v, dt, dt_m, bdf2, gated, False)
@@ -554,40 +573,46 @@ class ImplicitSolver(Solver):
             state_in.x, state_in.v, v_new, state_out.free, m.fixed, m.world_of, control.running, dt, self.theta,
             state_out.x, state_out.v])
 
+    def _obstacle_friction(self, v: wp.array, state_in: State, state_out: State, control: Control, dt_m: float,
+                           force_dt: float, fresh: bool, rhs_scale: float) -> None:
+        """Wall and device friction linearised about velocities ``v`` into the system: its block
+        at ``dt_m``, its force at ``force_dt`` (``fresh``: onto the blocks and right side just
+        assembled; else in place of the last linearisation, the θ right side corrected by
+        ``rhs_scale``; kernels/friction_damping.py)."""
+        m, c = self.model, self.model.contact
+        wp.launch(friction_damping.obstacle_friction, m.node_count, device=m.device, inputs=[
+            v, state_in.v, state_out.free, m.fixed, m.world_of, control.running, self.wall_force, self.wall_stiffness,
+            state_in.x, state_out.x, self.device_force, c.friction_wall, c.friction_speed_mm_s, dt_m, force_dt,
+            int(fresh), rhs_scale, self._wall_block, self._device_block, self._wall_friction, self._device_friction,
+            self._wall_slip, self._device_slip, self._diag, self._diag_exact, self._rhs])
+
+    def _through_system(self, impulse: wp.array, state_in: State, state_out: State, control: Control, dt_m: float,
+                        gated: bool) -> None:
+        """y = A⁻¹ (M + dt B) Δv into ``self._v`` for a velocity change Δv (``impulse``, mm/s):
+        this step's matrix and factorisation, started at y = Δv (kernels.impulse_start)."""
+        m, dev, n = self.model, self.model.device, self.model.node_count
+        wp.launch(kernels.impulse_start, n, device=dev, inputs=[
+            impulse, state_in.v, m.inv_mass, m.damping_c, m.damping_k, dt_m, state_out.free, m.fixed,
+            m.world_of, control.running, self.node_theta, self.theta, int(gated), self._v, self._rhs])
+        wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
+            state_out, control, dt_m) + [self._r])
+        self._solve_velocities(state_in, state_out, control, dt_m, started=True, factored=True)
+
     def _friction_through_system(self, state_in: State, state_out: State, control: Control, dt_m: float,
-                                 friction_dt: float, gated: bool) -> None:
-        """The friction change Δv_f as an impulse on this step's system: y = A⁻¹ (M + dt B) Δv_f
-        (the step's matrix and factorisation, started at y = Δv_f; kernels.impulse_start), so
-        that the stiff terms coupling a contact node to its neighbours carry the impulse with
-        it instead of being strained by dt Δv_f and ringing the step after. A stuck wall or
-        device contact whose neighbours took part of its change gets a second pass of its
-        shortfall, within its budget (friction.second_obstacle_change), through the system
-        too. A world whose kinetic energy a pass would raise keeps the change it had before
-        that pass (before the first: the law's guarded Δv_f at the nodes, as applied before
-        this existed). Δv_f comes with its normal guard (Solver._friction_guard); the change
-        applied loses any part into the wall or a device again (docs/FORMULATION.md
+                                 gated: bool) -> None:
+        """The coil pairs' friction change Δv_f as an impulse on this step's system:
+        y = A⁻¹ (M + dt B) Δv_f (the step's matrix and factorisation, started at y = Δv_f;
+        kernels.impulse_start), so that the stiff terms coupling a contact node to its
+        neighbours carry the impulse with it instead of being strained by dt Δv_f and
+        ringing the step after. A world whose kinetic energy it would raise keeps the law's
+        guarded Δv_f at the nodes. Δv_f comes with its normal guard (Solver._friction_guard);
+        the change applied loses any part into the wall or a device again (docs/FORMULATION.md
         "Friction through the step's system")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
-
-        def through(impulse: wp.array, before: wp.array) -> None:
-            wp.launch(kernels.impulse_start, n, device=dev, inputs=[
-                impulse, state_in.v, m.inv_mass, m.damping_c, m.damping_k, dt_m, state_out.free, m.fixed,
-                m.world_of, control.running, self.node_theta, self.theta, int(gated), self._v, self._rhs])
-            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
-                state_out, control, dt_m) + [self._r])
-            self._solve_velocities(state_in, state_out, control, dt_m, started=True, factored=True)
-            wp.launch(kernels.keep_dissipative_change, m.world_count, device=dev, inputs=[
-                m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
-                self.node_theta, self.theta, int(gated), before, self._friction_change])
-
-        through(self._friction_change, self._no_change)
-        if self.obstacle_friction:
-            c = m.contact
-            wp.launch(friction.second_obstacle_change, n, device=dev, inputs=[
-                state_out.free, m.has_next, m.world_of, control.running, m.inv_mass, self.coil_contacts,
-                self.wall_force, self.device_force, c.friction_wall, c.friction_speed_mm_s, friction_dt, state_out.v,
-                self._friction_change, self._second_change])
-            through(self._second_change, self._friction_change)
+        self._through_system(self._friction_change, state_in, state_out, control, dt_m, gated)
+        wp.launch(kernels.keep_dissipative_change, m.world_count, device=dev, inputs=[
+            m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
+            self.node_theta, self.theta, int(gated), self._no_change, self._friction_change])
         if self._obstacles:  # nothing of it into the wall or a device
             wp.launch(friction.add_guard, n, device=dev, inputs=[
                 state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,

@@ -623,8 +623,10 @@ class Solver:
         wp.launch(friction.apply_friction, m.node_count, device=m.device, inputs=[
             state_in.x, state_out.free, m.world_of, running, self._friction_change, dt, state_out.v, state_out.x])
 
-    def _friction_law(self, state_in: State, state_out: State, running: wp.array, dt: float) -> None:
-        """Each node's friction velocity change (mm/s) by the law, into ``_friction_change``."""
+    def _friction_law(self, state_in: State, state_out: State, running: wp.array, dt: float,
+                      with_obstacles: bool = True) -> None:
+        """Each node's friction velocity change (mm/s) by the law, into ``_friction_change``
+        (without the wall's and devices' unless ``with_obstacles``)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         if self.coil_friction:
@@ -637,8 +639,8 @@ class Solver:
                 c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])
         wp.launch(friction.friction_change, n, device=dev, inputs=[
             state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts, self.wall_force,
-            self.device_force, c.friction_wall, c.friction_speed_mm_s, self._friction_start, self._friction_end,
-            int(self.coil_friction), dt, state_out.v, self._friction_change])
+            self.device_force, c.friction_wall if with_obstacles else 0.0, c.friction_speed_mm_s, self._friction_start,
+            self._friction_end, int(self.coil_friction), dt, state_out.v, self._friction_change])
 
     def _friction_guard(self, state_in: State, state_out: State, running: wp.array) -> None:
         """The normal guard on ``_friction_change``: no contact's normal separation rate lowered

@@ -279,60 +279,6 @@ def friction_change(
     change[i] = dv
 
 
-# the least share of its own change a stuck node is taken to have kept (second pass: w (1 − r)/r, at most w).
-# Capstan (μ 0.2 φ π / μ 0.3 φ π/2) at the default step, half, quarter: r ≥ 0.5 +8.9 / −4.8, +3.0 / +0.1,
-# −1.0 / −10.6 %; r ≥ 0.25 +9.4 / −4.8, +3.0 / +0.1, −1.9 / −22.0 %; no second pass: the wrap slips at once
-SHORTFALL_RESPONSE_MIN = 0.5
-
-
-@wp.kernel
-def second_obstacle_change(
-    free_out: wp.array(dtype=wp.int32),
-    has_next: wp.array(dtype=wp.int32),
-    world_of: wp.array(dtype=wp.int32),
-    running: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    contacts: wp.array(dtype=wp.int32),
-    wall_force: wp.array(dtype=wp.vec3d),
-    device_force: wp.array(dtype=wp.vec3d),
-    mu_wall: wp.float64,
-    v_reg: wp.float64,
-    dt: wp.float64,
-    v_first: wp.array(dtype=wp.vec3d),
-    achieved: wp.array(dtype=wp.vec3d),
-    change: wp.array(dtype=wp.vec3d),
-):
-    """Node i's second friction change (mm/s) on the implicit step, where its most loaded
-    obstacle contact (wall or device) sticks and its change by the law at the predicted
-    velocities ``v_first``, w, reached it through the step's system only in part (the node
-    kept the share r of it along w in ``achieved``, its stiff neighbours took the rest):
-    w (1 − r) / r with r ≥ SHORTFALL_RESPONSE_MIN, so that a second pass through the system
-    brings it near w; at most the contact's budget α dt μ N / m less |w| (0 unless free
-    and running)."""
-    i = wp.tid()
-    dv = wp.vec3d(F64_0, F64_0, F64_0)
-    if running[world_of[i]] != 0 and free_out[i] != 0:
-        f = wall_force[i]
-        if wp.length_sq(device_force[i]) > wp.length_sq(f):
-            f = device_force[i]
-        load = wp.length(f)
-        if load > F64_0:
-            n = f / load
-            a = dt * mu_wall * load * inv_mass[i]
-            if wp.length(tangential(v_first[i], n)) - a < v_reg:  # it sticks (a sliding contact spent its budget)
-                alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
-                want = obstacle_change(f, v_first[i], mu_wall, v_reg, inv_mass[i], alpha, dt)
-                want_sq = wp.length_sq(want)
-                left = alpha * a - wp.sqrt(want_sq)
-                if want_sq > F64_0 and left > F64_0:
-                    kept = wp.clamp(wp.dot(want, achieved[i]) / want_sq, wp.float64(SHORTFALL_RESPONSE_MIN), F64_1)
-                    dv = ((F64_1 - kept) / kept) * want
-                    size = wp.length(dv)
-                    if size > left:
-                        dv = (left / size) * dv
-    change[i] = dv
-
-
 GUARD_PASSES = 16  # Jacobi passes of the normal guard (each restores 1/K of every remaining shortfall)
 GUARD_PAIRS = 8  # touching partners an edge records for the guard's passes (more: it searches each pass)
 GUARD_SEARCH = wp.constant(-1)  # an edge's record overflowed

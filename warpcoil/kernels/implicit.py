@@ -1101,17 +1101,24 @@ def bdf2_rhs(
     damping_c: wp.array(dtype=wp.float64),
     damping_k: wp.float64,
     h: wp.float64,
+    friction: int,
+    wall_block: wp.array(dtype=wp.mat33d),
+    device_block: wp.array(dtype=wp.mat33d),
     rhs: wp.array(dtype=wp.vec3d),
 ):
     """BDF2's right side from the one assembled at h = 2/3 dt (M v + h F) and
     A y (A = M + h B + h² H, y from :func:`bdf2_history_rate`):
     M (4/3 v − 1/3 v₋₁) + h F − h² H y, with h² H y = A y − (M + h B) y
-    (g·mm/s; only unknown rows are read)."""
+    (g·mm/s; only unknown rows are read). With ``friction``, B holds the node's
+    wall and device friction blocks too (kernels/friction_damping.py)."""
     i = wp.tid()
     mass = F64_1 / inv_mass[i]
     mass_b = mass + h * damping_rate(wp.length(v[i]), damping_c[i], damping_k)  # as assemble_blocks has it
     third = F64_1 / wp.float64(3.0)
-    rhs[i] = rhs[i] + mass * third * (v[i] - v_prev[i]) - (a_y[i] - mass_b * y[i])
+    damped = mass_b * y[i]
+    if friction != 0:
+        damped = damped + h * ((wall_block[i] + device_block[i]) * y[i])
+    rhs[i] = rhs[i] + mass * third * (v[i] - v_prev[i]) - (a_y[i] - damped)
 
 
 @wp.kernel
