@@ -412,7 +412,7 @@ class ImplicitSolver(Solver):
         self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt, ends=not noted,
                        noted=noted)
         if self.obstacle_friction:  # linearised about the old velocities
-            self._obstacle_friction(state_in.v, state_in, state_out, control, dt_m, dt_m, True, 0.0)
+            self._obstacle_friction(state_in.v, state_in, state_out, control, dt_m, dt_m, 0.0, True, 0.0)
         started = theta != 1.0 and not bdf2
         if started:  # the θ-method's right side and the solve's start residual from one product A v (theta_start)
             self._start_velocity(state_in, state_out, control)
@@ -435,8 +435,8 @@ class ImplicitSolver(Solver):
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         force_dt = dt_m / theta if started else dt_m  # a force's weight on the right side (θ: dt)
         for _ in range(OBSTACLE_FRICTION_SOLVES - 1 if self.obstacle_friction else 0):  # about the solved velocities
-            self._obstacle_friction(state_out.v, state_in, state_out, control, dt_m, force_dt, False,
-                                    (1.0 - theta) / theta if started else 0.0)
+            self._obstacle_friction(state_out.v, state_in, state_out, control, dt_m, force_dt, 0.0 if bdf2 else dt,
+                                    False, (1.0 - theta) / theta if started else 0.0)
             wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
                 state_out, control, dt_m) + [self._r])
             self._solve_velocities(state_in, state_out, control, dt_m, started=True)
@@ -574,17 +574,18 @@ class ImplicitSolver(Solver):
             state_out.x, state_out.v])
 
     def _obstacle_friction(self, v: wp.array, state_in: State, state_out: State, control: Control, dt_m: float,
-                           force_dt: float, fresh: bool, rhs_scale: float) -> None:
-        """Wall and device friction linearised about velocities ``v`` into the system: its block
-        at ``dt_m``, its force at ``force_dt`` (``fresh``: onto the blocks and right side just
-        assembled; else in place of the last linearisation, the θ right side corrected by
-        ``rhs_scale``; kernels/friction_damping.py)."""
+                           force_dt: float, mean_dt: float, fresh: bool, rhs_scale: float) -> None:
+        """Wall and device friction linearised about velocities ``v`` (or, ``mean_dt`` > 0, about
+        the step's mean velocity (x' − x)/``mean_dt``) into the system: its block at ``dt_m``, its
+        force at ``force_dt`` (``fresh``: onto the blocks and right side just assembled; else in
+        place of the last linearisation, the θ right side corrected by ``rhs_scale``;
+        kernels/friction_damping.py)."""
         m, c = self.model, self.model.contact
         wp.launch(friction_damping.obstacle_friction, m.node_count, device=m.device, inputs=[
             v, state_in.v, state_out.free, m.fixed, m.world_of, control.running, self.wall_force, self.wall_stiffness,
             state_in.x, state_out.x, self.device_force, c.friction_wall, c.friction_speed_mm_s, dt_m, force_dt,
-            int(fresh), rhs_scale, self._wall_block, self._device_block, self._wall_friction, self._device_friction,
-            self._wall_slip, self._device_slip, self._diag, self._diag_exact, self._rhs])
+            mean_dt, int(fresh), rhs_scale, self._wall_block, self._device_block, self._wall_friction,
+            self._device_friction, self._wall_slip, self._device_slip, self._diag, self._diag_exact, self._rhs])
 
     def _through_system(self, impulse: wp.array, state_in: State, state_out: State, control: Control, dt_m: float,
                         gated: bool) -> None:

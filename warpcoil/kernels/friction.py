@@ -1,5 +1,8 @@
 """Regularised Coulomb friction, applied implicitly at the velocity level.
 
+(The reference step's law for every contact, and the implicit step's for coil pairs: the
+implicit step solves wall and device friction inside its system, kernels/friction_damping.py.)
+
 After the conservative forces and the damping have predicted the velocities v*,
 every contact p (a node on the wall or on a device; two coil edges; a coil edge on
 an edge still in the catheter, which stands in for the catheter) gets a friction

@@ -13,9 +13,10 @@ damping law's dt β I does; its constant part joins the right side):
 * sliding: Newton's linearisation −μ N ŵ_k − μ N/|w_k| (I − n nᵀ − ŵ_k ŵ_kᵀ) w':
   exactly μ N against the slip, a damper across it.
 
-The step linearises about the old velocities (the load at the step start), solves,
-linearises again about the solved ones (the wall's load at the solved end, as the
-system's wall stiffness has it) and solves again (ImplicitSolver,
+The velocity w is the one the block acts on: v' on Euler and BDF2 rows, the mean
+(1 − θ_i) v + θ_i v' on a θ-method row. The step linearises about the old velocities (the
+load at the step start), solves, linearises again about the solved ones (the wall's load
+at the solved end, as the system's wall stiffness has it) and solves again (ImplicitSolver,
 OBSTACLE_FRICTION_SOLVES). A stuck
 node whose load passes μ N thus slides in the same step, and a sliding one that
 stops or turns back is held by the damper in the last solve. A node in a stiff chain
@@ -67,6 +68,7 @@ def obstacle_friction(
     v_reg: wp.float64,
     dt: wp.float64,
     force_dt: wp.float64,
+    mean_dt: wp.float64,
     fresh: int,
     rhs_scale: wp.float64,
     wall_block: wp.array(dtype=wp.mat33d),
@@ -82,7 +84,9 @@ def obstacle_friction(
     """Node i's wall and device friction linearised about ``v`` (blocks C, forces f, the
     slips w they were taken at) into the per-contact arrays, the wall's load that at the
     step start (``fresh``) or at ``x_out`` by ``wall_stiffness`` (µN/mm) from ``x_in``
-    (the device's: at the step start); dt (C − C_before) added to its
+    (the device's: at the step start), about (x_out − x_in)/``mean_dt`` where that is > 0 and
+    not ``fresh`` (the θ-method's (1 − θ_i) v + θ_i v', on which its rows' damping acts);
+    dt (C − C_before) added to its
     diagonal blocks and ``force_dt`` (f − f_before) to its right side (``fresh``: nothing
     before, the blocks just assembled, no previous slip). The θ-method's right side, which
     holds −(1 − θ)/θ A v_start, also takes −``rhs_scale`` dt (C − C_before) v_start
@@ -110,8 +114,11 @@ def obstacle_friction(
         if load > F64_0:
             n = pressing / load
             pressing = wp.max(wp.dot(n, pressing - wall_stiffness[i] * (x_out[i] - x_in[i])), F64_0) * n
-    c_wall, f_wall, s_wall = linearised_friction(pressing, v[i], before_wall, mu, v_reg)
-    c_device, f_device, s_device = linearised_friction(device_force[i], v[i], before_device, mu, v_reg)
+    about = v[i]
+    if fresh == 0 and mean_dt > F64_0:
+        about = (x_out[i] - x_in[i]) / mean_dt
+    c_wall, f_wall, s_wall = linearised_friction(pressing, about, before_wall, mu, v_reg)
+    c_device, f_device, s_device = linearised_friction(device_force[i], about, before_device, mu, v_reg)
     change = dt * (change + c_wall + c_device)
     change_f = change_f + f_wall + f_device
     diag[i] = diag[i] + change
