@@ -45,7 +45,10 @@ def test_node_theta_equal_to_theta_is_the_theta_method_bit_for_bit(tmp_path: Pat
     (plain, _), (gated, deployment) = runs
     assert deployment.solver.near_theta == theta
     free = deployment.stepper.state.free.numpy() == 1
-    assert np.all(deployment.solver.node_theta.numpy()[free] == 1.0)  # the gate ran (settling: θ = 1)
+    # the gate ran (its last step: θ_i = θ everywhere while pushing, 1 while settling; a frictional
+    # run can come to rest as its last coil detaches, before a settling step)
+    assert len(set(deployment.solver.node_theta.numpy()[free])) == 1
+    assert deployment.solver.node_theta.numpy()[free][0] in (theta, 1.0)
     assert gated.steps == plain.steps
     assert np.array_equal(gated.positions_mm[0], plain.positions_mm[0])
     assert gated.push_force_mean_max_uN == plain.push_force_mean_max_uN
