@@ -321,6 +321,8 @@ class ImplicitSolver(Solver):
                                                 for _ in range(2))
         self._wall_friction, self._device_friction, self._wall_slip, self._device_slip = (
             wp.zeros(friction_nodes, dtype=wp.vec3d, device=dev) for _ in range(4))
+        # the coil pairs' law then counts no wall or device contact in its shares (Solver._friction_law)
+        self._no_obstacle_force = wp.zeros(friction_nodes if self.coil_friction else 1, dtype=wp.vec3d, device=dev)
         if contact_stiffness not in CONTACT_STIFFNESS:
             raise ValueError(f"contact_stiffness must be one of {CONTACT_STIFFNESS}, got {contact_stiffness!r}")
         self.chord = contact_stiffness == "chord"
@@ -443,7 +445,8 @@ class ImplicitSolver(Solver):
             self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         if self.coil_friction:  # implicit Coulomb friction of coil pairs on the new velocities (kernels/friction.py),
             friction_dt = dt_m if bdf2 else dt  # its impulse carried through this step's system
-            self._friction_law(state_in, state_out, control.running, friction_dt, with_obstacles=False)
+            self._friction_law(state_in, state_out, control.running, friction_dt,
+                               with_obstacles=not self.obstacle_friction)
             self._friction_guard(state_in, state_out, control.running)
             self._friction_through_system(state_in, state_out, control, dt_m, gated)
             self._launch_friction_apply(state_in, state_out, control.running, friction_dt)

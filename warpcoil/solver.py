@@ -626,20 +626,23 @@ class Solver:
     def _friction_law(self, state_in: State, state_out: State, running: wp.array, dt: float,
                       with_obstacles: bool = True) -> None:
         """Each node's friction velocity change (mm/s) by the law, into ``_friction_change``
-        (without the wall's and devices' unless ``with_obstacles``)."""
+        (without ``with_obstacles``: coil pairs alone, their shares α = 2/K counting no wall or
+        device contact; ``_no_obstacle_force``, zeros, stands in for those forces)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
+        wall_force, device_force = ((self.wall_force, self.device_force) if with_obstacles
+                                    else (self._no_obstacle_force, self._no_obstacle_force))
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.contact_share, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force,
+                m.node_radius, m.contact_share, m.inv_mass, self.coil_contacts, wall_force, device_force,
                 self._grid.id,
                 self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
                 c.friction_speed_mm_s, dt, self._friction_start, self._friction_end])
         wp.launch(friction.friction_change, n, device=dev, inputs=[
-            state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts, self.wall_force,
-            self.device_force, c.friction_wall if with_obstacles else 0.0, c.friction_speed_mm_s, self._friction_start,
+            state_out.free, m.has_next, m.world_of, running, m.inv_mass, self.coil_contacts, wall_force, device_force,
+            c.friction_wall if with_obstacles else 0.0, c.friction_speed_mm_s, self._friction_start,
             self._friction_end, int(self.coil_friction), dt, state_out.v, self._friction_change])
 
     def _friction_guard(self, state_in: State, state_out: State, running: wp.array) -> None:
