@@ -311,7 +311,6 @@ class ImplicitSolver(Solver):
                              f"{turn_gate_rad}")
         self.turn_gate_rad = float(turn_gate_rad)
         self.node_theta = wp.zeros(n, dtype=wp.float64, device=dev)  # per node: its θ_i in the last step
-        self._no_change = wp.zeros(n if self.coil_friction else 1, dtype=wp.vec3d, device=dev)  # before the through pass
         self._obstacles = self.has_wall or self.has_balloon or self.has_stent  # what friction must not push into
         # wall and device friction: linearised in the step's system (kernels/friction_damping.py)
         self.obstacle_friction = self.friction and model.contact.friction_wall > 0.0 and self._obstacles
@@ -608,15 +607,17 @@ class ImplicitSolver(Solver):
         y = A⁻¹ (M + dt B) Δv_f (the step's matrix and factorisation, started at y = Δv_f;
         kernels.impulse_start), so that the stiff terms coupling a contact node to its
         neighbours carry the impulse with it instead of being strained by dt Δv_f and
-        ringing the step after. A world whose kinetic energy it would raise keeps the law's
-        guarded Δv_f at the nodes. Δv_f comes with its normal guard (Solver._friction_guard);
+        ringing the step after. Where the whole response would raise a world's kinetic energy, the
+        world takes the largest share of it that does not (kernels.keep_dissipative_change; the
+        law's Δv_f applied at the nodes instead, as before, strained their neighbours, and a coil
+        with coil friction alone never came to rest). Δv_f comes with its normal guard (Solver._friction_guard);
         the change applied loses any part into the wall or a device again (docs/FORMULATION.md
         "Friction through the step's system")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         self._through_system(self._friction_change, state_in, state_out, control, dt_m, gated)
         wp.launch(kernels.keep_dissipative_change, m.world_count, device=dev, inputs=[
             m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
-            self.node_theta, self.theta, int(gated), self._no_change, self._friction_change])
+            self.node_theta, self.theta, int(gated), self._friction_change])
         if self._obstacles:  # nothing of it into the wall or a device
             wp.launch(friction.add_guard, n, device=dev, inputs=[
                 state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,

@@ -904,20 +904,20 @@ def keep_dissipative_change(
     node_theta: wp.array(dtype=wp.float64),
     theta: wp.float64,
     gated: int,
-    before: wp.array(dtype=wp.vec3d),
     change: wp.array(dtype=wp.vec3d),
 ):
-    """One world: its velocities v_predicted + ``before`` change by y, the solve of
-    A y = (M + dt B) Δv_f (on a gated row θ_i ≠ θ the solve's unknown is u, and v' changes
-    by θ/θ_i of it), into ``change`` (= before + y), unless that leaves its kinetic energy
-    (translation, fixed-order sums) above theirs: then ``change`` keeps what it holds."""
+    """One world: the velocity change y, the solve of A y = (M + dt B) Δv_f (on a gated row
+    θ_i ≠ θ the solve's unknown is u, and v' changes by θ/θ_i of it), into ``change``, scaled
+    by the largest s ≤ 1 that leaves the world's kinetic energy (translation, fixed-order
+    sums) no higher than at ``v_predicted``: s = −2 Σ m v·y / Σ m |y|² where the whole of y
+    would raise it, 0 where any part would."""
     w = wp.tid()
     if running[w] == 0:
         return
     first = world_node_range[w, 0]
     last = world_node_range[w, 1]
-    energy_before = F64_0
-    energy_after = F64_0
+    cross = F64_0  # Σ m v·y
+    square = F64_0  # Σ m |y|²
     for i in range(first, last + 1):
         if unknown(free, fixed, i):
             d = y[i]
@@ -925,13 +925,14 @@ def keep_dissipative_change(
                 d = (theta / node_theta[i]) * d
                 y[i] = d
             mass = F64_1 / inv_mass[i]
-            start = v_predicted[i] + before[i]
-            energy_before = energy_before + mass * wp.length_sq(start)
-            energy_after = energy_after + mass * wp.length_sq(start + d)
-    if energy_after <= energy_before:
-        for i in range(first, last + 1):
-            if unknown(free, fixed, i):
-                change[i] = before[i] + y[i]
+            cross = cross + mass * wp.dot(v_predicted[i], d)
+            square = square + mass * wp.length_sq(d)
+    scale = F64_1
+    if wp.float64(2.0) * cross + square > F64_0:  # the whole change raises the kinetic energy
+        scale = wp.max(-wp.float64(2.0) * cross / square, F64_0)
+    for i in range(first, last + 1):
+        if unknown(free, fixed, i):
+            change[i] = scale * y[i]
 
 
 @wp.kernel
