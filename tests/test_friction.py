@@ -285,27 +285,19 @@ def test_wall_friction_stops_a_slide_on_the_implicit_step_without_turning_it_bac
     (A θ < 1 row's end velocity v' rings at the stop, −(1 − θ)/θ a step, as the θ-method
     does for any stiff damper; Euler's does not.)"""
     from warpcoil.implicit import ImplicitSolver, implicit_step_s
-    from warpcoil.model import ModelBuilder
     from warpcoil.solver import Control, Stepper
     from warpcoil.state import state_from_positions
 
-    mu, g, nodes, d = 0.3, 2000.0, 11, vf.REFERENCE_D_MM
-    contact = wc.ContactSettings(P0_uN=vf.P0_UN, friction_wall=mu)
-    builder = ModelBuilder(settings=wc.SimulationSettings(damping_uN_per_mm=0.0), contact=contact, wall=vf._floor())
-    rest = vf._straight(nodes, d)
-    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
-    builder.body_acceleration(np.array([0.0, 0.0, -g]))
-    model = builder.finalize()
-    x = rest.copy()
-    x[:, 2] = 0.5 * d + vf._overlap_for(float(1.0 / model.inv_mass.numpy()[nodes // 2]) * g, model.contact.c0_mm)
+    mu, g = 0.3, 2000.0
+    model, x = vf.rod_on_floor(mu, np.array([0.0, 0.0, -g]))
     state = state_from_positions(model, x)
-    state.v.assign(np.tile([3.0, 0.0, 0.0], (nodes, 1)))
+    state.v.assign(np.tile([3.0, 0.0, 0.0], (len(x), 1)))
     solver = ImplicitSolver(model, dt_s=implicit_step_s(model, wc.SimulationSettings().push_speed_mm_s),
                             coil_contact=False, **options)
     stepper = Stepper(solver, state, Control.create(model), chunk=1)
     path = [float(x[:, 0].mean())] + [float(stepper.run_chunk().x.numpy()[:, 0].mean()) for _ in range(120)]
     speeds = np.diff(path) / solver.dt_s  # mm/s
-    v_reg = contact.friction_speed_mm_s
+    v_reg = model.contact.friction_speed_mm_s
     stop = next(k for k, s in enumerate(speeds) if s < v_reg)  # Coulomb: 3 mm/s / (μ g) = 5 ms
     assert (stop + 1) * solver.dt_s == pytest.approx(3.0 / (mu * g), abs=2.0 * solver.dt_s)
     assert speeds.min() > -v_reg
@@ -322,7 +314,8 @@ def test_coil_friction_alone_lets_a_pack_come_to_rest_on_the_implicit_step():
     scene = wc.Scene(coils=(wc.CoilSpec(shape="spherical", wire_diameter_mm=0.2921, loop_diameter_mm=3.5,
                                          length_mm=60.0),),
                      catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.7), direction=(0.0, 0.0, 1.0)),
-                     wall=wc.WallSpec(sphere_diameter_mm=4.0), contact=wc.ContactSettings(friction_coil=0.2, wall_query="sdf"),
+                     wall=wc.WallSpec(sphere_diameter_mm=4.0),
+                     contact=wc.ContactSettings(friction_coil=0.2, wall_query="sdf"),
                      simulation=wc.SimulationSettings(push_speed_mm_s=40.0, integrator="implicit",
                                                       frame_interval_s=0.01),
                      output=OutputSettings(usd=False))

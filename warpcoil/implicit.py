@@ -413,7 +413,8 @@ class ImplicitSolver(Solver):
         self._assemble(state_in, state_out, control, x_end, int(self.chord), p0_stiff, dt_m, device_dt, ends=not noted,
                        noted=noted)
         if self.obstacle_friction:  # linearised about the old velocities
-            self._obstacle_friction(state_in.v, state_in, state_out, control, dt_m, dt_m, 0.0, True, 0.0)
+            self._obstacle_friction(state_in.v, state_in, state_out, control, dt_m, force_dt=dt_m, mean_dt=0.0,
+                                    fresh=True, rhs_scale=0.0)
         started = theta != 1.0 and not bdf2
         if started:  # the θ-method's right side and the solve's start residual from one product A v (theta_start)
             self._start_velocity(state_in, state_out, control)
@@ -436,11 +437,10 @@ class ImplicitSolver(Solver):
         self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         force_dt = dt_m / theta if started else dt_m  # a force's weight on the right side (θ: dt)
         for _ in range(OBSTACLE_FRICTION_SOLVES - 1 if self.obstacle_friction else 0):  # about the solved velocities
-            self._obstacle_friction(state_out.v, state_in, state_out, control, dt_m, force_dt, 0.0 if bdf2 else dt,
-                                    False, (1.0 - theta) / theta if started else 0.0)
-            wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
-                state_out, control, dt_m) + [self._r])
-            self._solve_velocities(state_in, state_out, control, dt_m, started=True)
+            self._obstacle_friction(state_out.v, state_in, state_out, control, dt_m, force_dt=force_dt,
+                                    mean_dt=0.0 if bdf2 else dt, fresh=False,
+                                    rhs_scale=(1.0 - theta) / theta if started else 0.0)
+            self._solve_from(state_in, state_out, control, dt_m, factored=False)
             self._finish_positions(state_in, state_out, control, self._v, dt, dt_m, bdf2, gated, True)
         if self.coil_friction:  # implicit Coulomb friction of coil pairs on the new velocities (kernels/friction.py),
             friction_dt = dt_m if bdf2 else dt  # its impulse carried through this step's system
@@ -597,9 +597,14 @@ class ImplicitSolver(Solver):
         wp.launch(kernels.impulse_start, n, device=dev, inputs=[
             impulse, state_in.v, m.inv_mass, m.damping_c, m.damping_k, dt_m, state_out.free, m.fixed,
             m.world_of, control.running, self.node_theta, self.theta, int(gated), self._v, self._rhs])
-        wp.launch(kernels.system_product, n, device=dev, inputs=[self._v, self._rhs, 1] + self._product_args(
-            state_out, control, dt_m) + [self._r])
-        self._solve_velocities(state_in, state_out, control, dt_m, started=True, factored=True)
+        self._solve_from(state_in, state_out, control, dt_m, factored=True)
+
+    def _solve_from(self, state_in: State, state_out: State, control: Control, dt_m: float, factored: bool) -> None:
+        """The system solved again from the start already in ``self._v`` (its residual against
+        ``self._rhs`` first; ``factored``: this step's factorisation still holds)."""
+        wp.launch(kernels.system_product, self.model.node_count, device=self.model.device, inputs=[
+            self._v, self._rhs, 1] + self._product_args(state_out, control, dt_m) + [self._r])
+        self._solve_velocities(state_in, state_out, control, dt_m, started=True, factored=factored)
 
     def _friction_through_system(self, state_in: State, state_out: State, control: Control, dt_m: float,
                                  gated: bool) -> None:
@@ -607,11 +612,12 @@ class ImplicitSolver(Solver):
         y = A⁻¹ (M + dt B) Δv_f (the step's matrix and factorisation, started at y = Δv_f;
         kernels.impulse_start), so that the stiff terms coupling a contact node to its
         neighbours carry the impulse with it instead of being strained by dt Δv_f and
-        ringing the step after. Where the whole response would raise a world's kinetic energy, the
-        world takes the largest share of it that does not (kernels.keep_dissipative_change; the
-        law's Δv_f applied at the nodes instead, as before, strained their neighbours, and a coil
-        with coil friction alone never came to rest). Δv_f comes with its normal guard (Solver._friction_guard);
-        the change applied loses any part into the wall or a device again (docs/FORMULATION.md
+        ringing the step after. Where the whole response would raise a world's kinetic energy,
+        the world takes the largest share of it that does not (kernels.keep_dissipative_change;
+        the law's Δv_f applied at the nodes instead, as before, strained their neighbours, and
+        a coil with coil friction alone never came to rest). Δv_f comes with its normal guard
+        (Solver._friction_guard); the change applied loses any part into the wall or a device
+        again (docs/FORMULATION.md
         "Friction through the step's system")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         self._through_system(self._friction_change, state_in, state_out, control, dt_m, gated)

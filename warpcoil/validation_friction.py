@@ -71,6 +71,26 @@ def _straight(nodes: int, d: float, axis=(1.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)
 
 
 # --- inclined plane ---------------------------------------------------------------
+def rod_on_floor(mu: float, g_mm_s2: np.ndarray, nodes: int = 11,
+                 v_reg_mm_s: float = ContactSettings.friction_speed_mm_s):
+    """A straight, undamped coil piece along x on the floor (friction μ) under the body
+    acceleration ``g_mm_s2`` (mm/s²): the model and its level positions at contact
+    equilibrium (every node at the gap where the law carries an interior node's weight;
+    an end node has half the mass and half the contact share)."""
+    d = REFERENCE_D_MM
+    rest = _straight(nodes, d)
+    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0),
+                           contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu, friction_speed_mm_s=v_reg_mm_s),
+                           wall=_floor())
+    builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
+    builder.body_acceleration(g_mm_s2)
+    model = builder.finalize()
+    interior_mass = float(1.0 / model.inv_mass.numpy()[nodes // 2])
+    x = rest.copy()
+    x[:, 2] = 0.5 * d + _overlap_for(interior_mass * -float(g_mm_s2[2]), model.contact.c0_mm)
+    return model, x
+
+
 def _solver(model, implicit: bool, coil_contact: bool = True, scheme: str = "gated_chord",
             step_scale: float = 1.0) -> Solver:
     """The reference (symplectic) solver, or the implicit one at ``step_scale`` × its default
@@ -101,19 +121,7 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
     (fitted acceleration over the second half, mm/s²; analytic g (sin θ − μ cos θ)
     or 0 when it sticks; mean speed over the second half, mm/s; largest mean speed, mm/s)."""
     theta = math.atan(tan_ratio * mu)
-    d = REFERENCE_D_MM
-    rest = _straight(nodes, d)
-    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0),
-                           contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu, friction_speed_mm_s=v_reg_mm_s),
-                           wall=_floor())
-    builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
-    builder.body_acceleration(g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
-    model = builder.finalize()
-    # the rod rests level at its contact equilibrium: every node (an end node: half the mass, half the
-    # contact share) at the gap where the law carries an interior node's weight
-    interior_mass = float(1.0 / model.inv_mass.numpy()[nodes // 2])
-    x = rest.copy()
-    x[:, 2] = 0.5 * d + _overlap_for(interior_mass * g_mm_s2 * math.cos(theta), model.contact.c0_mm)
+    model, x = rod_on_floor(mu, g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]), nodes, v_reg_mm_s)
     solver = _solver(model, implicit, coil_contact=False, scheme=scheme)
     chunk = _chunk(solver, 200)
     stepper = Stepper(solver, state_from_positions(model, x), Control.create(model), chunk=chunk)

@@ -17,9 +17,8 @@ The velocity w is the one the block acts on: v' on Euler and BDF2 rows, the mean
 (1 − θ_i) v + θ_i v' on a θ-method row. The step linearises about the old velocities (the
 load at the step start), solves, linearises again about the solved ones (the wall's load
 at the solved end, as the system's wall stiffness has it) and solves again (ImplicitSolver,
-OBSTACLE_FRICTION_SOLVES). A stuck
-node whose load passes μ N thus slides in the same step, and a sliding one that
-stops or turns back is held by the damper in the last solve. A node in a stiff chain
+OBSTACLE_FRICTION_SOLVES). A stuck node whose load passes μ N thus slides in the same step,
+and a sliding one that stops or turns back is held by the damper in the last solve. A node in a stiff chain
 sticks against the chain's whole inertia and stiffness, as the law asks, instead of
 against its own mass (kernels/friction.py's per-node law, which the symplectic
 reference keeps).
@@ -27,6 +26,7 @@ reference keeps).
 
 import warp as wp
 
+from .friction import tangential
 from .implicit import solving
 from .rod import F64_0
 
@@ -40,7 +40,7 @@ def linearised_friction(f: wp.vec3d, v: wp.vec3d, previous: wp.vec3d, mu: wp.flo
     load = wp.length(f)
     if load > F64_0:
         n = f / load
-        slip = v - wp.dot(v, n) * n
+        slip = tangential(v, n)
         speed = wp.length(slip)
         plane = wp.identity(n=3, dtype=wp.float64) - wp.outer(n, n)
         turned = wp.dot(slip, previous) < F64_0 and wp.length(previous) > v_reg  # a slide turned back
@@ -86,9 +86,8 @@ def obstacle_friction(
     step start (``fresh``) or at ``x_out`` by ``wall_stiffness`` (µN/mm) from ``x_in``
     (the device's: at the step start), about (x_out − x_in)/``mean_dt`` where that is > 0 and
     not ``fresh`` (the θ-method's (1 − θ_i) v + θ_i v', on which its rows' damping acts);
-    dt (C − C_before) added to its
-    diagonal blocks and ``force_dt`` (f − f_before) to its right side (``fresh``: nothing
-    before, the blocks just assembled, no previous slip). The θ-method's right side, which
+    dt (C − C_before) added to its diagonal blocks and ``force_dt`` (f − f_before) to its
+    right side (``fresh``: nothing before, the blocks just assembled, no previous slip). The θ-method's right side, which
     holds −(1 − θ)/θ A v_start, also takes −``rhs_scale`` dt (C − C_before) v_start
     (``rhs_scale`` = (1 − θ)/θ after kernels.theta_start, else 0)."""
     i = wp.tid()
@@ -103,20 +102,20 @@ def obstacle_friction(
     before_device = zero
     change = wp.mat33d()
     change_f = zero
-    if fresh == 0:
+    pressing = wall_force[i]
+    about = v[i]
+    if fresh == 0:  # in place of the last linearisation
         before_wall = wall_slip[i]
         before_device = device_slip[i]
         change = -(wall_block[i] + device_block[i])
         change_f = -(wall_friction[i] + device_friction[i])
-    pressing = wall_force[i]
-    if fresh == 0:  # the wall's load at the solved end, x_out (its linearisation, as the system has it)
+        moved = x_out[i] - x_in[i]
         load = wp.length(pressing)
-        if load > F64_0:
+        if load > F64_0:  # the wall's load at the solved end, x_out (its linearisation, as the system has it)
             n = pressing / load
-            pressing = wp.max(wp.dot(n, pressing - wall_stiffness[i] * (x_out[i] - x_in[i])), F64_0) * n
-    about = v[i]
-    if fresh == 0 and mean_dt > F64_0:
-        about = (x_out[i] - x_in[i]) / mean_dt
+            pressing = wp.max(wp.dot(n, pressing - wall_stiffness[i] * moved), F64_0) * n
+        if mean_dt > F64_0:
+            about = moved / mean_dt
     c_wall, f_wall, s_wall = linearised_friction(pressing, about, before_wall, mu, v_reg)
     c_device, f_device, s_device = linearised_friction(device_force[i], about, before_device, mu, v_reg)
     change = dt * (change + c_wall + c_device)

@@ -877,8 +877,9 @@ def impulse_start(
     as the impulse that moves a node by Δv_f against its inertia and the step's damping
     (B at the old velocities ``v``, as assemble_blocks has it) where no stiff term resists
     (A also holds the wall's and devices' friction blocks, kernels/friction_damping.py: a node
-    stuck on them resists it); y = Δv_f on the unknowns (on a gated row θ_i ≠ θ, whose unknown is u with v' changing
-    by θ/θ_i of it: θ_i/θ Δv_f, its mass M θ/θ_i), 0 elsewhere (held nodes keep theirs)."""
+    stuck on them resists it); y = Δv_f on the unknowns (on a gated row θ_i ≠ θ, whose
+    unknown is u with v' changing by θ/θ_i of it: θ_i/θ Δv_f, its mass M θ/θ_i), 0 elsewhere
+    (held nodes keep theirs)."""
     i = wp.tid()
     zv = wp.vec3d(F64_0, F64_0, F64_0)
     y[i] = zv
