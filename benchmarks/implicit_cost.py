@@ -39,29 +39,21 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpcoil import CatheterSpec, CoilSpec
 from warpcoil.bench.ensemble import STATE_ARRAYS
 from warpcoil.bench.report import machine, markdown_table
 from warpcoil.bench.steps import launch_costs, seed_scene
-from warpcoil.deploy import Anatomy, Deployment, Ensemble
-from warpcoil.faceted_sac import catheter_tip, lobulated_sac
-from warpcoil.settings import OutputSettings, Scene, SimulationSettings
+from warpcoil.deploy import Deployment, Ensemble
 from warpcoil.solver import Stepper
 from warpcoil.state import new_state_like
+from warpcoil.validation import dense_pack_ensemble
 
-D_MM = 0.2921
 WINDOW_MM = 15.0
 MOMENTS = ("15 mm out", "15 mm left", "settling")
 
 
-def faceted_sac_run(packing: float = 0.20, loop_mm: float = 4.0, length_mm: float = 60.0, seed: int = 1) -> Ensemble:
+def faceted_sac_run() -> Ensemble:
     """The dense-pack case of ``warpcoil validate`` (20 mm³ at 20 %) on the implicit step."""
-    coil = CoilSpec(wire_diameter_mm=D_MM, length_mm=length_mm, loop_diameter_mm=loop_mm)
-    wall = lobulated_sac(math.pi * (D_MM / 2.0) ** 2 * length_mm / packing, seed=seed)
-    catheter = CatheterSpec(tip_mm=catheter_tip(wall, seed), direction=(0.0, 0.0, 1.0))
-    scene = Scene(coils=(coil,), catheter=catheter, output=OutputSettings(usd=False),
-                  simulation=SimulationSettings(integrator="implicit"))
-    return Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])
+    return dense_pack_ensemble(0.20, 4.0, "implicit")
 
 
 def timed_run(ensemble: Ensemble) -> dict:

@@ -109,7 +109,8 @@ def test_bad_scene_gives_one_clear_error_and_no_output(tmp_path, capsys):
 
 def test_unstable_step_is_refused_before_running(tmp_path, capsys):
     scene = tmp_path / "fast.toml"
-    scene.write_text(SCENE.replace("frame_interval_s = 0.005", "frame_interval_s = 0.005\ndt_s = 1e-3"))
+    scene.write_text(SCENE.replace("frame_interval_s = 0.005",
+                                  'frame_interval_s = 0.005\nintegrator = "symplectic"\ndt_s = 1e-3'))
     assert main(["run", str(scene), "-o", str(tmp_path / "out"), "-q"]) == 2
     assert "stable bound" in capsys.readouterr().err
 

@@ -140,9 +140,13 @@ def test_run_reports_repairs_push_forces_and_plays_in_real_time(first_run):
     from pxr import Usd
 
     stage = Usd.Stage.Open(str(folder / "deployment.usdc"))
-    frame_s = float(rows[1]["time_s"]) - float(rows[0]["time_s"])
-    assert stage.GetTimeCodesPerSecond() == pytest.approx(1.0 / frame_s, rel=1e-2)  # a frame: whole steps
-    assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond()
+    per_second = stage.GetTimeCodesPerSecond()
+    assert per_second == pytest.approx(1.0 / 0.005) and stage.GetFramesPerSecond() == per_second
+    # a frame is whole steps (the implicit push frame 22 × 0.234 ms): each sits at its own time's code
+    codes = stage.GetPrimAtPath("/World/Coils/Coil_0").GetAttribute("points").GetTimeSamples()
+    times = [float(r["time_s"]) for r in rows]
+    assert len(codes) == len(times)
+    assert all(abs(c / per_second - t) <= 0.5 / per_second for c, t in zip(codes, times))
     # 13: an animated GIF of the frames
     from PIL import Image
 
@@ -194,8 +198,8 @@ def test_a_folder_in_use_by_another_run_is_refused(tmp_path):
 
 # --- 3: an unstable run ---------------------------------------------------------------
 def test_an_unstable_run_fails_with_a_reason_and_finite_outputs(tmp_path):
-    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 5e-5\n"
-                              "allow_unstable_dt = true", "usd = false": "usd = true\npng = true\ntube_mesh = true"})
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\nintegrator = \"symplectic\"\n"
+                              "dt_s = 5e-5\nallow_unstable_dt = true", "usd = false": "usd = true\npng = true\ntube_mesh = true"})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "bad", "-q")
     assert code == 1, err
     assert "Traceback" not in err
@@ -310,7 +314,8 @@ def test_a_binary_garbage_stl_is_not_a_mesh(tmp_path):
 
 
 def test_a_step_above_the_bound_names_the_scene_file_and_key(tmp_path):
-    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 1e-3"})
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\nintegrator = \"symplectic\"\n"
+                                                          "dt_s = 1e-3"})
     code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
     assert code == 2
     line = one_line(err)
@@ -424,26 +429,32 @@ GATED_CHORD_SCHEME = {"method": "theta", "theta": 0.65, "near_theta": 1.0, "turn
                       "contact_stiffness": "chord", "chord_end": "flight"}
 
 
-@pytest.mark.parametrize("key, expected", [
-    ("", GATED_CHORD_SCHEME), ('implicit_scheme = "gated_chord"\n', GATED_CHORD_SCHEME),
-    ('implicit_scheme = "euler"\n', {"method": "theta", "theta": 1.0, "near_theta": None, "turn_gate_rad": None,
-                                     "contact_stiffness": "tangent", "chord_end": None})])
-def test_an_implicit_run_reports_its_scheme_and_euler_is_chosen_by_name(tmp_path, key, expected):
-    """integrator = "implicit": the default scheme (gated_chord: θ 0.65 gated, chord) or, named,
-    linearly implicit Euler; result.json's "scheme" says which ran the push."""
-    lines = f'frame_interval_s = 0.005\nintegrator = "implicit"\n{key}'
-    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": lines})
+@pytest.mark.parametrize("lines, expected", [
+    ("", {"integrator": "implicit", **GATED_CHORD_SCHEME}),
+    ('integrator = "implicit"\nimplicit_scheme = "gated_chord"\n', {"integrator": "implicit", **GATED_CHORD_SCHEME}),
+    ('integrator = "implicit"\nimplicit_scheme = "euler"\n',
+     {"integrator": "implicit", "method": "theta", "theta": 1.0, "near_theta": None, "turn_gate_rad": None,
+      "contact_stiffness": "tangent", "chord_end": None}),
+    ('integrator = "symplectic"\n', {"integrator": "symplectic"})])
+def test_a_run_reports_its_scheme_the_implicit_default_or_one_chosen_by_name(tmp_path, lines, expected):
+    """No key: the implicit step's default scheme (gated_chord: θ 0.65 gated, chord); named,
+    linearly implicit Euler or the symplectic reference. result.json's "scheme" says which ran
+    the push, and the step count shows it (the reference's step is ~30× shorter here)."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + lines})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
     assert code == 0, err
     assert out.startswith("completed: ")
     result = json.loads((tmp_path / "run" / "result.json").read_text())
-    assert result["scheme"] == {"integrator": "implicit", **expected}
+    assert result["scheme"] == expected
+    implicit = expected["integrator"] == "implicit"
+    assert (result["dt_s"] > 1e-4) == implicit and (result["dt_s"] < result["step_bound_s"]) != implicit
 
 
 @pytest.mark.parametrize("lines, message", [
     ('integrator = "implicit"\nimplicit_scheme = "rk4"\n', "simulation.implicit_scheme: must be one of 'euler', "
                                                            "'gated_chord', 'bdf2', got 'rk4'"),
-    ('implicit_scheme = "euler"\n', "simulation.implicit_scheme: applies only to integrator = 'implicit'")])
+    ('integrator = "symplectic"\nimplicit_scheme = "euler"\n',
+     "simulation.implicit_scheme: applies only to integrator = 'implicit'")])
 def test_a_bad_implicit_scheme_is_one_line_naming_file_and_key(tmp_path, lines, message):
     path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + lines})
     code, _, err = cli(tmp_path, "run", str(path), "-o", "never")

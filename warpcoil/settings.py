@@ -151,9 +151,10 @@ class SimulationSettings:
       ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
-    * integrator: "symplectic" (the reference: semi-implicit Euler under the
-      explicit stability bound) or "implicit" (the linearly implicit θ-method,
-      warpcoil/implicit.py: no stability bound, step set by accuracy).
+    * integrator: "implicit" (the default: the linearly implicit θ-method,
+      warpcoil/implicit.py: no stability bound, step set by accuracy; on `warpcoil bench
+      accuracy`'s run-time/error front, BENCHMARKS.md) or "symplectic" (the reference:
+      semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time).
     * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
       θ_i = 1 near an obstacle or where an edge turns fast, chord contact stiffness),
       "euler" (linearly implicit Euler, tangent contact stiffness) or "bdf2"
@@ -191,7 +192,7 @@ class SimulationSettings:
     push_speed_mm_s: float = 50.0
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
-    integrator: str = "symplectic"
+    integrator: str = "implicit"
     implicit_scheme: str = "gated_chord"
     dt_s: float | None = None
     dt_safety: float = DEFAULT_DT_SAFETY

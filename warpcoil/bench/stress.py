@@ -219,10 +219,11 @@ def classify(record: Record) -> Record:
 def scene(length_mm: float, *, shape: str = "spherical", loop_mm: float = 3.0, wall: WallSpec | None = None,
           tip_mm: tuple[float, float, float] = TIP_MM, direction: tuple[float, float, float] = (0.0, 0.0, 1.0),
           contact: ContactSettings | None = None, **simulation) -> Scene:
-    """The base case with some fields changed; ``simulation`` are SimulationSettings fields.
+    """The base case with some fields changed; ``simulation`` are SimulationSettings fields
+    (the integrator the reference, symplectic Euler, unless given).
     max_time_s is the push time + SETTLE_S."""
     sim = SimulationSettings(**{"push_speed_mm_s": PUSH_SPEED_MM_S, "frame_interval_s": FRAME_INTERVAL_S,
-                                **simulation})
+                                "integrator": "symplectic", **simulation})
     sim = replace(sim, max_time_s=(length_mm + 1.0) / sim.push_speed_mm_s + SETTLE_S)
     return Scene(coils=(CoilSpec(wire_diameter_mm=D_MM, length_mm=length_mm, loop_diameter_mm=loop_mm, shape=shape),),
                  catheter=CatheterSpec(tip_mm=tip_mm, direction=direction),
