@@ -77,7 +77,7 @@ def _run(args: argparse.Namespace) -> int:
             deployment = Deployment(scene, device)
         except UnstableStepError as error:
             raise SceneError(f"{scene.source}: simulation.dt_s: {error}") from None
-        warnings = preflight(scene, deployment.anatomy, device)
+        warnings = preflight(scene, deployment.anatomy, device, deployment.members[0].step_bound_s)
     except (SceneError, WallError, PreshapeError, SetupError, OutputFolderError) as error:
         print(f"warpcoil run: {error}", file=sys.stderr)
         return 2

@@ -159,8 +159,23 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
     return warnings
 
 
-def preflight(scene: Scene, anatomy, device=None) -> list[str]:
+def check_step(scene: Scene, step_bound_s: float) -> list[str]:
+    """Warn when an implicit scene gives a ``dt_s`` within the explicit stability bound
+    (``step_bound_s``, s): a step the reference takes as it is, at ~3× the cost per step
+    (the seed case: ~300 against ~100 µs), as a scene written for the reference when it was
+    the default would."""
+    sim = scene.simulation
+    if sim.integrator != "implicit" or sim.dt_s is None or sim.dt_s > step_bound_s:
+        return []
+    return [f"{_where(scene)}: simulation.dt_s = {sim.dt_s:g} s is within the explicit step bound "
+            f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing there and "
+            f"costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or remove dt_s for "
+            f"the implicit step's own (set by accuracy)"]
+
+
+def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> list[str]:
     """Every check of a scene and its resolved Anatomy before the first step; returns
-    the warnings (raises SetupError)."""
+    the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
     notes = [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
-    return notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
+    return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
+            + check_step(scene, step_bound_s))
