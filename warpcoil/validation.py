@@ -538,6 +538,12 @@ def implicit_devices() -> list[CaseResult]:
     return implicit_device_cases()
 
 
+def impact() -> list[CaseResult]:
+    """A wall impact: the reference's restitution 1, the implicit step's converging (validation_impact.py)."""
+    from .validation_impact import impact_cases
+    return impact_cases()
+
+
 def implicit_wall() -> list[CaseResult]:
     """The implicit step's wall stiffness: the force's Jacobian, rest in a groove (validation_implicit_wall.py)."""
     from .validation_implicit_wall import implicit_wall_cases
@@ -955,6 +961,7 @@ CASES = {
     "implicit-devices": implicit_devices,
     "push-force": push_force,
     "implicit-wall": implicit_wall,
+    "impact": impact,
     "bdf2": bdf2,
     "settle": settle,
     "detach": detach,
