@@ -349,6 +349,21 @@ def test_a_reference_sized_step_on_the_implicit_step_is_warned_about(tmp_path):
     assert out.startswith("timeout: ")
 
 
+@pytest.mark.parametrize("integrator, warned", [("", True), ('integrator = "symplectic"\n', False)])
+def test_wall_friction_on_the_implicit_step_is_warned_about(tmp_path, integrator, warned):
+    """The implicit step's push force with wall friction is several times the reference's
+    (inelastic impacts): said before the run and kept in result.json; not on the reference."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + integrator,
+                              "[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
+    assert code == 0, err
+    said = "contact.friction_wall on the implicit step" in err and 'add integrator = "symplectic"' in err
+    assert said == warned
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert any("impacts are inelastic" in w for w in result["warnings"]) == warned
+    assert out.startswith("completed: ")
+
+
 # --- 4: an impossible deployment ------------------------------------------------------------
 def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
     """40 mm of coil (2.7 mm³) for a 2 mm sac (4.2 mm³, 64 %): warned before the run;

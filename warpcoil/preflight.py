@@ -159,18 +159,26 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
     return warnings
 
 
-def check_step(scene: Scene, step_bound_s: float) -> list[str]:
-    """Warn when an implicit scene gives a ``dt_s`` within the explicit stability bound
-    (``step_bound_s``, s): a step the reference takes as it is, at ~3× the cost per step
-    (the seed case: ~300 against ~100 µs), as a scene written for the reference when it was
-    the default would."""
+def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
+    """Warnings for an implicit scene: a ``dt_s`` within the explicit stability bound
+    (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed
+    case ~300 against ~100 µs, as a scene written for the reference when it was the default
+    would give), and wall friction (its push force is the reference's only at tiny steps)."""
     sim = scene.simulation
-    if sim.integrator != "implicit" or sim.dt_s is None or sim.dt_s > step_bound_s:
+    if sim.integrator != "implicit":
         return []
-    return [f"{_where(scene)}: simulation.dt_s = {sim.dt_s:g} s is within the explicit step bound "
-            f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing there and "
-            f"costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or remove dt_s for "
-            f"the implicit step's own (set by accuracy)"]
+    warnings = []
+    if sim.dt_s is not None and sim.dt_s <= step_bound_s:
+        warnings.append(f"{_where(scene)}: simulation.dt_s = {sim.dt_s:g} s is within the explicit step bound "
+                        f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing "
+                        f"there and costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or "
+                        f"remove dt_s for the implicit step's own (set by accuracy)")
+    if scene.contact.friction_wall > 0.0:
+        warnings.append(f"{_where(scene)}: contact.friction_wall on the implicit step (the default integrator): its "
+                        f"impacts are inelastic, so the coil lies on the wall where the reference's bounces, and the "
+                        f"push force comes out several times the reference's (docs/FORMULATION.md \"Implicit step: "
+                        f"impacts are inelastic\"); add integrator = \"symplectic\" for push forces")
+    return warnings
 
 
 def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> list[str]:
@@ -178,4 +186,4 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
     notes = [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
-            + check_step(scene, step_bound_s))
+            + check_integrator(scene, step_bound_s))
