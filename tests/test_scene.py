@@ -57,6 +57,7 @@ P0_uN = 500.0
 c0_mm = 0.02
 
 [simulation]
+integrator = "symplectic"
 push_speed_mm_s = 10.0
 damping_uN_per_mm = 25.0
 damping_speed_mm_s = 15.0
@@ -120,6 +121,7 @@ def test_full_scene_maps_onto_dataclasses(scene_dir: Path) -> None:
     assert (helix.shape, helix.pitch_mm) == ("helix", 0.6)
     assert scene.contact == ContactSettings(P0_uN=500.0, c0_mm=0.02)
     assert scene.simulation == SimulationSettings(
+        integrator="symplectic",
         push_speed_mm_s=10.0,
         damping_uN_per_mm=25.0,
         damping_speed_mm_s=15.0,

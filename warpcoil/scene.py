@@ -366,7 +366,7 @@ class _Reader:
                              'add integrator = "implicit", or remove implicit_scheme')
         if "allow_unstable_dt" in document.get("simulation", {}) and simulation.integrator != "symplectic":
             raise self.error("simulation.allow_unstable_dt", f"applies only to integrator = 'symplectic' (this "
-                             f"scene's is {simulation.integrator!r}, the default, which has no stability bound)",
+                             f"scene's is {simulation.integrator!r}, which has no stability bound)",
                              'add integrator = "symplectic", or remove allow_unstable_dt')
         return simulation
 
