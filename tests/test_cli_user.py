@@ -488,6 +488,7 @@ def test_a_run_reports_its_scheme_the_implicit_default_or_one_chosen_by_name(tmp
     assert out.startswith("completed: ")
     result = json.loads((tmp_path / "run" / "result.json").read_text())
     assert result["scheme"] == expected
+    assert f" {expected['integrator']} steps of " in out.splitlines()[1]  # the summary line names it
     implicit = expected["integrator"] == "implicit"
     assert (result["dt_s"] > 1e-4) == implicit and (result["dt_s"] < result["step_bound_s"]) != implicit
 
