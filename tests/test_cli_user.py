@@ -322,19 +322,6 @@ def test_a_step_above_the_bound_names_the_scene_file_and_key(tmp_path):
     assert "tiny.toml: simulation.dt_s" in line and "stable bound" in line
 
 
-def test_allow_unstable_dt_on_the_default_implicit_step_names_the_key_and_the_fix(tmp_path):
-    """A scene written when the reference was the default: allow_unstable_dt changes nothing on
-    the implicit step (no stability bound), so it is refused, naming the integrator to add."""
-    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 5e-5\n"
-                                                          "allow_unstable_dt = true"})
-    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
-    assert code == 2
-    line = one_line(err)
-    assert "tiny.toml: simulation.allow_unstable_dt: applies only to integrator = 'symplectic'" in line
-    assert 'add integrator = "symplectic"' in line
-    assert not (tmp_path / "never").exists()
-
-
 def test_a_reference_sized_step_on_the_implicit_step_is_warned_about(tmp_path):
     """dt_s within the explicit bound and no integrator key: the implicit step runs it (as given)
     and says that it gains nothing there; the warning is kept in result.json."""

@@ -364,10 +364,6 @@ class _Reader:
             raise self.error("simulation.implicit_scheme", f"applies only to integrator = 'implicit' (this scene's is "
                              f"{simulation.integrator!r}, which it would not change)",
                              'add integrator = "implicit", or remove implicit_scheme')
-        if "allow_unstable_dt" in document.get("simulation", {}) and simulation.integrator != "symplectic":
-            raise self.error("simulation.allow_unstable_dt", f"applies only to integrator = 'symplectic' (this "
-                             f"scene's is {simulation.integrator!r}, which has no stability bound)",
-                             'add integrator = "symplectic", or remove allow_unstable_dt')
         return simulation
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
