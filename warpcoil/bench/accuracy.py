@@ -70,11 +70,6 @@ EULER_LABEL = "Euler, tangent"
 IMPLICIT_DEFAULT_ROW = "implicit, default step ("  # the deployment's implicit default row, also checked for the front
 
 
-def is_implicit_default(setting: str) -> bool:
-    """A row of the implicit step at its default (the scene default integrator since the fifteenth session)."""
-    return setting.startswith(IMPLICIT_DEFAULT_ROW) or "implicit default step" in setting
-
-
 @dataclass
 class Row:
     case: str
@@ -86,6 +81,7 @@ class Row:
     detail: str = ""
     not_default: str = ""  # why the setting cannot be a default (shown, not a Pareto candidate)
     floor: float = 0.0  # errors below this are indistinguishable (a deployment's chaotic spread)
+    implicit_default: bool = False  # the implicit step at its default (the scene default) in the case's set-up
 
 
 # --- validation cases --------------------------------------------------------------
@@ -102,7 +98,7 @@ def cantilever_rows(quick: bool, repeats: int) -> list[Row]:
                                        repeats)
     error = abs(deflection - reference) / reference
     rows.append(Row("cantilever", f"50 segments, implicit default step ({DEFAULT_LABEL}; at rest: settling θ 1)", False,
-                    0, t, error))
+                    0, t, error, implicit_default=True))
     return rows
 
 
@@ -121,7 +117,7 @@ def helix_rows(quick: bool, repeats: int) -> list[Row]:
     res, t = timed(lambda: validation.helix_recovery(integrator="implicit"), repeats)
     rows.append(Row("helix recovery", f"l0 1 d, implicit default step ({DEFAULT_LABEL}; unpushed: settling θ 1)", False, 0, t,
                     _helix_error(res),
-                    f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
+                    f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm", implicit_default=True))
     return rows
 
 
@@ -170,7 +166,7 @@ def release_rows(quick: bool, repeats: int) -> list[Row]:
         res, t = timed(lambda: validation.free_release(push_speed_mm_s=speed, integrator="implicit"), repeats)
         detail, tangled = _release_detail(res, speed, "implicit", 2 if quick else 4)
         rows.append(Row("free release", f"push {speed:g} mm/s, implicit default step ({DEFAULT_LABEL})", False, 0, t,
-                        _helix_error(res), detail, not_default=tangled))
+                        _helix_error(res), detail, not_default=tangled, implicit_default=speed == default_speed))
     for speed in () if quick else (100.0, 150.0):  # Euler tangles at the default push step (FORMULATION.md "the
         # free release that comes to rest tangled"): Euler at it, and at half of it
         for label, advance, options in ((f"implicit {EULER_LABEL}", IMPLICIT_ADVANCE_PER_C0, EULER),
@@ -326,7 +322,8 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
             (shape, steps, ke_ratio), t = timed(lambda: deploy_shape(scene, loop_mm, sac_radius, options), repeats)
         except RuntimeError as failure:  # reported as a row, not a crash of the whole sweep
             rows.append(Row(case, label, label.startswith("default"), 0, math.nan, math.inf, str(failure),
-                            not_default="did not complete", floor=floor))
+                            not_default="did not complete", floor=floor,
+                            implicit_default=label.startswith(IMPLICIT_DEFAULT_ROW)))
             continue
         error, detail = shape_error(shape, reference, loop_mm)
         push_error = abs(shape.push_mean_uN - reference.push_mean_uN) / reference.self_deployment_uN
@@ -339,7 +336,8 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         rows.append(Row(case, label, label.startswith("default"), steps, t, error,
                         f"{detail}; kinetic/elastic ≤ {ke_ratio:.3g}; push mean {shape.push_mean_uN:.0f} µN "
                         f"(finest {reference.push_mean_uN:.0f}; error {push_error:.2f} F0, F0 "
-                        f"{reference.self_deployment_uN:.0f} µN)", not_default=not_default, floor=floor))
+                        f"{reference.self_deployment_uN:.0f} µN)", not_default=not_default, floor=floor,
+                        implicit_default=label.startswith(IMPLICIT_DEFAULT_ROW)))
     return rows
 
 
@@ -380,7 +378,7 @@ def plot(rows: list[Row], path: Path) -> None:
     for case in dict.fromkeys(r.case for r in rows):
         pts = [r for r in rows if r.case == case]
         line, = ax.loglog([r.wall_time_s for r in pts], [max(r.error, 1e-7) for r in pts], "o", label=case)
-        for d in (r for r in pts if r.default or is_implicit_default(r.setting)):
+        for d in (r for r in pts if r.default or r.implicit_default):
             ax.loglog([d.wall_time_s], [max(d.error, 1e-7)], "*", ms=16, color=line.get_color(), mec="k")
     ax.set_xlabel("wall time (s, median)")
     ax.set_ylabel("relative error")
@@ -407,7 +405,7 @@ def write_outputs(out: Path, rows: list[Row], quick: bool, repeats: int) -> None
     (also from a sweep's accuracy.json: ``[Row(**r) for r in json.load(...)]``)."""
     table = markdown_table(["case", "setting", "default", "steps", "wall time (s)", "error", "detail"],
                            [[r.case, r.setting,
-                             "reference" if r.default else "implicit" if is_implicit_default(r.setting) else "",
+                             "reference" if r.default else "implicit" if r.implicit_default else "",
                              r.steps or "", r.wall_time_s, r.error,
                              r.detail] for r in rows])
     plot(rows, out / "accuracy.png")
