@@ -351,6 +351,15 @@ def test_wall_friction_on_the_implicit_step_is_warned_about(tmp_path, integrator
     assert out.startswith("completed: ")
 
 
+def test_a_frictional_sweep_on_the_implicit_step_says_so_once_in_its_summary(tmp_path):
+    path = scene(tmp_path, **{"[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
+    code, out, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")
+    assert code == 0, err
+    summary = (tmp_path / "sweep" / "summary.md").read_text()
+    assert summary.count("Warning: ") == 1 and "contact.friction_wall on the implicit step" in summary
+    assert "Warning: " in out  # the summary printed
+
+
 # --- 4: an impossible deployment ------------------------------------------------------------
 def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
     """40 mm of coil (2.7 mm³) for a 2 mm sac (4.2 mm³, 64 %): warned before the run;

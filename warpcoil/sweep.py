@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, resolve_anatomies
-from .preflight import check_catheter
+from .preflight import check_catheter, check_integrator
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
@@ -285,8 +285,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             member.result, member.resumed = found, found is not None
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
+    warnings: list[str] = []  # what a run would warn about (the integrator's, from the scene alone), once each
     for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
         check_catheter(scenes[k], anatomy, "cpu")
+        warnings += [w for w in check_integrator(scenes[k], 0.0) if w not in warnings]
     out.mkdir(parents=True, exist_ok=True)
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
@@ -331,7 +333,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     rate = f" ({60.0 * len(pending) / elapsed:.3g} deployments/min)" if pending else ""
     write_summary(out, todo, f"# {title} of {scene_path.name}\n\n{len(todo)} members ({resumed} resumed) in "
                   f"{len(batches)} ensemble task(s) on {slots} Dask worker thread(s), {elapsed:.1f} s wall time"
-                  f"{rate}; " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + ".")
+                  f"{rate}; " + ", ".join(f"{statuses.count(s)} {s}" for s in dict.fromkeys(statuses)) + "."
+                  + "".join(f"\n\nWarning: {w}" for w in warnings))
     return todo
 
 
