@@ -12,31 +12,23 @@ import math
 
 import numpy as np
 
-from .coil import CoilSpec
 from .implicit import ImplicitSolver, implicit_step_s
-from .model import Model, ModelBuilder
+from .model import Model
 from .settings import SimulationSettings
 from .solver import Control, Solver, Stepper
 from .state import state_from_positions
-from .validation import REFERENCE_D_MM, CaseResult, _row
-from .validation_implicit_wall import HALF_BOX_MM, box_wall
+from .validation import CaseResult, _row
+from .validation_chord import straight_coil_at_face
 
 IMPACT_SPEED_MM_S = 50.0  # the default push speed: a coil's loops meet the wall at it and faster
-IMPACT_NODES = 5
 IMPACT_START_GAP_MM = 0.1  # clearance at the start (> c0: the coil flies in)
 REFINEMENTS = (16, 64, 256)  # the implicit step's push step / these, for the observed order
 
 
 def impact_model() -> tuple[Model, np.ndarray]:
-    """A straight coil (d 0.2921 mm, 5 nodes) parallel to the box's face z = +HALF,
-    IMPACT_START_GAP_MM from it, no damping; its start positions (mm)."""
-    spec = CoilSpec(wire_diameter_mm=REFERENCE_D_MM, length_mm=(IMPACT_NODES - 1) * REFERENCE_D_MM)
-    builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0), wall=box_wall())
-    s = (np.arange(IMPACT_NODES) - 0.5 * (IMPACT_NODES - 1)) * spec.l0
-    z = HALF_BOX_MM - 0.5 * REFERENCE_D_MM - IMPACT_START_GAP_MM
-    start = np.stack([np.zeros(IMPACT_NODES), s, np.full(IMPACT_NODES, z)], axis=1)
-    builder.add_coil(spec, start)
-    return builder.finalize(), start
+    """The straight coil of :func:`validation_chord.straight_coil_at_face`, IMPACT_START_GAP_MM
+    from the box's face, no damping: (model, start positions mm)."""
+    return straight_coil_at_face(IMPACT_START_GAP_MM, SimulationSettings(damping_uN_per_mm=0.0))
 
 
 def restitution(model: Model, start: np.ndarray, solver: Solver) -> float:
