@@ -336,23 +336,49 @@ def test_a_reference_sized_step_on_the_implicit_step_is_warned_about(tmp_path):
     assert out.startswith("timeout: ")
 
 
-@pytest.mark.parametrize("integrator, warned", [("", True), ('integrator = "symplectic"\n', False)])
-def test_wall_friction_on_the_implicit_step_is_warned_about(tmp_path, integrator, warned):
+@pytest.mark.parametrize("integrator, runs, said", [
+    ("", "symplectic", "no simulation.integrator: the reference (symplectic) step runs it"),
+    ('integrator = "implicit"\n', "implicit", "contact.friction_wall on the implicit step"),
+    ('implicit_scheme = "euler"\n', "implicit", "contact.friction_wall on the implicit step"),
+    ('integrator = "symplectic"\n', "symplectic", None)])
+def test_wall_friction_runs_the_reference_unless_the_scene_names_an_integrator(tmp_path, integrator, runs, said):
     """The implicit step's push force with wall friction is several times the reference's
-    (inelastic impacts): said before the run and kept in result.json; not on the reference."""
+    (inelastic impacts): a frictional scene that names no integrator runs the reference and says
+    why; one that names the implicit step (or a scheme of it) runs it with a warning; both said
+    before the run and kept in result.json. Nothing is said on a reference named by the scene."""
     path = scene(tmp_path, **{"frame_interval_s = 0.005\n": "frame_interval_s = 0.005\n" + integrator,
                               "[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "run")
     assert code == 0, err
-    said = "contact.friction_wall on the implicit step" in err and 'add integrator = "symplectic"' in err
-    assert said == warned
     result = json.loads((tmp_path / "run" / "result.json").read_text())
-    assert any("impacts are inelastic" in w for w in result["warnings"]) == warned
+    assert result["scheme"]["integrator"] == runs and f"{result['steps']} {runs} steps" in out
+    warned = [w for w in result["warnings"] if "friction_wall" in w]
+    if said is None:
+        assert not warned and "friction_wall" not in err
+    else:
+        assert len(warned) == 1 and said in warned[0] and f"warning: {warned[0]}" in err
     assert out.startswith("completed: ")
 
 
+def test_a_sweep_of_wall_friction_runs_every_member_on_one_integrator(tmp_path):
+    """--vary contact.friction_wall=0,0.3 on a scene that names no integrator: the frictional member
+    would run the reference and the other the implicit step; every member runs the reference, and
+    the summary says so once."""
+    path = scene(tmp_path)
+    code, out, err = cli(tmp_path, "sweep", str(path), "--vary", "contact.friction_wall=0,0.3", "-o", "sweep")
+    assert code == 0, err
+    summary = (tmp_path / "sweep" / "summary.md").read_text()
+    assert summary.count("Warning: ") == 2 and "1 of 2 members have wall friction" in summary
+    assert summary.count("the reference (symplectic) step runs it") == 1
+    for member in ("member_000", "member_001"):
+        result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
+        assert result["scheme"]["integrator"] == "symplectic" and result["status"] == "completed"
+    assert "Warning: " in out  # the summary printed
+
+
 def test_a_frictional_sweep_on_the_implicit_step_says_so_once_in_its_summary(tmp_path):
-    path = scene(tmp_path, **{"[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": 'frame_interval_s = 0.005\nintegrator = "implicit"\n',
+                              "[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
     code, out, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")
     assert code == 0, err
     summary = (tmp_path / "sweep" / "summary.md").read_text()

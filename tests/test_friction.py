@@ -323,3 +323,22 @@ def test_coil_friction_alone_lets_a_pack_come_to_rest_on_the_implicit_step():
     result = deployment.run()
     assert result.status == "completed", result.reason
     assert result.min_coil_gap_mm > -2.0 * deployment.model.contact.c0_mm  # no crossing held by friction
+
+
+@pytest.mark.parametrize("contact, simulation, integrator", [
+    ("friction_wall = 0.2\n", "", "symplectic"),  # wall friction, no integrator named: the reference
+    ("friction_coil = 0.2\nfriction_catheter = 0.1\n", "", "implicit"),  # no wall friction: the default
+    ("friction_wall = 0.2\n", 'integrator = "implicit"\n', "implicit"),  # named: as named
+    ("friction_wall = 0.2\n", 'implicit_scheme = "euler"\n', "implicit"),  # a scheme of the implicit step names it
+    ("", "", "implicit")])
+def test_wall_friction_chooses_the_reference_where_the_scene_names_no_integrator(tmp_path, contact, simulation,
+                                                                                  integrator):
+    """The implicit step's push force with wall friction is several times the reference's: a scene
+    with wall friction that names no integrator runs the reference, and its notes say why."""
+    path = tmp_path / "s.toml"
+    path.write_text('[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\nlength_mm = 10\n'
+                    f"[contact]\n{contact}[simulation]\n{simulation}")
+    scene = load_scene(path)
+    assert scene.simulation.integrator == integrator
+    chose = bool(scene.notes) and "the reference (symplectic) step runs it" in scene.notes[0]
+    assert chose == (integrator == "symplectic")

@@ -174,7 +174,7 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
                         f"there and costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or "
                         f"remove dt_s for the implicit step's own (set by accuracy)")
     if scene.contact.friction_wall > 0.0:
-        warnings.append(f"{_where(scene)}: contact.friction_wall on the implicit step (the default integrator): its "
+        warnings.append(f"{_where(scene)}: contact.friction_wall on the implicit step: its "
                         f"impacts are inelastic, so the coil lies on the wall where the reference's bounces, and the "
                         f"push force comes out several times the reference's (docs/FORMULATION.md \"Implicit step: "
                         f"impacts are inelastic\"); add integrator = \"symplectic\" for push forces")
@@ -184,6 +184,7 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
 def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> list[str]:
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
-    notes = [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
+    notes = [f"{_where(scene)}: {note}" for note in scene.notes]
+    notes += [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
             + check_integrator(scene, step_bound_s))

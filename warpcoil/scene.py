@@ -10,6 +10,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from dataclasses import replace
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -27,6 +28,7 @@ from .settings import (
     Scene,
     SimulationSettings,
     WallSpec,
+    integrator_for_friction,
 )
 
 Vec3 = tuple[float, float, float]
@@ -358,13 +360,23 @@ class _Reader:
                 raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
         return self.build(WallSpec, values, "wall")
 
-    def simulation(self, document: dict[str, Any]) -> SimulationSettings:
+    def simulation(self, document: dict[str, Any], chosen: str | None) -> SimulationSettings:
+        """The [simulation] table; ``chosen``: why the reference runs it (:meth:`chosen_integrator`)."""
         simulation = self.section(document, "simulation", _SIMULATION, SimulationSettings)
+        if chosen is not None:
+            simulation = replace(simulation, integrator="symplectic")
         if "implicit_scheme" in document.get("simulation", {}) and simulation.integrator != "implicit":
             raise self.error("simulation.implicit_scheme", f"applies only to integrator = 'implicit' (this scene's is "
                              f"{simulation.integrator!r}, which it would not change)",
                              'add integrator = "implicit", or remove implicit_scheme')
         return simulation
+
+    @staticmethod
+    def chosen_integrator(document: dict[str, Any], contact: ContactSettings) -> str | None:
+        """Why a scene that names no integrator (neither ``integrator`` nor ``implicit_scheme``)
+        runs the reference (settings.integrator_for_friction); None: as the scene says, or the default."""
+        named = any(key in document.get("simulation", {}) for key in ("integrator", "implicit_scheme"))
+        return None if named else integrator_for_friction(contact)
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
         output = self.section(document, "output", _OUTPUT, OutputSettings)
@@ -382,12 +394,16 @@ class _Reader:
         coils = document.get("coil")
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
+        contact = self.section(document, "contact", _CONTACT, ContactSettings)
+        chosen = self.chosen_integrator(document, contact)
+        simulation = self.simulation(document, chosen)
         return Scene(
             coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
             catheter=self.catheter(document),
             wall=self.wall(document) if "wall" in document else None,
-            contact=self.section(document, "contact", _CONTACT, ContactSettings),
-            simulation=self.simulation(document),
+            contact=contact,
+            simulation=simulation,
+            notes=(chosen,) if chosen else (),
             output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),

@@ -35,6 +35,7 @@ from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
 from .scene import load_scene
+from .settings import Scene, integrator_for_friction
 from .sweep_task import MemberOutput, make_task, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
@@ -250,6 +251,20 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         cluster.close()
 
 
+def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) -> tuple[list[Scene], list[str]]:
+    """One integrator for a sweep whose members name none: where wall friction puts some members
+    on the reference (settings.integrator_for_friction) and leaves others on the implicit default
+    (a --vary of contact.friction_wall from 0), every member runs the reference, so that the
+    members differ by what is varied and not by their integrator; (scenes, the note saying so)."""
+    by_friction = [s for s in scenes if integrator_for_friction(s.contact) in s.notes]
+    if not by_friction or all(s.simulation.integrator == "symplectic" for s in scenes):
+        return scenes, []
+    scenes = [load_scene(scene_path, {**m.values, "simulation.integrator": "symplectic"}) for m in todo]
+    return scenes, [f"{len(by_friction)} of {len(todo)} members have wall friction and the scene names no integrator: "
+                    "every member runs the reference (symplectic) step, so that they differ by what is varied only",
+                    integrator_for_friction(by_friction[0].contact)]
+
+
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
               progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
               workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2
@@ -275,6 +290,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     SweepIncomplete (after writing every member that finished) when a task still
     fails."""
     scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
+    scenes, unified = one_integrator(scene_path, todo, scenes)
     folders = [out / m.name for m in todo]
     if resume:
         for member, folder in zip(todo, folders):
@@ -285,7 +301,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             member.result, member.resumed = found, found is not None
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
-    warnings: list[str] = []  # what a run would warn about (the integrator's, from the scene alone), once each
+    warnings: list[str] = unified  # what a run would warn about (the scene's notes, the integrator's), once each
+    warnings += [note for scene in scenes for note in scene.notes if note not in warnings]
     for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
         check_catheter(scenes[k], anatomy, "cpu")
         warnings += [w for w in check_integrator(scenes[k], 0.0) if w not in warnings]
