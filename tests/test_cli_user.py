@@ -370,6 +370,7 @@ def test_a_sweep_of_wall_friction_runs_every_member_on_one_integrator(tmp_path):
     summary = (tmp_path / "sweep" / "summary.md").read_text()
     assert summary.count("Warning: ") == 2 and "1 of 2 members have wall friction" in summary
     assert summary.count("the reference (symplectic) step runs it") == 1
+    assert err.count("warpcoil sweep: warning: ") == 2
     for member in ("member_000", "member_001"):
         result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
         assert result["scheme"]["integrator"] == "symplectic" and result["status"] == "completed"
@@ -384,6 +385,9 @@ def test_a_frictional_sweep_on_the_implicit_step_says_so_once_in_its_summary(tmp
     summary = (tmp_path / "sweep" / "summary.md").read_text()
     assert summary.count("Warning: ") == 1 and "contact.friction_wall on the implicit step" in summary
     assert "Warning: " in out  # the summary printed
+    said = [line for line in err.splitlines() if line.startswith("warpcoil sweep: warning: ")]
+    assert len(said) == 1 and "contact.friction_wall on the implicit step" in said[0]  # and before the run
+    assert err.index(said[0]) < err.index("member_000")
 
 
 # --- 4: an impossible deployment ------------------------------------------------------------

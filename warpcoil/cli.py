@@ -205,7 +205,7 @@ def _plan(args: argparse.Namespace) -> int:
     from .wall import WallError
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_plan"
-    progress = SweepProgress(quiet=args.quiet)
+    progress = SweepProgress(quiet=args.quiet, command="plan")
     try:
         if args.workers is not None and (args.workers < 1 or args.scheduler):
             raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler")

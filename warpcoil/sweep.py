@@ -172,8 +172,8 @@ class SweepProgress:
     quiet), the bar showing the count of each status so far, plus one line per
     finished member (:func:`member_line`; above the bar on a terminal)."""
 
-    def __init__(self, quiet: bool = False, stream=None):
-        self.quiet, self.stream = quiet, stream if stream is not None else sys.stderr
+    def __init__(self, quiet: bool = False, stream=None, command: str = "sweep"):
+        self.quiet, self.stream, self.command = quiet, stream if stream is not None else sys.stderr, command
         self.progress: Progress | None = None
         self.statuses: dict[str, int] = {}
 
@@ -191,6 +191,16 @@ class SweepProgress:
             else:
                 print(member_line(member), file=self.stream, flush=True)
         self.progress.update(sum(self.statuses.values()), ", ".join(f"{n} {s}" for s, n in self.statuses.items()))
+
+    def warn(self, text: str) -> None:
+        """A warning before the members run (as ``warpcoil run`` gives its own), quiet or not."""
+        line = f"warpcoil {self.command}: warning: {text}"
+        if self.progress is not None and self.progress.terminal:
+            from tqdm import tqdm
+
+            tqdm.write(line, file=self.stream)
+        else:
+            print(line, file=self.stream, flush=True)
 
     def close(self, failed: bool = False) -> None:
         """End the bar; ``failed`` (the sweep stopped on an error): no closing line in a log."""
@@ -306,6 +316,9 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
         check_catheter(scenes[k], anatomy, "cpu")
         warnings += [w for w in check_integrator(scenes[k], 0.0) if w not in warnings]
+    if isinstance(progress, SweepProgress):
+        for warning in warnings:
+            progress.warn(warning)
     out.mkdir(parents=True, exist_ok=True)
     for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
         stale.unlink(missing_ok=True)
