@@ -131,7 +131,7 @@ class ContactSettings:
     friction_coil: float = 0.0
     friction_catheter: float = 0.0
     friction_speed_mm_s: float = 0.01
-    wall_query: str = "bvh"  # "sdf": ~−25 % per seed run (implicit), even or slower on patient sacs (FORMULATION)
+    wall_query: str = "bvh"  # "sdf": −2 … −25 % a run once built, but a new wall's build (1–6 s) costs more (FORMULATION)
     wall_voxel_mm: float = 0.04  # = wall_field.DEFAULT_VOXEL_MM
 
     @property
@@ -218,7 +218,7 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
     implicit default stands (no wall friction: coil–coil friction leaves the push force as it is)."""
     if contact.friction_wall <= 0.0:
         return None
-    return ("contact.friction_wall > 0 and no simulation.integrator: the reference (symplectic) step runs it, at ~10× "
+    return ("contact.friction_wall > 0 and no simulation.integrator: the reference (symplectic) step runs it, at 10–30× "
             "the run time of the implicit step, whose inelastic impacts put the push force with wall friction several "
             "times the reference's (docs/FORMULATION.md \"Implicit step: impacts are inelastic\"); add integrator = "
             "\"implicit\" for the fast step where the push force does not matter")

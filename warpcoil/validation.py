@@ -18,7 +18,7 @@ from .coil import CoilSpec
 from .kernels import contact, integrate
 from .metrics import fit_helix
 from .model import ModelBuilder
-from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, SimulationSettings
+from .settings import DEFAULT_DT_SAFETY, UNDAMPED_DT_SAFETY, CatheterSpec, ContactSettings, SimulationSettings
 from .implicit import EULER, IMPLICIT_SETTLE_THETA, IMPLICIT_THETA, implicit_step_s, make_solver
 from .solver import Control, Solver, Stepper
 from .state import packed_state, state_from_positions
@@ -476,10 +476,11 @@ DENSE_PACKS = ((0.20, 4.0), (0.30, 3.5))  # packing density, helix loop diameter
 
 
 def dense_pack_ensemble(packing: float, loop_diameter_mm: float, integrator: str, length_mm: float = 60.0,
-                        seed: int = 1):
+                        seed: int = 1, wall_query: str = "bvh"):
     """A helical coil (d 0.2921 mm, pitch 2d) to be pushed at default settings on ``integrator``
     into an irregular, faceted, non-convex sac (:func:`warpcoil.faceted_sac.lobulated_sac`,
-    1280 faces, volume π (d/2)² L / packing): its Ensemble, not yet run."""
+    1280 faces, volume π (d/2)² L / packing), the wall queried by ``wall_query``: its Ensemble,
+    not yet run (with "sdf", its wall field built or loaded)."""
     from .deploy import Anatomy, Ensemble
     from .faceted_sac import catheter_tip, lobulated_sac
     from .settings import OutputSettings, Scene
@@ -488,7 +489,7 @@ def dense_pack_ensemble(packing: float, loop_diameter_mm: float, integrator: str
     wall = lobulated_sac(math.pi * (REFERENCE_D_MM / 2.0) ** 2 * length_mm / packing, seed=seed)
     catheter = CatheterSpec(tip_mm=catheter_tip(wall, seed), direction=(0.0, 0.0, 1.0))
     scene = Scene(coils=(coil,), catheter=catheter, output=OutputSettings(usd=False),
-                  simulation=SimulationSettings(integrator=integrator))
+                  simulation=SimulationSettings(integrator=integrator), contact=ContactSettings(wall_query=wall_query))
     return Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])
 
 
