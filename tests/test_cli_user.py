@@ -337,7 +337,7 @@ def test_a_reference_sized_step_on_the_implicit_step_is_warned_about(tmp_path):
 
 
 @pytest.mark.parametrize("integrator, runs, said", [
-    ("", "symplectic", "no simulation.integrator: the reference (symplectic) step runs it"),
+    ("", "symplectic", "no simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) step runs it"),
     ('integrator = "implicit"\n', "implicit", "contact.friction_wall on the implicit step"),
     ('implicit_scheme = "euler"\n', "implicit", "contact.friction_wall on the implicit step"),
     ('integrator = "symplectic"\n', "symplectic", None)])
@@ -375,6 +375,34 @@ def test_a_sweep_of_wall_friction_runs_every_member_on_one_integrator(tmp_path):
         result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
         assert result["scheme"]["integrator"] == "symplectic" and result["status"] == "completed"
     assert "Warning: " in out  # the summary printed
+
+
+def test_a_frictional_sweep_says_why_it_runs_the_reference_once(tmp_path):
+    """Every member has wall friction and the scene names no integrator: each runs the reference,
+    and the note is said once on stderr and once in the summary, not once per member."""
+    path = scene(tmp_path, **{"[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
+    code, out, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")
+    assert code == 0, err
+    summary = (tmp_path / "sweep" / "summary.md").read_text()
+    assert summary.count("Warning: ") == 1 and "the reference (symplectic) step runs it" in summary
+    assert err.count("warpcoil sweep: warning: ") == 1
+
+
+def test_resume_reruns_a_member_written_on_another_integrator(tmp_path):
+    """A sweep folder written when the scene named the implicit step, resumed once it names none:
+    both members now run the reference (wall friction), so neither earlier result is kept."""
+    named = 'frame_interval_s = 0.005\nintegrator = "implicit"\n'
+    path = scene(tmp_path, **{"frame_interval_s = 0.005\n": named,
+                              "[output]": "[contact]\nfriction_wall = 0.3\n\n[output]"})
+    vary = ("--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")
+    assert cli(tmp_path, "sweep", str(path), *vary)[0] == 0
+    path.write_text(path.read_text().replace(named, "frame_interval_s = 0.005\n"))
+    code, out, err = cli(tmp_path, "sweep", str(path), *vary, "--resume", log="resume")
+    assert code == 0, err
+    assert "(0 resumed)" in (tmp_path / "sweep" / "summary.md").read_text()
+    for member in ("member_000", "member_001"):
+        result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
+        assert result["scheme"]["integrator"] == "symplectic"
 
 
 def test_a_frictional_sweep_on_the_implicit_step_says_so_once_in_its_summary(tmp_path):

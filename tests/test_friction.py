@@ -330,6 +330,7 @@ def test_coil_friction_alone_lets_a_pack_come_to_rest_on_the_implicit_step():
     ("friction_coil = 0.2\nfriction_catheter = 0.1\n", "", "implicit"),  # no wall friction: the default
     ("friction_wall = 0.2\n", 'integrator = "implicit"\n', "implicit"),  # named: as named
     ("friction_wall = 0.2\n", 'implicit_scheme = "euler"\n', "implicit"),  # a scheme of the implicit step names it
+    ("friction_wall = 0.2\n", "dt_s = 2e-4\n", "implicit"),  # a step chosen for one integrator: not switched
     ("", "", "implicit")])
 def test_wall_friction_chooses_the_reference_where_the_scene_names_no_integrator(tmp_path, contact, simulation,
                                                                                   integrator):
@@ -342,3 +343,31 @@ def test_wall_friction_chooses_the_reference_where_the_scene_names_no_integrator
     assert scene.simulation.integrator == integrator
     chose = bool(scene.notes) and "the reference (symplectic) step runs it" in scene.notes[0]
     assert chose == (integrator == "symplectic")
+
+
+def test_a_malformed_simulation_table_beside_wall_friction_is_one_clear_error(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('simulation = 5\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\nlength_mm = 10\n'
+                    "[contact]\nfriction_wall = 0.2\n")
+    with pytest.raises(SceneError, match=r"simulation"):
+        load_scene(path)
+
+
+def test_a_sweep_switches_only_members_that_choose_no_integrator(tmp_path):
+    """sweep.one_integrator: beside a frictional member on the reference, a frictionless member
+    that names nothing runs the reference too; one that names the implicit step (its integrator,
+    a scheme or a step) keeps it, as a plan's option may."""
+    from warpcoil.sweep import Member, one_integrator
+
+    path = tmp_path / "s.toml"
+    path.write_text('[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\nlength_mm = 10\n')
+    chosen = [{}, {"simulation.integrator": "implicit"}, {"simulation.implicit_scheme": "euler"},
+              {"simulation.dt_s": 2e-4}]
+    todo = [Member(0, {"contact.friction_wall": 0.3})] + [
+        Member(k + 1, {"contact.friction_wall": 0.0, **values}) for k, values in enumerate(chosen)]
+    scenes, notes = one_integrator(path, todo, [load_scene(path, m.values) for m in todo])
+    assert [s.simulation.integrator for s in scenes] == ["symplectic", "symplectic", "implicit", "implicit", "implicit"]
+    assert "the 1 without wall friction run the reference" in notes[0]
+    alone = todo[:1] + todo[2:]  # no member left to switch: nothing said
+    scenes, notes = one_integrator(path, alone, [load_scene(path, m.values) for m in alone])
+    assert notes == [] and [s.simulation.integrator for s in scenes] == ["symplectic", "implicit", "implicit", "implicit"]

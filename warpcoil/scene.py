@@ -373,9 +373,11 @@ class _Reader:
 
     @staticmethod
     def chosen_integrator(document: dict[str, Any], contact: ContactSettings) -> str | None:
-        """Why a scene that names no integrator (neither ``integrator`` nor ``implicit_scheme``)
-        runs the reference (settings.integrator_for_friction); None: as the scene says, or the default."""
-        named = any(key in document.get("simulation", {}) for key in ("integrator", "implicit_scheme"))
+        """Why a scene that names no integrator (neither ``integrator`` nor ``implicit_scheme``) and
+        sets no ``dt_s`` (a step chosen for one integrator) runs the reference
+        (settings.integrator_for_friction); None: as the scene says, or the default. Called once the
+        [simulation] table is known to be a table."""
+        named = any(key in document.get("simulation", {}) for key in ("integrator", "implicit_scheme", "dt_s"))
         return None if named else integrator_for_friction(contact)
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
@@ -395,8 +397,10 @@ class _Reader:
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
         contact = self.section(document, "contact", _CONTACT, ContactSettings)
+        simulation = self.simulation(document, None)  # checked as written first (a table, its keys)
         chosen = self.chosen_integrator(document, contact)
-        simulation = self.simulation(document, chosen)
+        if chosen is not None:
+            simulation = self.simulation(document, chosen)
         return Scene(
             coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
             catheter=self.catheter(document),

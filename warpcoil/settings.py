@@ -154,9 +154,10 @@ class SimulationSettings:
     * integrator: "implicit" (the default: the linearly implicit θ-method,
       warpcoil/implicit.py: no stability bound, step set by accuracy; on `warpcoil bench
       accuracy`'s run-time/error front, BENCHMARKS.md) or "symplectic" (the reference:
-      semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time;
-      a scene read from TOML with wall friction and neither integrator nor implicit_scheme
-      runs it: integrator_for_friction).
+      semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time on
+      the seed case, 10–30× the whole run's on frictional packs; a scene read from TOML with
+      wall friction and none of integrator, implicit_scheme, dt_s runs it:
+      integrator_for_friction).
     * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
       θ_i = 1 near an obstacle or where an edge turns fast, chord contact stiffness),
       "euler" (linearly implicit Euler, tangent contact stiffness) or "bdf2"
@@ -218,7 +219,8 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
     implicit default stands (no wall friction: coil–coil friction leaves the push force as it is)."""
     if contact.friction_wall <= 0.0:
         return None
-    return ("contact.friction_wall > 0 and no simulation.integrator: the reference (symplectic) step runs it, at 10–30× "
+    return ("contact.friction_wall > 0 and no simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) "
+            "step runs it, at 10–30× "
             "the run time of the implicit step, whose inelastic impacts put the push force with wall friction several "
             "times the reference's (docs/FORMULATION.md \"Implicit step: impacts are inelastic\"); add integrator = "
             "\"implicit\" for the fast step where the push force does not matter")
@@ -255,4 +257,4 @@ class Scene:
     balloon: BalloonSpec | None = None
     stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from
-    notes: tuple[str, ...] = ()  # what the reader chose for the scene (integrator_for_friction), reported as warnings
+    notes: tuple[str, ...] = field(default=(), compare=False)  # what the reader chose (integrator_for_friction): warnings

@@ -39,6 +39,8 @@ from .settings import Scene, integrator_for_friction
 from .sweep_task import MemberOutput, make_task, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
+# member keys that choose the integrator (a step dt_s is chosen for one: scene._Reader.chosen_integrator)
+NAMING_INTEGRATOR = ("simulation.integrator", "simulation.implicit_scheme", "simulation.dt_s")
 WORKER_WAIT_S = 60.0  # how long a --scheduler sweep waits for its first worker
 
 
@@ -262,17 +264,23 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
 
 
 def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) -> tuple[list[Scene], list[str]]:
-    """One integrator for a sweep whose members name none: where wall friction puts some members
-    on the reference (settings.integrator_for_friction) and leaves others on the implicit default
-    (a --vary of contact.friction_wall from 0), every member runs the reference, so that the
-    members differ by what is varied and not by their integrator; (scenes, the note saying so)."""
+    """One integrator for a sweep's members that name none: where wall friction puts some members on
+    the reference (settings.integrator_for_friction) and leaves others on the implicit default (a
+    --vary of contact.friction_wall from 0), those that name no integrator of their own (none of
+    NAMING_INTEGRATOR among their keys) run the reference too, so
+    that they differ by what is varied and not by their integrator; (scenes, the notes saying so)."""
     by_friction = [s for s in scenes if integrator_for_friction(s.contact) in s.notes]
-    if not by_friction or all(s.simulation.integrator == "symplectic" for s in scenes):
+    switch = [k for k, (m, s) in enumerate(zip(todo, scenes)) if s.simulation.integrator == "implicit"
+              and not any(key in m.values for key in NAMING_INTEGRATOR)]
+    if not by_friction or not switch:
         return scenes, []
-    scenes = [load_scene(scene_path, {**m.values, "simulation.integrator": "symplectic"}) for m in todo]
-    return scenes, [f"{len(by_friction)} of {len(todo)} members have wall friction and the scene names no integrator: "
-                    "every member runs the reference (symplectic) step, so that they differ by what is varied only",
-                    integrator_for_friction(by_friction[0].contact)]
+    scenes = list(scenes)
+    for k in switch:
+        scenes[k] = load_scene(scene_path, {**todo[k].values, "simulation.integrator": "symplectic"})
+    return scenes, [f"{len(by_friction)} of {len(todo)} members have wall friction and the scene names no integrator "
+                    f"(simulation.integrator, implicit_scheme or dt_s): the {len(switch)} without wall friction run the "
+                    "reference (symplectic) step too, so that the members differ by what is varied, not by their "
+                    "integrator", integrator_for_friction(by_friction[0].contact)]
 
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
@@ -308,14 +316,16 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             if found is not None and found.get("varied") != member.values:
                 raise SweepError(f"--resume: {folder} holds {found.get('varied')}, not {member.values}: another "
                                  "sweep's member; give another -o folder, or drop --resume to overwrite")
+            if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
+                found = None  # run on another integrator (an earlier release's rule): run again
             member.result, member.resumed = found, found is not None
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
-    warnings: list[str] = unified  # what a run would warn about (the scene's notes, the integrator's), once each
-    warnings += [note for scene in scenes for note in scene.notes if note not in warnings]
+    said = unified + [note for scene in scenes for note in scene.notes]  # what a run would warn about, once each
     for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
         check_catheter(scenes[k], anatomy, "cpu")
-        warnings += [w for w in check_integrator(scenes[k], 0.0) if w not in warnings]
+        said += check_integrator(scenes[k], 0.0)
+    warnings = list(dict.fromkeys(said))
     if isinstance(progress, SweepProgress):
         for warning in warnings:
             progress.warn(warning)
