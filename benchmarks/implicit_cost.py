@@ -37,6 +37,7 @@ import os
 import time
 from collections import defaultdict
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import warp as wp
@@ -63,15 +64,8 @@ def faceted_sac_run(wall_query: str = "bvh") -> Ensemble:
 
 def without_field_cache(make):
     """``make()`` with the on-disk field cache off (field_cache.py), so a wall field is built."""
-    before = os.environ.get(FIELD_CACHE_ENV)
-    os.environ[FIELD_CACHE_ENV] = "off"
-    try:
+    with mock.patch.dict(os.environ, {FIELD_CACHE_ENV: "off"}):
         return make()
-    finally:
-        if before is None:
-            del os.environ[FIELD_CACHE_ENV]
-        else:
-            os.environ[FIELD_CACHE_ENV] = before
 
 
 def timed_run(ensemble: Ensemble) -> dict:

@@ -32,6 +32,9 @@ from .settings import (
 )
 
 Vec3 = tuple[float, float, float]
+# [simulation] keys that choose the integrator (a step dt_s is chosen for one): a scene with none of them
+# and wall friction runs the reference (settings.integrator_for_friction)
+INTEGRATOR_KEYS = ("integrator", "implicit_scheme", "dt_s")
 
 
 class SceneError(ValueError):
@@ -360,11 +363,8 @@ class _Reader:
                 raise self.error(f"wall.{key}", f"is only for wall.{source}, not wall.{given[0]}", "remove it")
         return self.build(WallSpec, values, "wall")
 
-    def simulation(self, document: dict[str, Any], chosen: str | None) -> SimulationSettings:
-        """The [simulation] table; ``chosen``: why the reference runs it (:meth:`chosen_integrator`)."""
+    def simulation(self, document: dict[str, Any]) -> SimulationSettings:
         simulation = self.section(document, "simulation", _SIMULATION, SimulationSettings)
-        if chosen is not None:
-            simulation = replace(simulation, integrator="symplectic")
         if "implicit_scheme" in document.get("simulation", {}) and simulation.integrator != "implicit":
             raise self.error("simulation.implicit_scheme", f"applies only to integrator = 'implicit' (this scene's is "
                              f"{simulation.integrator!r}, which it would not change)",
@@ -377,7 +377,7 @@ class _Reader:
         sets no ``dt_s`` (a step chosen for one integrator) runs the reference
         (settings.integrator_for_friction); None: as the scene says, or the default. Called once the
         [simulation] table is known to be a table."""
-        named = any(key in document.get("simulation", {}) for key in ("integrator", "implicit_scheme", "dt_s"))
+        named = any(key in document.get("simulation", {}) for key in INTEGRATOR_KEYS)
         return None if named else integrator_for_friction(contact)
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
@@ -397,10 +397,10 @@ class _Reader:
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
         contact = self.section(document, "contact", _CONTACT, ContactSettings)
-        simulation = self.simulation(document, None)  # checked as written first (a table, its keys)
+        simulation = self.simulation(document)  # checked as written (a table, its keys) before the rule reads it
         chosen = self.chosen_integrator(document, contact)
         if chosen is not None:
-            simulation = self.simulation(document, chosen)
+            simulation = replace(simulation, integrator="symplectic")
         return Scene(
             coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
             catheter=self.catheter(document),

@@ -34,13 +34,12 @@ from .preflight import check_catheter, check_integrator
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
-from .scene import load_scene
+from .scene import INTEGRATOR_KEYS, load_scene
 from .settings import Scene, integrator_for_friction
 from .sweep_task import MemberOutput, make_task, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
-# member keys that choose the integrator (a step dt_s is chosen for one: scene._Reader.chosen_integrator)
-NAMING_INTEGRATOR = ("simulation.integrator", "simulation.implicit_scheme", "simulation.dt_s")
+NAMING_INTEGRATOR = tuple(f"simulation.{key}" for key in INTEGRATOR_KEYS)  # member keys that choose the integrator
 WORKER_WAIT_S = 60.0  # how long a --scheduler sweep waits for its first worker
 
 
