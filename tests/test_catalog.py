@@ -158,6 +158,24 @@ def test_cli_runs_a_product_scene(tmp_path):
     assert "coil[0]: Axium Helix: no public source gives its secondary diameter" in err
 
 
+def test_sweep_members_keep_the_coil_notes_a_run_warns_of(tmp_path):
+    """A sweep of a product scene: the coil note `warpcoil run` warns of (a model-default
+    diameter) is said once on stderr and kept in every member's result.json."""
+    path = tmp_path / "product.toml"
+    path.write_text('[wall]\nsphere_diameter_mm = 3.5\n\n[catheter]\ntip = [0.0, 0.0, -1.45]\n'
+                    'direction = [0.0, 0.0, 1.0]\n\n[[coil]]\nproduct = "Axium Helix"\nsize = "1.5 x 1"\n\n'
+                    '[simulation]\npush_speed_mm_s = 200.0\nframe_interval_s = 0.01\n\n[output]\nusd = false\n')
+    code, out, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=150,200", "-o",
+                         str(tmp_path / "sweep"))
+    assert code == 0, err
+    assert err.count("no public source gives its secondary diameter") == 1
+    for member in ("member_000", "member_001"):
+        result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
+        assert result["status"] == "completed"
+        notes = [w for w in result["warnings"] if "secondary diameter" in w]
+        assert len(notes) == 1 and notes[0].startswith(f"{path}: coil[0]: Axium Helix: ")
+
+
 def test_sweep_override_varies_the_size(tmp_path):
     path = write(tmp_path, 'product = "Micrus MicroCoil Spherical 10"\nsize = "4 x 10"')
     coil = load_scene(path, overrides={"coil.size": "3 x 6"}).coils[0]

@@ -371,9 +371,12 @@ def test_a_sweep_of_wall_friction_runs_every_member_on_one_integrator(tmp_path):
     assert summary.count("Warning: ") == 2 and "1 of 2 members have wall friction" in summary
     assert summary.count("the reference (symplectic) step runs it") == 1
     assert err.count("warpcoil sweep: warning: ") == 2
-    for member in ("member_000", "member_001"):
+    for member, friction in (("member_000", False), ("member_001", True)):
         result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
         assert result["scheme"]["integrator"] == "symplectic" and result["status"] == "completed"
+        # each member's result.json keeps its own warnings, as `warpcoil run` keeps them
+        assert "1 of 2 members have wall friction" in result["warnings"][0]
+        assert any("the reference (symplectic) step runs it" in w for w in result["warnings"]) == friction
     assert "Warning: " in out  # the summary printed
 
 

@@ -46,7 +46,8 @@ mesh = "walls/sphere.stl"
 push_speed_mm_s = 100.0
 frame_interval_s = 0.005
 """
-TIMING_KEYS = ("wall_time_s", "scene", "varied", "files")  # all else must equal the single run's
+# timing and what a sweep adds: all else must equal the single run's
+UNCOMPARED_KEYS = ("wall_time_s", "scene", "varied", "warnings", "files")
 
 
 def _scene(folder: Path) -> Path:
@@ -83,9 +84,10 @@ def _assert_equals_single_runs(out: Path, single_runs, members=range(len(SPEEDS)
             assert (member / name).read_bytes() == (single_runs[k] / name).read_bytes(), (member, name)
         swept = json.loads((member / "result.json").read_text())
         alone = json.loads((single_runs[k] / "result.json").read_text())
-        assert {k: v for k, v in swept.items() if k not in TIMING_KEYS} == \
-            {k: v for k, v in alone.items() if k not in TIMING_KEYS}
+        assert {k: v for k, v in swept.items() if k not in UNCOMPARED_KEYS} == \
+            {k: v for k, v in alone.items() if k not in UNCOMPARED_KEYS}
         assert swept["varied"] == {"simulation.push_speed_mm_s": SPEEDS[k]}
+        assert swept["warnings"] == []  # this scene warns of nothing (a member's own warnings: test_cli_user)
         assert complete_result(member) == swept
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, resolve_anatomies
-from .preflight import check_catheter, check_integrator
+from .preflight import preflight
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
@@ -121,11 +121,13 @@ def complete_result(folder: Path) -> dict | None:
     return result
 
 
-def member_files(output: MemberOutput, member: Member, scene_path: Path) -> dict[str, bytes]:
+def member_files(output: MemberOutput, member: Member, scene_path: Path, warnings: list[str]) -> dict[str, bytes]:
     """A member folder's files: the run's outputs and result.json, which adds the
-    scene, the varied values and the list of files (for --resume)."""
+    scene, the varied values, the member's warnings (as `warpcoil run` keeps them) and
+    the list of files (for --resume)."""
     listed = {name: len(data) for name, data in output.files.items()}
-    result = {**output.result, "scene": str(scene_path), "varied": member.values, "files": listed}
+    result = {**output.result, "scene": str(scene_path), "varied": member.values, "warnings": warnings,
+              "files": listed}
     return {**output.files, RESULT_JSON: (json.dumps(result, indent=2) + "\n").encode()}
 
 
@@ -279,7 +281,7 @@ def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) ->
     return scenes, [f"{len(by_friction)} of {len(todo)} members have wall friction and the scene names no integrator "
                     f"(simulation.integrator, implicit_scheme or dt_s): the {len(switch)} without wall friction run the "
                     "reference (symplectic) step too, so that the members differ by what is varied, not by their "
-                    "integrator", integrator_for_friction(by_friction[0].contact)]
+                    "integrator"]  # (the frictional members' own note comes with their preflight)
 
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
@@ -320,11 +322,12 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             member.result, member.resumed = found, found is not None
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
-    said = unified + [note for scene in scenes for note in scene.notes]  # what a run would warn about, once each
-    for k, anatomy in zip(pending, anatomies):  # a catheter outside the lumen: SetupError before any step
-        check_catheter(scenes[k], anatomy, "cpu")
-        said += check_integrator(scenes[k], 0.0)
-    warnings = list(dict.fromkeys(said))
+    # each member's warnings, as `warpcoil run` would give them (a catheter outside the lumen: SetupError before any
+    # step); kept in its result.json, and said once each before the members run and in the summary
+    member_warnings = {k: list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu")))
+                       for k, anatomy in zip(pending, anatomies)}
+    stored = [w for m in todo if m.resumed for w in m.result.get("warnings", [])]
+    warnings = list(dict.fromkeys(unified + [w for k in pending for w in member_warnings[k]] + stored))
     if isinstance(progress, SweepProgress):
         for warning in warnings:
             progress.warn(warning)
@@ -357,7 +360,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                     continue
                 for output in future.result():
                     member = todo[output.index]
-                    write_folder_atomic(folders[output.index], member_files(output, member, scene_path))
+                    files = member_files(output, member, scene_path, member_warnings[output.index])
+                    write_folder_atomic(folders[output.index], files)
                     member.result = json.loads((folders[output.index] / RESULT_JSON).read_text())
                     if progress:
                         progress(member)
