@@ -268,22 +268,45 @@ def test_an_output_folder_that_is_not_writable_is_one_line(tmp_path):
     assert code == 2 and "is not writable" in one_line(err)
 
 
-def test_ctrl_c_ends_the_run_as_interrupted(tmp_path):
+def stepping_run(tmp_path: Path, folder: str):
+    """A 20 mm run into ``folder``, returned once it steps (its first progress line): (process, stdout, stderr)."""
     path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 20.0", "push_speed_mm_s = 100.0":
                               "push_speed_mm_s = 20.0", "usd = false": "usd = true"})
-    process, out, err = cli(tmp_path, "run", str(path), "-o", "stopped", wait=False)
+    process, out, err = cli(tmp_path, "run", str(path), "-o", folder, wait=False, log=folder)
     deadline = time.monotonic() + 300
     while "deployed " not in err.read_text() and time.monotonic() < deadline and process.poll() is None:
-        time.sleep(0.2)  # the first progress line: it is stepping
-    process.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+    return process, out, err
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_or_a_schedulers_sigterm_ends_the_run_as_interrupted(tmp_path, stop):
+    process, out, err = stepping_run(tmp_path, "stopped")
+    process.send_signal(stop)
     assert process.wait(timeout=300) == 130
     folder = tmp_path / "stopped"
     result = json.loads((folder / "result.json").read_text())
-    assert result["status"] == "interrupted" and "Ctrl-C" in result["reason"]
+    assert result["status"] == "interrupted" and "Ctrl-C or SIGTERM" in result["reason"]
     assert 0.0 < result["deployed_length_mm"] < 20.0
-    assert out.read_text().startswith("interrupted: ")
+    assert out.read_text().startswith("interrupted: stopped by ")
     assert "Traceback" not in err.read_text()
     assert (folder / "deployment.usdc").exists() and leftovers(folder) == []
+
+
+def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
+    """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
+    outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite
+    and leaves neither."""
+    process, _, _ = stepping_run(tmp_path, "killed")
+    process.kill()
+    process.wait(timeout=60)
+    folder = tmp_path / "killed"
+    assert [p.name for p in folder.iterdir() if not p.name.startswith(".")] == []
+    assert leftovers(folder)  # the lock and the hidden folder of the killed run
+    code, out, err = cli(tmp_path, "run", str(tmp_path / "tiny.toml"), "-o", "killed", log="next")
+    assert code == 0, err
+    assert json.loads((folder / "result.json").read_text())["status"] == "completed"
+    assert leftovers(folder) == []
 
 
 # --- 11: smaller things ---------------------------------------------------------------------
@@ -406,6 +429,24 @@ def test_resume_reruns_a_member_written_on_another_integrator(tmp_path):
     for member in ("member_000", "member_001"):
         result = json.loads((tmp_path / "sweep" / member / "result.json").read_text())
         assert result["scheme"]["integrator"] == "symplectic"
+
+
+def test_a_resume_of_another_sweep_is_refused_and_touches_nothing(tmp_path):
+    """A sweep folder resumed with other values, or with fewer members: one line naming the member and
+    the fix (--overwrite, not --resume), exit 2, and the earlier sweep's folders and summary as they were."""
+    path = scene(tmp_path)
+    assert cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")[0] == 0
+    before = {p.relative_to(tmp_path / "sweep"): p.read_bytes() for p in (tmp_path / "sweep").rglob("*") if p.is_file()}
+    for values, says in (("100,200", "member_001 holds {'simulation.push_speed_mm_s': 150.0}"),
+                         ("100", "holds member_001, which this sweep of 1 members does not have")):
+        code, out, err = cli(tmp_path, "sweep", str(path), "--vary", f"simulation.push_speed_mm_s={values}", "-o",
+                             "sweep", "--resume", log=f"resume_{values}")
+        line = [line for line in err.splitlines() if line.startswith("warpcoil sweep: ")]
+        assert code == 2 and len(line) == 1 and "Traceback" not in err, err
+        assert says in line[0] and "add --overwrite (without --resume)" in line[0], line[0]
+        after = {p.relative_to(tmp_path / "sweep"): p.read_bytes() for p in (tmp_path / "sweep").rglob("*")
+                 if p.is_file()}
+        assert after == before  # the summary too
 
 
 def test_a_frictional_sweep_on_the_implicit_step_says_so_once_in_its_summary(tmp_path):

@@ -3,7 +3,7 @@
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
-130 interrupted (Ctrl-C).
+130 interrupted (Ctrl-C, or SIGTERM from a batch scheduler).
 """
 
 from __future__ import annotations
@@ -96,32 +96,37 @@ def _run(args: argparse.Namespace) -> int:
 
 def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warnings: list[str]) -> int:
     """The run itself, into the claimed folder ``out``: frames to the USD and the
-    animation as they come, then the outputs; the exit code of its status."""
+    animation as they come, then the outputs, all in a hidden folder moved into ``out``
+    at the end (recorder.folder.staged_outputs: a killed run leaves none); the exit code
+    of its status."""
     from .progress import Progress
     from .recorder import outputs
+    from .recorder.folder import staged_outputs
 
-    recorders = []
-    if scene.output.usd and not args.no_usd:
-        recorders.append(outputs.UsdFrames.for_model(out / outputs.DEPLOYMENT_USD, deployment.model,
-                                                     scene.simulation.frame_interval_s))
-    if scene.output.animation:
-        from .recorder.animation import AnimationFrames
+    with staged_outputs(out, last=outputs.RESULT_JSON) as stage:
+        recorders = []
+        if scene.output.usd and not args.no_usd:
+            recorders.append(outputs.UsdFrames.for_model(stage / outputs.DEPLOYMENT_USD, deployment.model,
+                                                         scene.simulation.frame_interval_s))
+        if scene.output.animation:
+            from .recorder.animation import AnimationFrames
 
-        recorders.append(AnimationFrames.for_model(out / outputs.ANIMATION_GIF, deployment.model,
-                                                   deployment.anatomy.catheter, scene.simulation.frame_interval_s))
-    progress = Progress("deployed", "mm", total=round(float(deployment.coil_lengths_mm.sum()), 1), quiet=args.quiet)
+            recorders.append(AnimationFrames.for_model(stage / outputs.ANIMATION_GIF, deployment.model,
+                                                       deployment.anatomy.catheter, scene.simulation.frame_interval_s))
+        progress = Progress("deployed", "mm", total=round(float(deployment.coil_lengths_mm.sum()), 1),
+                            quiet=args.quiet)
 
-    def on_frame(frame, state):
+        def on_frame(frame, state):
+            for recorder in recorders:
+                recorder(frame, state)
+            progress.update(frame.deployed_length_mm, _force_text(frame))
+
+        result = deployment.run(on_frame)
+        progress.close()
         for recorder in recorders:
-            recorder(frame, state)
-        progress.update(frame.deployed_length_mm, _force_text(frame))
-
-    result = deployment.run(on_frame)
-    progress.close()
-    for recorder in recorders:
-        recorder.close()
-    outputs.write_run(out, scene, deployment.anatomy.wall, result, {"scene": str(scene.source), "warnings": warnings},
-                      sac=deployment.anatomy.sac)
+            recorder.close()
+        outputs.write_run(stage, scene, deployment.anatomy.wall, result,
+                          {"scene": str(scene.source), "warnings": warnings}, sac=deployment.anatomy.sac)
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
@@ -169,8 +174,8 @@ def _sweep(args: argparse.Namespace) -> int:
             _device(args.device)
         varies = [parse_vary(v) for v in args.vary]
         progress.start(len(members(varies)))
-        if args.resume:  # keeps the member folders (the complete ones are not rerun); clears the summary
-            claim = claimed_folder(out, SWEEP_OUTPUTS, overwrite=True)
+        if args.resume:  # keeps the member folders (the complete ones are not rerun) and, until the resumed
+            claim = claimed_folder(out, (), overwrite=True)  # sweep is checked, the summary (sweep.run_members)
         else:
             claim = claimed_folder(out, SWEEP_OUTPUTS + outputs.RUN_OUTPUTS, args.overwrite,
                                    folder_pattern=r"member_\d+")
@@ -215,7 +220,7 @@ def _plan(args: argparse.Namespace) -> int:
         plan = read_plan(Path(args.scene), [parse_vary(v) for v in args.vary or []])
         progress.start(len(plan.options) * plan.perturbations)
         names = PLAN_OUTPUTS + SWEEP_OUTPUTS
-        claim = claimed_folder(out, names, overwrite=True) if args.resume else \
+        claim = claimed_folder(out, (), overwrite=True) if args.resume else \
             claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+")
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,

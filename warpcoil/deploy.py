@@ -472,7 +472,7 @@ class Ensemble:
             on_frame(member, frame, self.stepper.state)
 
     def run(self, on_frame: Callable[[Member, Frame, State], None] | None = None) -> list[RunResult]:
-        """Deploy every member; Ctrl-C (SIGINT, in the main thread) ends the run after
+        """Deploy every member; Ctrl-C (SIGINT) or SIGTERM, in the main thread, ends the run after
         the current frame, each unfinished member with status ``interrupted``."""
         with _stop_on_interrupt() as interrupted:
             return self._run(on_frame, interrupted)
@@ -482,7 +482,7 @@ class Ensemble:
         for member in members:
             deployed = float(np.clip(snap.advance[member.coils.start:member.coils.stop], 0.0,
                                      member.coil_lengths_mm).sum())
-            self._finish(member, INTERRUPTED, f"interrupted (Ctrl-C) at t = {snap.time_s:.4f} s with {deployed:.2f} "
+            self._finish(member, INTERRUPTED, f"stopped by Ctrl-C or SIGTERM at t = {snap.time_s:.4f} s with {deployed:.2f} "
                          f"of {member.coil_lengths_mm.sum():.2f} mm deployed; results are those of that moment",
                          started, snap)
 
@@ -562,11 +562,15 @@ class Ensemble:
             member.frames, member.result = alone.members[0].frames, result
         return [m.result for m in self.members]
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C, and a batch scheduler's stop (before its kill)
+
+
 @contextmanager
 def _stop_on_interrupt() -> Iterator[list[bool]]:
-    """While a run steps, the first Ctrl-C (SIGINT) only sets the yielded flag,
-    which the run checks between frames; a second one interrupts at once.
-    Outside the main thread (where no handler can be set) nothing changes."""
+    """While a run steps, the first Ctrl-C (SIGINT) or SIGTERM only sets the yielded
+    flag, which the run checks between frames (its outputs are then written, status
+    interrupted); a second one interrupts at once. Outside the main thread (where no
+    handler can be set) nothing changes."""
     flag = [False]
     if threading.current_thread() is not threading.main_thread():
         yield flag
@@ -577,11 +581,12 @@ def _stop_on_interrupt() -> Iterator[list[bool]]:
             raise KeyboardInterrupt
         flag[0] = True
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {number: signal.signal(number, handler) for number in STOP_SIGNALS}
     try:
         yield flag
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for number, action in previous.items():
+            signal.signal(number, action)
 
 
 def world_bounds(model: Model) -> list:

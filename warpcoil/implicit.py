@@ -60,7 +60,7 @@ from .devices import ImplicitDeviceStiffness
 from .kernels import chord, friction_damping
 from .kernels import implicit as kernels
 from .kernels import node_theta
-from .kernels import elastic, friction, integrate
+from .kernels import elastic
 from .model import Model
 from .settings import DEFAULT_DT_SAFETY
 from .solver import Control, Solver, contact_linear_onset
@@ -625,9 +625,7 @@ class ImplicitSolver(Solver):
             m.world_node_range, control.running, state_out.free, m.fixed, m.inv_mass, state_out.v, self._v,
             self.node_theta, self.theta, int(gated), self._friction_change])
         if self._obstacles:  # nothing of it into the wall or a device
-            wp.launch(friction.add_guard, n, device=dev, inputs=[
-                state_out.free, m.has_next, m.world_of, control.running, self.wall_force, self.device_force,
-                self._guard_start, self._guard_end, 0, self._friction_change])
+            self._launch_add_guard(state_out, control.running, with_coil_terms=False)
 
     def _product_args(self, state_out: State, control: Control, dt_m: float) -> list:
         """The arguments of kernels.system_product after (x, b, residual), before out."""

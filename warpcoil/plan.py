@@ -222,7 +222,8 @@ def run_plan(scene_path: Path, plan: Plan, out: Path, device: str | None = None,
     plan.csv and plan.png into ``out``."""
     started = time.perf_counter()
     todo, owner = plan_members(scene_path, plan)
-    run_members(scene_path, todo, out, device, progress, scheduler, workers, resume=resume, title="Plan")
+    run_members(scene_path, todo, out, device, progress, scheduler, workers, resume=resume, title="Plan",
+                stale_names=PLAN_OUTPUTS)
     stats, usable = [], []
     for k in range(len(plan.options)):
         results = [m.result for m, o in zip(todo, owner) if o == k and m.result["status"] in USABLE]

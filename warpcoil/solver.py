@@ -222,6 +222,8 @@ class Solver:
     ``wall_sided_skip``: a node in wall contact that cannot have left the lumen
     since its last search skips the signed BVH query (kernels/contact.wall_contact;
     bit-identical to the full search, which False forces).
+    ``guard_fixed_point``: friction's normal guard stops its passes at a fixed point
+    (kernels/friction.py; bit-identical to all GUARD_PASSES passes, which False forces).
     ``neighbour_build``: "grid" builds the neighbour lists from Warp's hash grid, "walk"
     by each edge walking its world's edges (contact.walk_neighbours: the same lists; the
     grid is built only when a list overflows), "auto" (default) walks on the CPU for a
@@ -238,7 +240,7 @@ class Solver:
                  wall_search_mm: float = WALL_SEARCH_MM, neighbour_skin_mm: float = NEIGHBOUR_SKIN_MM,
                  wall_guard_steps: int = WALL_GUARD_STEPS, neighbour_capacity: int = NEIGHBOUR_CAPACITY,
                  wall_query: str = "bvh", wall_voxel_mm: float = DEFAULT_VOXEL_MM, wall_sided_skip: bool = True,
-                 neighbour_build: str = "auto"):
+                 neighbour_build: str = "auto", guard_fixed_point: bool = True):
         if wall_query not in WALL_QUERIES:
             raise ValueError(f"wall_query must be one of {WALL_QUERIES}, got {wall_query!r}")
         if neighbour_build not in NEIGHBOUR_BUILDS:
@@ -248,6 +250,7 @@ class Solver:
         self.coil_contact = coil_contact
         self.wall_search_mm = wall_search_mm
         self.wall_sided_skip = bool(wall_sided_skip)
+        self.guard_fixed_point = bool(guard_fixed_point)
         self.neighbour_skin_mm = float(neighbour_skin_mm)
         self.wall_guard_steps = int(wall_guard_steps)
         self.has_wall = any(w is not None for w in model.world_walls)
@@ -352,6 +355,7 @@ class Solver:
         self._guard_b = wp.zeros(guarded, dtype=wp.int32, device=dev)
         self._guard_st = wp.zeros(guarded, dtype=wp.vec2d, device=dev)
         self._guard_count = zeros(wp.int32)
+        self._guard_loop = wp.zeros(3, dtype=wp.int32, device=dev)  # the guard's pass loop (friction.GUARD_MOVING …)
         # per world: Σ, max, Σ² of the step push force, and the steps counted
         self.push_accumulator = wp.zeros((model.world_count, 4), dtype=wp.float64, device=dev)
         # per world: the previous step's push force (µN) and whether there is one (θ-method reading, θ < 1)
@@ -367,8 +371,10 @@ class Solver:
         self._coil_last = wp.array(model.coil_last, dtype=wp.int32, device=dev)
         self._coil_step = wp.zeros(model.coil_count, dtype=wp.float64, device=dev)  # mm, per coil (walk_neighbours)
         self._list_overflow = wp.zeros(1, dtype=wp.int32, device=dev)  # a walked list overflowed: build the grid
-        # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds; without them, build every step
-        self._conditional_rebuild = dev.is_cpu or wp.is_conditional_graph_supported()
+        # CUDA graphs need conditional nodes (CUDA 12.4+) to skip builds and stop friction's guard passes;
+        # without them, build every step and run every pass
+        self._conditional_graphs = dev.is_cpu or wp.is_conditional_graph_supported()
+        self._conditional_rebuild = self._conditional_graphs
         self._graphs: dict = {}  # (name, id(state), id(extra)) → (state, extra, graph): _replayed
         self._views: dict = {}  # id(array) → (array, its numpy view): host()
         self._world_slices = [model.world_nodes(w) for w in range(model.world_count)]
@@ -655,16 +661,33 @@ class Solver:
                 state_in.x, m.rest_x, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed, m.node_radius,
                 self.coil_contacts, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
                 self._grid_radius, c.exclusion_edges, c.c0_mm, self._guard_b, self._guard_st, self._guard_count])
-        for _ in range(friction.GUARD_PASSES if self.coil_contact else 1):
-            if self.coil_contact:
-                wp.launch(friction.edge_normal_guard, n, device=dev, inputs=[
-                    state_in.x, m.rest_x, self._friction_change, state_in.free, m.has_next, m.coil_of, m.world_of, m.fixed,
-                    m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
-                    self._neighbours, self._neighbour_count, self._midpoints, self._grid_radius, c.exclusion_edges,
-                    c.c0_mm, self._guard_b, self._guard_st, self._guard_count, self._guard_start, self._guard_end])
-            wp.launch(friction.add_guard, n, device=dev, inputs=[
-                state_out.free, m.has_next, m.world_of, running, self.wall_force, self.device_force, self._guard_start,
-                self._guard_end, int(self.coil_contact), self._friction_change])
+        else:  # the wall and devices alone: one pass
+            self._launch_add_guard(state_out, running, with_coil_terms=False)
+            return
+
+        def guard_pass() -> None:  # one Jacobi pass over the watched coil pairs, then its loop's bookkeeping
+            wp.launch(friction.edge_normal_guard, n, device=dev, inputs=[
+                state_in.x, m.rest_x, self._friction_change, state_in.free, m.has_next, m.coil_of, m.world_of, m.fixed,
+                m.node_radius, m.inv_mass, self.coil_contacts, self.wall_force, self.device_force, self._grid.id,
+                self._neighbours, self._neighbour_count, self._midpoints, self._grid_radius, c.exclusion_edges,
+                c.c0_mm, self._guard_b, self._guard_st, self._guard_count, self._guard_start, self._guard_end])
+            self._launch_add_guard(state_out, running, with_coil_terms=True)
+            wp.launch(friction.finish_guard_pass, 1, device=dev, inputs=[self._guard_loop, friction.GUARD_PASSES])
+
+        if not (self.guard_fixed_point and self._conditional_graphs):  # every pass (the stop is tested against it)
+            for _ in range(friction.GUARD_PASSES):
+                guard_pass()
+            return
+        wp.launch(friction.start_guard, 1, device=dev, inputs=[self._guard_loop])
+        wp.capture_while(self._guard_loop, guard_pass)
+
+    def _launch_add_guard(self, state_out: State, running: wp.array, with_coil_terms: bool) -> None:
+        """The friction changes less any part into the wall or a device (kernels/friction.add_guard;
+        ``with_coil_terms``: plus the last guard pass's coil-pair corrections)."""
+        m = self.model
+        wp.launch(friction.add_guard, m.node_count, device=m.device, inputs=[
+            state_out.free, m.has_next, m.world_of, running, self.wall_force, self.device_force, self._guard_start,
+            self._guard_end, int(with_coil_terms), self._friction_change, self._guard_loop])
 
     def allocate_neighbour_grid(self, state: State) -> None:
         """Build the neighbour grid once (sizing its buffers) and flag a rebuild."""
@@ -893,7 +916,8 @@ class Stepper:
             except RuntimeError:
                 if not self.solver._conditional_rebuild:
                     raise
-                self.solver._conditional_rebuild = False  # this driver cannot branch in a graph: build every step
+                # this driver cannot branch in a graph: build every step, run every guard pass
+                self.solver._conditional_rebuild = self.solver._conditional_graphs = False
                 with wp.ScopedCapture(device=self.solver.model.device) as capture:
                     self._launch_steps(per_graph)
             self._graph = capture.graph

@@ -21,6 +21,7 @@ import json
 import logging
 import math
 import os
+import re
 import secrets
 import shutil
 import sys
@@ -264,6 +265,9 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         cluster.close()
 
 
+REPLACE_HINT = "give another -o folder, or add --overwrite (without --resume) to replace it"
+
+
 def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) -> tuple[list[Scene], list[str]]:
     """One integrator for a sweep's members that name none: where wall friction puts some members on
     the reference (settings.integrator_for_friction) and leaves others on the implicit default (a
@@ -295,10 +299,12 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
 def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | None = None,
                 progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
                 workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
-                title: str = "Sweep") -> list[Member]:
+                title: str = "Sweep", stale_names: tuple[str, ...] = ()) -> list[Member]:
     """Deploy every member (``todo``: indices 0…n−1, each with the scene keys it sets) on
     Dask; write their folders as they come back, then the summary (headed ``title`` of
-    the scene). ``progress(member)`` after each finished (or resumed) member.
+    the scene; ``stale_names``: other files of ``out`` that only this run may leave, removed
+    with the old summary once every member is checked). ``progress(member)`` after each
+    finished (or resumed) member.
 
     Members that can share an ensemble are grouped (deploy.ensemble_groups) and
     each group is split into one task per worker thread (a CPU launch runs on one
@@ -316,10 +322,16 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             found = complete_result(folder)
             if found is not None and found.get("varied") != member.values:
                 raise SweepError(f"--resume: {folder} holds {found.get('varied')}, not {member.values}: another "
-                                 "sweep's member; give another -o folder, or drop --resume to overwrite")
+                                 f"sweep's member; {REPLACE_HINT}")
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
             member.result, member.resumed = found, found is not None
+        ours = {folder.name for folder in folders}
+        foreign = sorted(f.name for f in out.glob("member_*") if f.is_dir() and f.name not in ours
+                         and re.fullmatch(r"member_\d+", f.name))
+        if foreign:
+            raise SweepError(f"--resume: {out} holds {', '.join(foreign[:3])}{', …' if len(foreign) > 3 else ''}, "
+                             f"which this sweep of {len(todo)} members does not have: another sweep's; {REPLACE_HINT}")
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
     # each member's warnings, as `warpcoil run` would give them (a catheter outside the lumen: SetupError before any
@@ -332,8 +344,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
         for warning in warnings:
             progress.warn(warning)
     out.mkdir(parents=True, exist_ok=True)
-    for stale in (out / "summary.csv", out / "summary.md"):  # a summary is only ever of this sweep
-        stale.unlink(missing_ok=True)
+    for stale in ("summary.csv", "summary.md", *stale_names):  # a summary is only ever of this sweep
+        (out / stale).unlink(missing_ok=True)
     for partial in out.glob(".member_*.tmp-*"):  # a member folder being written when a sweep was killed
         shutil.rmtree(partial, ignore_errors=True)
     started = time.perf_counter()

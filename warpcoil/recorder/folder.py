@@ -3,17 +3,21 @@
 A command *claims* its folder before it writes anything: it takes a lock file
 (``.warpcoil.lock``, created exclusively, holding the process id), so two
 runs into one folder cannot interleave; a lock left by a process that no
-longer exists (a killed run) is taken over. A folder that already holds a
-run's outputs (any file name warpcoil writes, or a leftover temporary file)
-is refused, unless ``overwrite``: then exactly those files are deleted first,
-so no old ``result.json``, picture or animation ever sits beside new data.
-Files that warpcoil does not write are left alone.
+longer exists (a killed run) is taken over, and so are the temporary files
+and folders such a run left (removed: none of them is a finished output). A
+folder that already holds a run's outputs (any file name warpcoil writes) is
+refused, unless ``overwrite``: then exactly those files are deleted first, so
+no old ``result.json``, picture or animation ever sits beside new data.
+Files that warpcoil does not write are left alone. A run writes its outputs
+into a hidden folder inside (:func:`staged_outputs`) and moves them out when
+it ends, so a run killed on the way leaves none of them.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import secrets
 import shutil
 import socket
 from collections.abc import Iterable, Iterator
@@ -21,7 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 LOCK_NAME = ".warpcoil.lock"
-TEMPORARY = re.compile(r"^\..+\.tmp-[0-9a-f]{8}")  # atomic_path's temporary names
+TEMPORARY = re.compile(r"^\..+\.tmp-[0-9a-f]{8}")  # atomic_path's and staged_outputs' temporary names
 
 
 class OutputFolderError(ValueError):
@@ -83,7 +87,7 @@ def previous_outputs(folder: Path, names: Iterable[str], folder_pattern: str | N
     names = set(names)
     found = []
     for entry in sorted(folder.iterdir()):
-        if entry.name in names or TEMPORARY.match(entry.name):
+        if entry.name in names:
             found.append(entry)
         elif folder_pattern and entry.is_dir() and re.fullmatch(folder_pattern, entry.name):
             found.append(entry)
@@ -108,6 +112,8 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
             shutil.rmtree(path, ignore_errors=True)
         raise
     try:
+        for leftover in (p for p in path.iterdir() if TEMPORARY.match(p.name)):  # a killed run's (the lock is ours)
+            shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
         names = tuple(names)
         old = previous_outputs(path, names, folder_pattern)
         if old and not overwrite:
@@ -127,3 +133,23 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
         lock.unlink(missing_ok=True)
         if created and path.is_dir() and not any(path.iterdir()):
             path.rmdir()
+
+
+@contextmanager
+def staged_outputs(folder: Path, last: str) -> Iterator[Path]:
+    """A hidden folder inside ``folder`` (a temporary name, :data:`TEMPORARY`) for a run to
+    write its outputs into. When the block ends, each of them is moved into ``folder``
+    (``last`` last: its presence means the others are there); when it raises, the hidden
+    folder is removed. A run killed before then leaves only that folder, which the next
+    claim of ``folder`` removes."""
+    stage = Path(folder) / f".run.tmp-{secrets.token_hex(4)}"
+    stage.mkdir()
+    try:
+        yield stage
+        for name in sorted((p.name for p in stage.iterdir()), key=lambda name: name == last):
+            os.replace(stage / name, Path(folder) / name)
+        stage.rmdir()
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+
