@@ -242,6 +242,19 @@ def test_a_catheter_pointing_out_of_the_sac_is_warned_about(tmp_path):
     assert json.loads((tmp_path / "out" / "result.json").read_text())["warnings"][0].endswith("catheter.angle_deg)")
 
 
+def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_warned_about(tmp_path):
+    """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
+    warned before the run, naming the key and how far to move the tip; kept in result.json."""
+    path = scene(tmp_path, **{"tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -1.69]",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nmax_time_s = 0.01"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "out")
+    assert code in (0, 3), err
+    said = [line for line in err.splitlines() if "less than the coil's radius d/2 = 0.146 mm" in line]
+    assert len(said) == 1 and "catheter.tip" in said[0] and "further into the lumen" in said[0], err
+    warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+    assert [w for w in warnings if "coil's radius" in w] == [said[0].split("warning: ", 1)[1]]
+
+
 # --- 6: bad command lines and Ctrl-C ------------------------------------------------------
 @pytest.mark.parametrize("interval", ["0", "-0.01", "nan"])
 def test_a_bad_frame_interval_is_one_line(tmp_path, interval):

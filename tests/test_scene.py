@@ -22,7 +22,7 @@ repair = true
 [catheter]
 tip = [1.0, 2.0, 3]
 direction = [0.0, 3.0, 4.0]
-centerline = [[1, 2, -7], [1.0, 2.0, 3.0]]
+centerline = [[1, -4, -5], [1.0, 2.0, 3.0]]
 
 [[coil]]
 name = "framing"
@@ -96,7 +96,7 @@ def test_full_scene_maps_onto_dataclasses(scene_dir: Path) -> None:
     assert scene.source == path.resolve()
     assert scene.wall == WallSpec(mesh=(scene_dir / "meshes" / "sac.stl").resolve(), units="m", repair=True)
     assert scene.catheter == CatheterSpec(
-        tip_mm=(1.0, 2.0, 3.0), direction=(0.0, 0.6, 0.8), centerline_mm=((1.0, 2.0, -7.0), (1.0, 2.0, 3.0))
+        tip_mm=(1.0, 2.0, 3.0), direction=(0.0, 0.6, 0.8), centerline_mm=((1.0, -4.0, -5.0), (1.0, 2.0, 3.0))
     )
     framing, from_file, helix = scene.coils
     assert framing == CoilSpec(
@@ -224,6 +224,12 @@ ERRORS = {
         "catheter.centerline",
         "is not the tip",
     ),
+    "direction off the centerline": (
+        MINIMAL_COIL + "[catheter]\ntip = [0, 0, 1]\ndirection = [0, 0, -1]\ncenterline = [[0, 0, -5], [0, 0, 1]]\n",
+        "catheter.direction", "180.0° off the centerline's last segment"),
+    "centerline ending on a repeated point": (
+        MINIMAL_COIL + "[catheter]\ntip = [0, 0, 1]\ncenterline = [[0, 0, -5], [0, 0, 1], [0, 0, 1]]\n",
+        "catheter.centerline", "last two points coincide"),
     "primary wire too thick": (with_coil(primary_wire_diameter_mm="0.3"), "coil[0]", "smaller than wire_diameter_mm"),
     "second coil": (MINIMAL_COIL + with_coil(wire_diameter_mm='"x"'), "coil[1].wire_diameter_mm", "number"),
     "porous without wall": (MINIMAL_COIL + "[output]\nporous = true\n", "output.porous", "no [wall]"),
@@ -243,6 +249,16 @@ def test_errors_name_file_key_and_problem(tmp_path: Path, text: str, key: str, p
     assert key in message
     assert problem in message
     assert "fix:" in message
+
+
+def test_a_centerline_sets_the_direction_the_coil_leaves_along(tmp_path: Path) -> None:
+    """Without a direction, the centerline's last segment gives it; a direction within 1° of it is kept as that."""
+    bent = "[catheter]\ntip = [1, 0, 1]\ncenterline = [[0, 0, -5], [0, 0, 0], [1, 0, 1]]\n"
+    assert load_scene(write(tmp_path, MINIMAL_COIL + bent)).catheter.direction == pytest.approx(
+        (math.sqrt(0.5), 0.0, math.sqrt(0.5)))
+    close = bent.replace("tip =", "direction = [1, 0, 1.01]\ntip =")
+    assert load_scene(write(tmp_path, MINIMAL_COIL + close)).catheter.direction == pytest.approx(
+        (math.sqrt(0.5), 0.0, math.sqrt(0.5)))
 
 
 def test_centerline_end_within_tolerance_is_accepted(tmp_path: Path) -> None:

@@ -3,7 +3,8 @@
 * The catheter tip must lie inside the lumen (the wall's winding number, via
   its ``wp.Mesh``), and so must a given catheter centerline: otherwise
   :class:`SetupError` naming the scene file, the key and the fix (exit 2).
-* Warnings, for a run that may go on but will likely disappoint: a catheter
+* Warnings, for a run that may go on but will likely disappoint: a tip closer
+  to the wall than the coil's radius, a catheter
   pointing away from the sac, coils whose volume exceeds MAX_PACKING of the
   sac, a loop far larger than the sac.
 
@@ -80,8 +81,9 @@ def _vec(values) -> str:
 
 
 def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
-    """Raise SetupError for a tip (or centerline) outside the lumen; warn when the
-    catheter points away from the sac. ``anatomy``: the resolved Anatomy."""
+    """Raise SetupError for a tip (or centerline) outside the lumen; warn when the tip is
+    closer to the wall than the coil's radius, and when the catheter points away from the
+    sac. ``anatomy``: the resolved Anatomy."""
     wall = anatomy.wall
     if wall is None:
         return []
@@ -107,16 +109,24 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
                 f"{_where(scene)}: catheter.centerline leaves the lumen at {_vec(samples[outside[0]])} mm, between "
                 f"points {k} and {k + 1}; fix: route the centerline inside the vessel and sac (every point and the "
                 "straight pieces between them)")
+    warnings = []
+    radius = 0.5 * max(c.wire_diameter_mm for c in scene.coils)
+    if depth < radius:
+        key = "catheter.depth_mm" if catheter.placement == "neck" else "catheter.tip"
+        warnings.append(f"{_where(scene)}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
+                        f"the coil's radius d/2 = {radius:.3g} mm: the coil leaves the catheter pressed into the wall "
+                        f"(large contact forces in the first frames); move the tip at least {radius - depth:.2g} mm "
+                        "further into the lumen")
     centre = _sac_centre_mm(anatomy)
     direction = np.asarray(catheter.direction, dtype=np.float64)
     to_centre = centre - tip
     if np.dot(direction, to_centre) < 0.0:
         angle = math.degrees(math.acos(np.clip(np.dot(direction, to_centre) / max(np.linalg.norm(to_centre), 1e-12),
                                                -1.0, 1.0)))
-        return [f"{_where(scene)}: catheter direction {_vec(direction)} points away from the sac (at {angle:.0f}° "
-                f"to the line from the tip to the sac's centre {_vec(centre)} mm): the coil will first run into the "
-                "wall next to the tip; check catheter.direction (or catheter.angle_deg)"]
-    return []
+        warnings.append(f"{_where(scene)}: catheter direction {_vec(direction)} points away from the sac (at "
+                        f"{angle:.0f}° to the line from the tip to the sac's centre {_vec(centre)} mm): the coil will "
+                        "first run into the wall next to the tip; check catheter.direction (or catheter.angle_deg)")
+    return warnings
 
 
 def _sac_centre_mm(anatomy) -> np.ndarray:

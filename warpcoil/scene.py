@@ -136,6 +136,8 @@ def _existing_file(value: object, base: Path) -> Path:
     return path
 
 
+CENTERLINE_DIRECTION_TOLERANCE_DEG = 1.0  # a direction given beside a centerline agrees with its last segment
+
 # --- schema ---------------------------------------------------------------------
 class _Key(NamedTuple):
     check: Check
@@ -331,13 +333,28 @@ class _Reader:
                                      "use placement = 'neck' with a [neck] table, or set (or vary) catheter.tip "
                                      "and catheter.direction")
         line = catheter.centerline_mm
-        if line is not None and math.dist(line[-1], catheter.tip_mm) > 1e-6:
+        if line is None:
+            return catheter
+        if math.dist(line[-1], catheter.tip_mm) > 1e-6:
             raise self.error(
                 "catheter.centerline",
                 f"last point {list(line[-1])} is not the tip {list(catheter.tip_mm)}",
                 "end the centerline at catheter.tip",
             )
-        return catheter
+        last = [b - a for a, b in zip(line[-2], line[-1])]
+        length = math.hypot(*last)
+        if length <= 1e-6:
+            raise self.error("catheter.centerline", "its last two points coincide: the tip has no direction",
+                             "drop the repeated point")
+        axis = tuple(c / length for c in last)  # the coil leaves along the last segment
+        if "direction" in document.get("catheter", {}):
+            off_deg = math.degrees(math.acos(max(-1.0, min(1.0, sum(a * b for a, b in zip(axis, catheter.direction))))))
+            if off_deg > CENTERLINE_DIRECTION_TOLERANCE_DEG:
+                raise self.error("catheter.direction",
+                                 f"{[round(c, 4) for c in catheter.direction]} is {off_deg:.1f}° off the centerline's "
+                                 f"last segment {[round(c, 4) for c in axis]}, along which the coil leaves the tip",
+                                 "remove direction (the centerline sets it), or make the two agree")
+        return replace(catheter, direction=axis)
 
     def neck(self, document: dict[str, Any]) -> NeckSpec:
         if "wall" not in document:
