@@ -100,6 +100,7 @@ def test_listed_size_has_no_note_and_derived_keys_override(tmp_path):
     ('product = "Axium Prime 3D"\nsize = "30 x 20"', "coil[0].size", ['"25 x 20"', "3–25 mm"]),
     ('product = "Axium Prime 3D"\nsize = "six by 20"', "coil[0].size", ['"6 x 20"']),
     ('product = "Axium Prime 3D"', "coil[0].size", ["add size"]),
+    ('product = "Axium Prime 3D"\nsize = 3', "coil[0].size", ["must be a string", 'e.g. "3 x 6"']),
     ('product = "Axium Prime 3D"\nsize = "6 x 20"\nloop_diameter_mm = 5.0', "coil[0].loop_diameter_mm", ["K162704"]),
     ('product = "Micrus SR MicroCoil Soft"\nsize = "4 x 10"\nprimary_wire_diameter_mm = 0.05',
      "coil[0].primary_wire_diameter_mm", ["remove it"]),

@@ -230,6 +230,9 @@ ERRORS = {
     "centerline ending on a repeated point": (
         MINIMAL_COIL + "[catheter]\ntip = [0, 0, 1]\ncenterline = [[0, 0, -5], [0, 0, 1], [0, 0, 1]]\n",
         "catheter.centerline", "last two points coincide"),
+    "fewer than two segments": (with_coil(length_mm="0.1"), "coil[0].length_mm", "fewer than two segments of"),
+    "segments longer than the coil": (with_coil(segment_length_mm="50"), "coil[0].segment_length_mm",
+                                      "fewer than two segments of 50 mm"),
     "primary wire too thick": (with_coil(primary_wire_diameter_mm="0.3"), "coil[0]", "smaller than wire_diameter_mm"),
     "second coil": (MINIMAL_COIL + with_coil(wire_diameter_mm='"x"'), "coil[1].wire_diameter_mm", "number"),
     "porous without wall": (MINIMAL_COIL + "[output]\nporous = true\n", "output.porous", "no [wall]"),

@@ -91,10 +91,15 @@ def _bool(value: object, base: Path) -> bool:
     return value
 
 
-def _text(value: object, base: Path) -> str:
+def _text(value: object, base: Path, example: str = "framing") -> str:
     if not isinstance(value, str):
-        raise _Invalid(f"must be a string, got {value!r}", 'write it in quotes, e.g. "framing"')
+        raise _Invalid(f"must be a string, got {value!r}", f'write it in quotes, e.g. "{example}"')
     return value
+
+
+def _text_like(example: str) -> Check:
+    """A string key whose fix shows ``example``."""
+    return lambda value, base: _text(value, base, example)
 
 
 def _choice(*options: str) -> Check:
@@ -130,7 +135,7 @@ def _polyline(value: object, base: Path) -> tuple[Vec3, ...]:
 
 
 def _existing_file(value: object, base: Path) -> Path:
-    path = (base / _text(value, base)).resolve()
+    path = (base / _text(value, base, "sac.stl")).resolve()
     if not path.is_file():
         raise _Invalid(f"file {path} does not exist", f"check the path; it is relative to {base}")
     return path
@@ -189,7 +194,8 @@ _COIL = {
     "axial_stiffness_uN": _Key(_positive),
     "stretch_resistant": _Key(_bool),
 }
-_PRODUCT = {"product": _Key(_text), "size": _Key(_text)}  # a catalogue coil: warpcoil/catalog.py
+_PRODUCT = {"product": _Key(_text_like("Axium Prime 3D")),  # a catalogue coil: warpcoil/catalog.py
+            "size": _Key(_text_like("3 x 6"))}  # loop mm x length cm
 _PRODUCT_COIL = {**{key: spec._replace(required=False) for key, spec in _COIL.items()}, **_PRODUCT}
 _CONTACT = {"P0_uN": _Key(_positive), "c0_mm": _Key(_positive), "friction_wall": _Key(_nonnegative),
             "friction_coil": _Key(_nonnegative), "friction_catheter": _Key(_nonnegative),
@@ -270,7 +276,17 @@ class _Reader:
         if isinstance(value, dict) and any(key in value for key in _PRODUCT):
             return self.product_coil(value, index)
         values = self.table(value, _COIL, where)
-        return self.build(CoilSpec, {"name": f"coil_{index}", **self.shaped(value, values, where)}, where)
+        spec = self.build(CoilSpec, {"name": f"coil_{index}", **self.shaped(value, values, where)}, where)
+        return self.segmented(spec, value, where)
+
+    def segmented(self, spec: CoilSpec, value: dict[str, Any], where: str) -> CoilSpec:
+        """``spec``, refused when its length holds fewer than two segments (n = round(L / l0))."""
+        if round(spec.length_mm / spec.l0) >= 2:
+            return spec
+        key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
+        given = "segment_length_mm" if "segment_length_mm" in value else "segment_length_mm, by default d"
+        raise self.error(f"{where}.{key}", f"length {spec.length_mm:g} mm holds fewer than two segments of "
+                         f"{spec.l0:g} mm ({given})", "use a longer coil (length_mm) or a shorter segment_length_mm")
 
     def shaped(self, value: dict[str, Any], values: dict[str, Any], where: str,
                shape: str | None = None) -> dict[str, Any]:
@@ -313,7 +329,7 @@ class _Reader:
             notes.append(f"{line.family}: no public source gives its secondary diameter; the model default "
                          f"d = {line.d_mm:g} mm is used (set wire_diameter_mm from the instructions for use)")
         name = values.get("name", f"coil_{index}")
-        return spec.with_(name=name, notes=tuple(notes))
+        return self.segmented(spec.with_(name=name, notes=tuple(notes)), value, where)
 
     def catheter(self, document: dict[str, Any]) -> CatheterSpec:
         catheter = self.section(document, "catheter", _CATHETER, CatheterSpec)
