@@ -155,6 +155,7 @@ def test_cli_runs_a_product_scene(tmp_path):
     assert result["status"] == "completed"
     assert result["coils"][0]["wire_diameter_mm"] == line.d_mm
     assert result["coil_length_mm"] == pytest.approx(10.0, abs=line.d_mm)  # n = round(L / l0) segments
+    assert (result["coils"][0]["product"], result["coils"][0]["size"]) == ("Axium Helix", "1.5 x 1")
     assert any("secondary diameter" in warning for warning in result["warnings"])
     assert "coil[0]: Axium Helix: no public source gives its secondary diameter" in err
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from warpcoil.coil import CoilSpec
@@ -230,6 +232,8 @@ ERRORS = {
     "centerline ending on a repeated point": (
         MINIMAL_COIL + "[catheter]\ntip = [0, 0, 1]\ncenterline = [[0, 0, -5], [0, 0, 1], [0, 0, 1]]\n",
         "catheter.centerline", "last two points coincide"),
+    "loop no wider than the wire": (with_coil(wire_diameter_mm="5", loop_diameter_mm="3"), "coil[0].loop_diameter_mm",
+                                    "not wider than the coil's wire diameter d = 5 mm"),
     "fewer than two segments": (with_coil(length_mm="0.1"), "coil[0].length_mm", "fewer than two segments of"),
     "segments longer than the coil": (with_coil(segment_length_mm="50"), "coil[0].segment_length_mm",
                                       "fewer than two segments of 50 mm"),
@@ -313,3 +317,45 @@ def test_neck_errors_name_the_key(tmp_path, text, key):
     with pytest.raises(SceneError, match="bad.toml") as info:
         load_scene(scene_file)
     assert key in str(info.value)
+
+
+@pytest.mark.parametrize(("coil", "simulation", "integrator"), [
+    ("segment_length_mm = 0.15\n", "", "implicit"),  # l0 = d/2: within the implicit step's validated range
+    ("segment_length_mm = 0.1\n", "", "symplectic"),  # below d/2, no integrator named: the reference
+    ("segment_length_mm = 0.1\n", 'integrator = "implicit"\n', "implicit"),  # named: as named, with a warning
+    ("segment_length_mm = 0.1\n", "dt_s = 1e-5\n", "implicit"),  # a step chosen for one integrator: not switched
+])
+def test_segments_below_half_the_diameter_choose_the_reference_where_the_scene_names_no_integrator(
+        tmp_path: Path, coil: str, simulation: str, integrator: str) -> None:
+    """The implicit step is validated for d/2 ≤ l0 ≤ 2d (below, a released coil gains energy): a scene with
+    finer segments that names no integrator runs the reference and says why; one that names the
+    implicit step keeps it with a warning before the run."""
+    from warpcoil.preflight import check_integrator
+
+    path = write(tmp_path, f"[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\nlength_mm = 10\n{coil}"
+                           f"[simulation]\n{simulation}")
+    scene = load_scene(path)
+    assert scene.simulation.integrator == integrator
+    chose = [note for note in scene.notes if "coil[0].segment_length_mm = 0.1 mm is below d/2" in note]
+    assert bool(chose) == (integrator == "symplectic")
+    warned = [w for w in check_integrator(scene, 0.0) if "below d/2" in w]
+    assert bool(warned) == (integrator == "implicit" and "= 0.1\n" in coil)
+
+
+def test_a_coil_its_segments_shorten_by_more_than_one_percent_is_warned_about(tmp_path: Path) -> None:
+    """A 2 mm helix sampled at 1 mm: its chords are ~4 % shorter than the 20 mm asked for; the warning
+    says so (as measured on the rest centerline) and which segment length keeps it within 1 %, and that
+    one does. At the default l0 = d the shortfall (κ l0)²/24 is 0.2 %: no warning."""
+    from warpcoil.preflight import check_coil_lengths
+    from warpcoil.preshape import rest_centerline
+
+    coarse = load_scene(write(tmp_path, with_coil(loop_diameter_mm="2.0", length_mm="20.0", segment_length_mm="1.0")))
+    chords_mm = np.linalg.norm(np.diff(rest_centerline(coarse.coils[0]), axis=0), axis=1).sum()
+    assert 0.95 < chords_mm / 20.0 < 0.97
+    said = check_coil_lengths(coarse)
+    short = f"{100 * (1 - chords_mm / 20.0):.1f} % shorter than length_mm ({chords_mm:.4g} of 20 mm)"
+    assert len(said) == 1 and short in said[0], said
+    suggested = float(said[0].split("segment_length_mm = ")[1].split(" ")[0])
+    finer = replace(coarse, coils=(replace(coarse.coils[0], segment_length_mm=suggested),))
+    assert check_coil_lengths(finer) == []
+    assert check_coil_lengths(load_scene(write(tmp_path, with_coil(loop_diameter_mm="2.0")))) == []

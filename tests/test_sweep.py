@@ -103,6 +103,16 @@ def test_parse_vary():
     for bad in ("catheter.angle_deg", "x=1:0:1", "x=0:1:0", "x=a:b:c"):
         with pytest.raises(SweepError, match="--vary"):
             parse_vary(bad)
+    with pytest.raises(SweepError, match=r"200,001 values, more than a sweep's 20,000 members; fix: a coarser step"):
+        parse_vary("coil.length_mm=10:30:0.0001")  # a mistyped step: refused at once, not loaded for minutes
+
+
+def test_a_product_of_values_beyond_a_sweeps_members_is_refused():
+    from warpcoil.sweep import members
+
+    assert len(members([("a", list(range(100))), ("b", list(range(200)))])) == 20_000
+    with pytest.raises(SweepError, match=r"--vary a b: 20,100 members, more than a sweep's 20,000; fix: coarser"):
+        members([("a", list(range(100))), ("b", list(range(201)))])
 
 
 def test_a_task_carries_its_files(tmp_path, single_runs):

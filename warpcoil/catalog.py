@@ -142,7 +142,8 @@ class CoilLine:
         loop_mm, length_cm = parse_size(size)
         note = self.size_note(loop_mm, length_cm)
         values = {"wire_diameter_mm": self.d_mm, "primary_wire_diameter_mm": self.primary_wire_mm,
-                  "shape": self.model_shape, "loop_diameter_mm": loop_mm, "length_mm": 10.0 * length_cm}
+                  "shape": self.model_shape, "loop_diameter_mm": loop_mm, "length_mm": 10.0 * length_cm,
+                  "product": self.family, "size": size}
         if self.stretch_resistant is not None:
             values["stretch_resistant"] = self.stretch_resistant
         return CoilSpec(**{**values, **overrides}), note

@@ -67,6 +67,8 @@ class CoilSpec:
     stretch_resistant: bool = True
     name: str = field(default="coil", compare=False)
     notes: tuple[str, ...] = field(default=(), compare=False)  # catalogue notes, reported as warnings
+    product: str | None = field(default=None, compare=False)  # the catalogue family it came from (result.json)
+    size: str | None = field(default=None, compare=False)  # ... and its size, as the scene gave it ("6 x 20")
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:

@@ -206,7 +206,8 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
     coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
                   length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
-                  loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, length_mm=float(member.coil_lengths_mm[k]),
+                  loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, product=c.product, size=c.size,
+                  length_mm=float(member.coil_lengths_mm[k]),
                   deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),
                   cumulative_packing_density=density(volumes[: k + 1].sum()))
              for k, c in enumerate(coil_specs)]

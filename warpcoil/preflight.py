@@ -5,7 +5,8 @@
   :class:`SetupError` naming the scene file, the key and the fix (exit 2).
 * Warnings, for a run that may go on but will likely disappoint: a tip closer
   to the wall than the coil's radius, a catheter
-  pointing away from the sac, coils whose volume exceeds MAX_PACKING of the
+  pointing away from the sac, a coil whose segments make it more than 1 % shorter than its
+  length (coarse on its loops), coils whose volume exceeds MAX_PACKING of the
   sac, a loop far larger than the sac.
 
 Units mm.
@@ -18,11 +19,12 @@ import math
 import numpy as np
 import warp as wp
 
-from .settings import Scene
+from .settings import FINE_SEGMENT_RATIO, Scene
 
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
 MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
 CENTERLINE_SAMPLE_MM = 0.1  # spacing of the checked points along a catheter centerline
+MAX_LENGTH_SHORTFALL = 0.01  # a coil's chords this much shorter than its length_mm is warned about
 
 
 class SetupError(ValueError):
@@ -169,11 +171,32 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
     return warnings
 
 
+def check_coil_lengths(scene: Scene) -> list[str]:
+    """Warnings for coils whose segments sample their pre-shape so coarsely that the chords (the
+    discrete coil) fall more than MAX_LENGTH_SHORTFALL short of ``length_mm``."""
+    from .preshape import rest_centerline
+
+    warnings = []
+    for k, coil in enumerate(scene.coils):
+        rest = rest_centerline(coil)
+        chords_mm = float(np.linalg.norm(np.diff(rest, axis=0), axis=1).sum())
+        short = 1.0 - chords_mm / coil.length_mm
+        if short > MAX_LENGTH_SHORTFALL:
+            fine_mm = 0.95 * coil.l0 * math.sqrt(MAX_LENGTH_SHORTFALL / short)  # the shortfall goes as l0²
+            warnings.append(f"{_where(scene)}: coil[{k}]: its {len(rest) - 1} segments of {coil.l0:g} mm sample the "
+                            f"pre-shape's loops coarsely: as chords they make the coil {100 * short:.1f} % shorter "
+                            f"than length_mm ({chords_mm:.4g} of {coil.length_mm:g} mm), and its deployed length and "
+                            f"packing density with it; fix: segment_length_mm = {fine_mm:.2g} or less keeps it within "
+                            f"{100 * MAX_LENGTH_SHORTFALL:g} %")
+    return warnings
+
+
 def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     """Warnings for an implicit scene: a ``dt_s`` within the explicit stability bound
     (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed
     case ~300 against ~100 µs, as a scene written for the reference when it was the default
-    would give), and wall friction (its push force is the reference's only at tiny steps)."""
+    would give), segments below d/2 (outside its validated range: a released coil gains energy),
+    and wall friction (its push force is the reference's only at tiny steps)."""
     sim = scene.simulation
     if sim.integrator != "implicit":
         return []
@@ -183,6 +206,14 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
                         f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing "
                         f"there and costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or "
                         f"remove dt_s for the implicit step's own (set by accuracy)")
+    fine = [k for k, c in enumerate(scene.coils) if c.l0 < FINE_SEGMENT_RATIO * c.d * (1.0 - 1e-9)]
+    if fine:
+        coil = scene.coils[fine[0]]
+        warnings.append(f"{_where(scene)}: coil[{fine[0]}].segment_length_mm = {coil.l0:g} mm is below d/2 = "
+                        f"{0.5 * coil.d:g} mm on the implicit step, which is validated for d/2 ≤ l0 ≤ 2d: below "
+                        "it a released coil gains energy at its free ends and the run may fail (docs/FORMULATION.md "
+                        "\"Implicit step: segments shorter than d/2\"); add integrator = \"symplectic\" for such "
+                        "segments")
     if scene.contact.friction_wall > 0.0:
         warnings.append(f"{_where(scene)}: contact.friction_wall on the implicit step: its "
                         f"impacts are inelastic, so the coil lies on the wall where the reference's bounces, and the "
@@ -197,4 +228,4 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     notes = [f"{_where(scene)}: {note}" for note in scene.notes]
     notes += [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
-            + check_integrator(scene, step_bound_s))
+            + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))

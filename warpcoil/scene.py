@@ -28,12 +28,12 @@ from .settings import (
     Scene,
     SimulationSettings,
     WallSpec,
-    integrator_for_friction,
+    reference_reasons,
 )
 
 Vec3 = tuple[float, float, float]
 # [simulation] keys that choose the integrator (a step dt_s is chosen for one): a scene with none of them
-# and wall friction runs the reference (settings.integrator_for_friction)
+# and wall friction or segments below d/2 run the reference (settings.reference_reasons)
 INTEGRATOR_KEYS = ("integrator", "implicit_scheme", "dt_s")
 
 
@@ -277,10 +277,16 @@ class _Reader:
             return self.product_coil(value, index)
         values = self.table(value, _COIL, where)
         spec = self.build(CoilSpec, {"name": f"coil_{index}", **self.shaped(value, values, where)}, where)
-        return self.segmented(spec, value, where)
+        return self.checked_coil(spec, value, where)
 
-    def segmented(self, spec: CoilSpec, value: dict[str, Any], where: str) -> CoilSpec:
-        """``spec``, refused when its length holds fewer than two segments (n = round(L / l0))."""
+    def checked_coil(self, spec: CoilSpec, value: dict[str, Any], where: str) -> CoilSpec:
+        """``spec``, refused when its loops are no wider than its wire (it cannot wind) or its length
+        holds fewer than two segments (n = round(L / l0))."""
+        if spec.shape != "file" and spec.loop_diameter_mm <= spec.wire_diameter_mm:
+            key = "loop_diameter_mm" if "loop_diameter_mm" in value else "wire_diameter_mm"
+            raise self.error(f"{where}.{key}", f"a loop of {spec.loop_diameter_mm:g} mm is not wider than the coil's "
+                             f"wire diameter d = {spec.wire_diameter_mm:g} mm: the coil cannot wind into it",
+                             "give a loop_diameter_mm larger than wire_diameter_mm")
         if round(spec.length_mm / spec.l0) >= 2:
             return spec
         key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
@@ -329,7 +335,7 @@ class _Reader:
             notes.append(f"{line.family}: no public source gives its secondary diameter; the model default "
                          f"d = {line.d_mm:g} mm is used (set wire_diameter_mm from the instructions for use)")
         name = values.get("name", f"coil_{index}")
-        return self.segmented(spec.with_(name=name, notes=tuple(notes)), value, where)
+        return self.checked_coil(spec.with_(name=name, notes=tuple(notes)), value, where)
 
     def catheter(self, document: dict[str, Any]) -> CatheterSpec:
         catheter = self.section(document, "catheter", _CATHETER, CatheterSpec)
@@ -405,13 +411,13 @@ class _Reader:
         return simulation
 
     @staticmethod
-    def chosen_integrator(document: dict[str, Any], contact: ContactSettings) -> str | None:
+    def chosen_integrator(document: dict[str, Any], scene: Scene) -> list[str]:
         """Why a scene that names no integrator (neither ``integrator`` nor ``implicit_scheme``) and
-        sets no ``dt_s`` (a step chosen for one integrator) runs the reference
-        (settings.integrator_for_friction); None: as the scene says, or the default. Called once the
+        sets no ``dt_s`` (a step chosen for one integrator) runs the reference (settings.reference_reasons:
+        wall friction, segments below d/2); empty: as the scene says, or the default. Called once the
         [simulation] table is known to be a table."""
         named = any(key in document.get("simulation", {}) for key in INTEGRATOR_KEYS)
-        return None if named else integrator_for_friction(contact)
+        return [] if named else reference_reasons(scene)
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
         output = self.section(document, "output", _OUTPUT, OutputSettings)
@@ -429,18 +435,12 @@ class _Reader:
         coils = document.get("coil")
         if not isinstance(coils, list) or not coils:
             raise self.error("coil", f"needs one or more [[coil]] tables, got {coils!r}", "add a [[coil]] table")
-        contact = self.section(document, "contact", _CONTACT, ContactSettings)
-        simulation = self.simulation(document)  # checked as written (a table, its keys) before the rule reads it
-        chosen = self.chosen_integrator(document, contact)
-        if chosen is not None:
-            simulation = replace(simulation, integrator="symplectic")
-        return Scene(
+        scene = Scene(
             coils=tuple(self.coil(coil, index) for index, coil in enumerate(coils)),
             catheter=self.catheter(document),
             wall=self.wall(document) if "wall" in document else None,
-            contact=contact,
-            simulation=simulation,
-            notes=(chosen,) if chosen else (),
+            contact=self.section(document, "contact", _CONTACT, ContactSettings),
+            simulation=self.simulation(document),  # checked as written (a table, its keys) before the rule reads it
             output=self.output(document),
             neck=self.neck(document) if "neck" in document else None,
             regions=self.section(document, "regions", _REGIONS, RegionSettings),
@@ -448,6 +448,10 @@ class _Reader:
             stent=self.section(document, "stent", _STENT, StentSpec) if "stent" in document else None,
             source=self.source,
         )
+        chosen = self.chosen_integrator(document, scene)
+        if not chosen:
+            return scene
+        return replace(scene, simulation=replace(scene.simulation, integrator="symplectic"), notes=tuple(chosen))
 
 
 def _override(reader: _Reader, document: dict[str, Any], key: str, value: Any) -> None:

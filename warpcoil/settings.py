@@ -226,6 +226,34 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
             "\"implicit\" for the fast step where the push force does not matter")
 
 
+FINE_SEGMENT_RATIO = 0.5  # the implicit step is validated for segment lengths l0 ≥ d/2 (up to 2d)
+
+
+def integrator_for_fine_segments(coils) -> str | None:
+    """Why a scene with no ``simulation.integrator`` runs the reference: a coil's segments shorter
+    than FINE_SEGMENT_RATIO × d. The implicit step is validated for d/2 ≤ l0 ≤ 2d; below, a released coil
+    gains energy at its free ends (measured: a 6 mm helix of d 0.25 mm failed with an energy blow-up
+    after its release at l0 = d/4, and timed out without coming to rest at d/3, at steps from 133 down to
+    6 µs; docs/FORMULATION.md "Implicit step: segments shorter than d/2"), where the reference completes;
+    None: no such coil."""
+    fine = [(k, c) for k, c in enumerate(coils) if c.l0 < FINE_SEGMENT_RATIO * c.d * (1.0 - 1e-9)]
+    if not fine:
+        return None
+    k, coil = fine[0]
+    return (f"coil[{k}].segment_length_mm = {coil.l0:g} mm is below d/2 = {0.5 * coil.d:g} mm and no "
+            "simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) step runs it (its step "
+            "shrinks with l0); the implicit step is validated for d/2 ≤ l0 ≤ 2d, and below it a released coil "
+            "gains energy at its free ends (docs/FORMULATION.md \"Implicit step: segments shorter than d/2\"); "
+            "add integrator = \"implicit\" to run it anyway")
+
+
+def reference_reasons(scene) -> list[str]:
+    """Why the scene reader would run a scene that names no integrator on the reference (wall
+    friction, fine segments): each its note; empty: the implicit default stands."""
+    return [note for note in (integrator_for_friction(scene.contact), integrator_for_fine_segments(scene.coils))
+            if note is not None]
+
+
 @dataclass(frozen=True)
 class OutputSettings:
     """What a run writes besides result.json and the CSVs: the USD animation, a

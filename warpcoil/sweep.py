@@ -36,7 +36,7 @@ from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
 from .scene import INTEGRATOR_KEYS, load_scene
-from .settings import Scene, integrator_for_friction
+from .settings import Scene, reference_reasons
 from .sweep_task import MemberOutput, make_task, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
@@ -53,6 +53,9 @@ class SweepIncomplete(RuntimeError):
     """Some ensembles failed after their retries; the other members are written."""
 
 
+MAX_MEMBERS = 20_000  # a sweep's members (more is most likely a mistyped step: 10:30:0.0001 is 200 001)
+
+
 def parse_vary(text: str) -> tuple[str, list]:
     """``key=start:stop:step`` or ``key=a,b,c`` → (key, values)."""
     key, sep, values = text.partition("=")
@@ -65,6 +68,9 @@ def parse_vary(text: str) -> tuple[str, list]:
             if not step > 0.0 or stop < start:
                 raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
             count = int(math.floor((stop - start) / step + 1e-9)) + 1
+            if count > MAX_MEMBERS:
+                raise SweepError(f"--vary {text!r}: {count:,} values, more than a sweep's {MAX_MEMBERS:,} members; "
+                                 "fix: a coarser step (or run the range as several sweeps)")
             return key, [round(start + k * step, 12) for k in range(count)]
         return key, [_scalar(v) for v in values.split(",")]
     except ValueError as error:
@@ -97,6 +103,11 @@ class Member:
 
 
 def members(varies: list[tuple[str, list]]) -> list[Member]:
+    """The Cartesian product of ``varies``, at most MAX_MEMBERS (else SweepError)."""
+    count = math.prod(len(v) for _, v in varies)
+    if count > MAX_MEMBERS:
+        raise SweepError(f"--vary {' '.join(k for k, _ in varies)}: {count:,} members, more than a sweep's "
+                         f"{MAX_MEMBERS:,}; fix: coarser steps or fewer values (or run them as several sweeps)")
     keys = [k for k, _ in varies]
     return [Member(i, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*(v for _, v in varies)))]
 
@@ -127,8 +138,8 @@ def member_files(output: MemberOutput, member: Member, scene_path: Path, warning
     scene, the varied values, the member's warnings (as `warpcoil run` keeps them) and
     the list of files (for --resume)."""
     listed = {name: len(data) for name, data in output.files.items()}
-    result = {**output.result, "scene": str(scene_path), "varied": member.values, "warnings": warnings,
-              "files": listed}
+    result = {**output.result, "scene": str(Path(scene_path).resolve()), "varied": member.values,
+              "warnings": warnings, "files": listed}
     return {**output.files, RESULT_JSON: (json.dumps(result, indent=2) + "\n").encode()}
 
 
@@ -269,23 +280,23 @@ REPLACE_HINT = "give another -o folder, or add --overwrite (without --resume) to
 
 
 def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) -> tuple[list[Scene], list[str]]:
-    """One integrator for a sweep's members that name none: where wall friction puts some members on
-    the reference (settings.integrator_for_friction) and leaves others on the implicit default (a
-    --vary of contact.friction_wall from 0), those that name no integrator of their own (none of
-    NAMING_INTEGRATOR among their keys) run the reference too, so
+    """One integrator for a sweep's members that name none: where the scene reader's rule (wall
+    friction, segments below d/2: settings.reference_reasons) puts some members on the reference and
+    leaves others on the implicit default (a --vary of contact.friction_wall from 0), those that name
+    no integrator of their own (none of NAMING_INTEGRATOR among their keys) run the reference too, so
     that they differ by what is varied and not by their integrator; (scenes, the notes saying so)."""
-    by_friction = [s for s in scenes if integrator_for_friction(s.contact) in s.notes]
+    by_rule = [s for s in scenes if any(note in s.notes for note in reference_reasons(s))]
     switch = [k for k, (m, s) in enumerate(zip(todo, scenes)) if s.simulation.integrator == "implicit"
               and not any(key in m.values for key in NAMING_INTEGRATOR)]
-    if not by_friction or not switch:
+    if not by_rule or not switch:
         return scenes, []
     scenes = list(scenes)
     for k in switch:
         scenes[k] = load_scene(scene_path, {**todo[k].values, "simulation.integrator": "symplectic"})
-    return scenes, [f"{len(by_friction)} of {len(todo)} members have wall friction and the scene names no integrator "
-                    f"(simulation.integrator, implicit_scheme or dt_s): the {len(switch)} without wall friction run the "
-                    "reference (symplectic) step too, so that the members differ by what is varied, not by their "
-                    "integrator"]  # (the frictional members' own note comes with their preflight)
+    return scenes, [f"{len(by_rule)} of {len(todo)} members have wall friction or segments below d/2 and the scene "
+                    f"names no integrator (simulation.integrator, implicit_scheme or dt_s): the {len(switch)} others "
+                    "run the reference (symplectic) step too, so that the members differ by what is varied, not by "
+                    "their integrator"]  # (the members the rule chose say why in their own preflight notes)
 
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
