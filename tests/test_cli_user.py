@@ -316,7 +316,7 @@ def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_pa
     folder = tmp_path / "killed"
     assert [p.name for p in folder.iterdir() if not p.name.startswith(".")] == []
     assert leftovers(folder)  # the lock and the hidden folder of the killed run
-    code, out, err = cli(tmp_path, "run", str(tmp_path / "tiny.toml"), "-o", "killed", log="next")
+    code, out, err = cli(tmp_path, "run", str(scene(tmp_path, name="short.toml")), "-o", "killed", log="next")
     assert code == 0, err
     assert json.loads((folder / "result.json").read_text())["status"] == "completed"
     assert leftovers(folder) == []
@@ -450,10 +450,14 @@ def test_a_resume_of_another_sweep_is_refused_and_touches_nothing(tmp_path):
     path = scene(tmp_path)
     assert cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "sweep")[0] == 0
     before = {p.relative_to(tmp_path / "sweep"): p.read_bytes() for p in (tmp_path / "sweep").rglob("*") if p.is_file()}
-    for values, says in (("100,200", "member_001 holds {'simulation.push_speed_mm_s': 150.0}"),
-                         ("100", "holds member_001, which this sweep of 1 members does not have")):
-        code, out, err = cli(tmp_path, "sweep", str(path), "--vary", f"simulation.push_speed_mm_s={values}", "-o",
-                             "sweep", "--resume", log=f"resume_{values}")
+    other = tmp_path / "other.toml"  # the same scene under another name: another sweep's folder too
+    other.write_text(path.read_text())
+    for scene_path, values, says in (
+            (path, "100,200", "member_001 holds {'simulation.push_speed_mm_s': 150.0}"),
+            (path, "100", "holds member_001, which this sweep of 1 members does not have"),
+            (other, "100,150", f"member_000 was made from {path}, not {other}")):
+        code, out, err = cli(tmp_path, "sweep", str(scene_path), "--vary", f"simulation.push_speed_mm_s={values}",
+                             "-o", "sweep", "--resume", log=f"resume_{scene_path.stem}_{values}")
         line = [line for line in err.splitlines() if line.startswith("warpcoil sweep: ")]
         assert code == 2 and len(line) == 1 and "Traceback" not in err, err
         assert says in line[0] and "add --overwrite (without --resume)" in line[0], line[0]

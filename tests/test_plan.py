@@ -247,3 +247,12 @@ def test_vary_gives_the_product_of_options_devices_included(tmp_path):
     assert plan.options[1].keys == {"catheter.depth_mm": 0.5, "balloon.axis": [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]],
                                     "balloon.diameter_mm": 1.0}
     assert "balloon.axis" not in plan.options[2].keys and plan.perturbations == 2
+
+
+def test_a_plan_beyond_a_sweeps_members_is_refused_before_any_scene_is_read(tmp_path):
+    from warpcoil.plan import Option, Plan, PlanError, plan_members
+    from warpcoil.sweep import MAX_MEMBERS
+
+    options = tuple(Option(f"o{k}", "none", {}) for k in range(MAX_MEMBERS // 3 + 1))
+    with pytest.raises(PlanError, match=r"6,667 options × 3 catheter perturbations are more than a sweep's 20,000"):
+        plan_members(tmp_path / "never_read.toml", Plan(options, perturbations=3))

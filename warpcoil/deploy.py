@@ -636,6 +636,12 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     return steps
 
 
+def explicit_step_bound_s(scene: Scene, anatomy: Anatomy, device=None) -> float:
+    """The explicit step bound (s) of the scene's single run (Member.step_bound_s), host-side:
+    its model built without the wall."""
+    return world_bounds(finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device))[0].dt_s
+
+
 def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
                     ) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same

@@ -28,7 +28,7 @@ from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder.atomic import write_text_atomic
 from .sac import neck_frame
 from .scene import SceneError, load_scene
-from .sweep import Member, run_members
+from .sweep import MAX_MEMBERS, Member, run_members
 
 DEVICES = ("none", "balloon", "stent")
 PLAN_KEYS = ("perturbations", "perturbation_deg", "top", "balloon", "stent", "option")
@@ -195,7 +195,12 @@ def perturbed_keys(catheter, count: int, angle_deg: float) -> list[dict]:
 
 
 def plan_members(scene_path: Path, plan: Plan) -> tuple[list[Member], list[int]]:
-    """The sweep's members (option × perturbation) and each member's option index."""
+    """The sweep's members (option × perturbation) and each member's option index (at most a
+    sweep's MAX_MEMBERS, else PlanError)."""
+    if len(plan.options) * plan.perturbations > MAX_MEMBERS:
+        raise PlanError(f"{scene_path}: {len(plan.options):,} options × {plan.perturbations} catheter perturbations "
+                        f"are more than a sweep's {MAX_MEMBERS:,} members; fix: fewer options (values of [plan] "
+                        "keys or --vary) or fewer perturbations")
     todo, owner = [], []
     for k, option in enumerate(plan.options):
         catheter = load_scene(scene_path, option.keys).catheter

@@ -155,9 +155,9 @@ class SimulationSettings:
       warpcoil/implicit.py: no stability bound, step set by accuracy; on `warpcoil bench
       accuracy`'s run-time/error front, BENCHMARKS.md) or "symplectic" (the reference:
       semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time on
-      the seed case, 10–30× the whole run's on frictional packs; a scene read from TOML with
-      wall friction and none of integrator, implicit_scheme, dt_s runs it:
-      integrator_for_friction).
+      the seed case, 7–20× the whole run's on frictional packs; a scene read from TOML with
+      wall friction or segments below d/2 and none of integrator, implicit_scheme, dt_s runs
+      it: reference_reasons).
     * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
       θ_i = 1 near an obstacle or where an edge turns fast, chord contact stiffness),
       "euler" (linearly implicit Euler, tangent contact stiffness) or "bdf2"

@@ -674,7 +674,9 @@ class Solver:
             self._launch_add_guard(state_out, running, with_coil_terms=True)
             wp.launch(friction.finish_guard_pass, 1, device=dev, inputs=[self._guard_loop, friction.GUARD_PASSES])
 
-        if not (self.guard_fixed_point and self._conditional_graphs):  # every pass (the stop is tested against it)
+        # every pass: asked for (the stop is tested against it), no conditional graphs, or a CUDA step outside a
+        # graph (capture_while would copy its flag to the host after every pass)
+        if not (self.guard_fixed_point and self._conditional_graphs) or (dev.is_cuda and not dev.is_capturing):
             for _ in range(friction.GUARD_PASSES):
                 guard_pass()
             return

@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, resolve_anatomies
+from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, explicit_step_bound_s, resolve_anatomies
 from .preflight import preflight
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
@@ -293,10 +293,11 @@ def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) ->
     scenes = list(scenes)
     for k in switch:
         scenes[k] = load_scene(scene_path, {**todo[k].values, "simulation.integrator": "symplectic"})
+    others = f"the {len(switch)} other member{'s' if len(switch) > 1 else ''}"
     return scenes, [f"{len(by_rule)} of {len(todo)} members have wall friction or segments below d/2 and the scene "
-                    f"names no integrator (simulation.integrator, implicit_scheme or dt_s): the {len(switch)} others "
-                    "run the reference (symplectic) step too, so that the members differ by what is varied, not by "
-                    "their integrator"]  # (the members the rule chose say why in their own preflight notes)
+                    f"names no integrator (simulation.integrator, implicit_scheme or dt_s): {others} run the "
+                    "reference (symplectic) step too, so that the members differ by what is varied, not by their "
+                    "integrator"]  # (the members the rule chose say why in their own preflight notes)
 
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
@@ -334,6 +335,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             if found is not None and found.get("varied") != member.values:
                 raise SweepError(f"--resume: {folder} holds {found.get('varied')}, not {member.values}: another "
                                  f"sweep's member; {REPLACE_HINT}")
+            made_from = Path(str(found.get("scene", ""))) if found is not None else None
+            if made_from is not None and made_from.is_absolute() and made_from != Path(scene_path).resolve():
+                raise SweepError(f"--resume: {folder} was made from {made_from}, not {Path(scene_path).resolve()}: "
+                                 f"another sweep's member; {REPLACE_HINT}")
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
             member.result, member.resumed = found, found is not None
@@ -347,7 +352,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
     # each member's warnings, as `warpcoil run` would give them (a catheter outside the lumen: SetupError before any
     # step); kept in its result.json, and said once each before the members run and in the summary
-    member_warnings = {k: list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu")))
+    member_warnings = {k: list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu",
+                                                                 explicit_step_bound_s(scenes[k], anatomy))))
                        for k, anatomy in zip(pending, anatomies)}
     stored = [w for m in todo if m.resumed for w in m.result.get("warnings", [])]
     warnings = list(dict.fromkeys(unified + [w for k in pending for w in member_warnings[k]] + stored))
