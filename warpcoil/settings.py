@@ -155,7 +155,7 @@ class SimulationSettings:
       warpcoil/implicit.py: no stability bound, step set by accuracy; on `warpcoil bench
       accuracy`'s run-time/error front, BENCHMARKS.md) or "symplectic" (the reference:
       semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time on
-      the seed case, 7–20× the whole run's on frictional packs; a scene read from TOML with
+      the seed case, 7–25× the whole run's on frictional packs; a scene read from TOML with
       wall friction or segments below d/2 and none of integrator, implicit_scheme, dt_s runs
       it: reference_reasons).
     * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
@@ -220,7 +220,7 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
     if contact.friction_wall <= 0.0:
         return None
     return ("contact.friction_wall > 0 and no simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) "
-            "step runs it, at 10–30× "
+            "step runs it, at 7–25× "
             "the run time of the implicit step, whose inelastic impacts put the push force with wall friction several "
             "times the reference's (docs/FORMULATION.md \"Implicit step: impacts are inelastic\"); add integrator = "
             "\"implicit\" for the fast step where the push force does not matter")
