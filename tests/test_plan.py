@@ -97,7 +97,7 @@ def test_options_tied_on_every_criterion_share_a_rank():
 
 
 def test_occlusion_grade_ranks_before_neck_coverage_and_is_skipped_when_absent():
-    grades = {"raymond_roy_class": [[raymond_roy_number("III")] * 2, [raymond_roy_number("I")] * 2]}
+    grades = {"modified_raymond_roy_class": [[raymond_roy_number("III")] * 2, [raymond_roy_number("I")] * 2]}
     coverage = {"neck_coverage_percent": [[50.0, 50.0], [10.0, 10.0]]}
     assert [r.index for r in rank(_options(**grades, **coverage))] == [1, 0]
     assert [r.index for r in rank(_options(**coverage))] == [0, 1]  # no grade: coverage decides
@@ -194,7 +194,7 @@ def test_plan_cli_ranks_the_options_as_plan_csv_says(tmp_path):
     # the occlusion grade is each run's result.json modified class (IIIb after IIIa), in plan order (said to be missing if no run has it)
     results = [json.loads((out / f"member_{k:03d}" / "result.json").read_text()) for k in range(4)]
     classes = [raymond_roy_number((r.get("occlusion") or {}).get("modified_raymond_roy_class")) for r in results]
-    by_option = {row["option"]: row["raymond_roy_class_values"] for row in rows}
+    by_option = {row["option"]: row["modified_raymond_roy_class_values"] for row in rows}
     for k, name in enumerate(["tip deep in the sac", "tip below the neck, tilted"]):
         assert by_option[name] == ";".join("" if c is None else f"{c:g}" for c in classes[2 * k: 2 * k + 2])
     assert ("Occlusion grade not available" in text) == all(c is None for c in classes)
@@ -256,3 +256,13 @@ def test_a_plan_beyond_a_sweeps_members_is_refused_before_any_scene_is_read(tmp_
     options = tuple(Option(f"o{k}", "none", {}) for k in range(MAX_MEMBERS // 3 + 1))
     with pytest.raises(PlanError, match=r"6,667 options × 3 catheter perturbations are more than a sweep's 20,000"):
         plan_members(tmp_path / "never_read.toml", Plan(options, perturbations=3))
+
+
+def test_an_option_that_did_not_deploy_its_coil_ranks_below_one_that_did():
+    """A jammed option (its coil withdrawn at 10 of 15 mm, so nothing herniated) must not rank first
+    on herniation: the deployed share comes first."""
+    options = _options(deployed_percent=[[66.7, 66.7], [100.0, 100.0]],
+                       herniated_length_mm=[[0.0, 0.0], [1.5, 2.2]])
+    ranked = rank(options)
+    assert [r.index for r in ranked] == [1, 0]
+    assert ranked[1].beaten_by == (1, "coil deployed")

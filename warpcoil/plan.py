@@ -235,7 +235,7 @@ def run_plan(scene_path: Path, plan: Plan, out: Path, device: str | None = None,
         stats.append({c.key: Stats(tuple(c.read(r) for r in results)) for c in CRITERIA})
         usable.append(bool(results))
     ranked = rank(stats, usable)
-    graded = any(s["raymond_roy_class"].known for s in stats)
+    graded = any(s["modified_raymond_roy_class"].known for s in stats)
     result = PlanResult(plan, ranked, todo, owner, graded, time.perf_counter() - started)
     from .recorder.plan_figure import write_plan_png
 
@@ -299,8 +299,8 @@ def plan_markdown(scene_path: Path, result: PlanResult) -> str:
     """plan.md: the ranked table, the criteria, the tie rule, the ties, and the picture."""
     options, plan = result.plan.options, result.plan
     criteria = active_criteria([r.stats for r in result.ranked if r.rank])
-    decimals = {"herniated_length_mm": 1, "raymond_roy_class": 1, "neck_coverage_percent": 0,
-                "packing_density_percent": 1, "peak_push_force_mN": 2}
+    decimals = {"deployed_percent": 0, "herniated_length_mm": 1, "modified_raymond_roy_class": 1,
+                "neck_coverage_percent": 0, "packing_density_percent": 1, "peak_push_force_mN": 2}
     header = ["rank", "option"] + [f"{c.label} ({c.unit})" if c.unit else c.label for c in criteria] + \
         ["runs", "below the rank above on"]
     lines = [f"# Treatment plan: {scene_path.name}", "",
@@ -325,7 +325,8 @@ def plan_markdown(scene_path: Path, result: PlanResult) -> str:
               "beats another when, at the first criterion (in the order above) on which they do not tie, its mean "
               "is better. Rank 1 is every option no other option beats; those are set aside and the next rank is "
               "found the same way, so options sharing a rank (`=`) tie on every criterion. A failed "
-              "(numerically unstable) run is left out of its option's statistics; a jammed one is counted."]
+              "(numerically unstable) run is left out of its option's statistics; a jammed or timed-out one is "
+              "counted, with the part of its coil it deployed (the first criterion)."]
     if not result.occlusion_graded:
         lines += ["", "**Occlusion grade not available**: no run reported `occlusion.raymond_roy_class` in its "
                   "result.json, so the options are ranked without it."]

@@ -4,6 +4,8 @@ Each option is deployed several times with the catheter tip slightly perturbed (
 deployment is chaotic), so every criterion has a mean and a spread (the sample
 standard deviation over the option's runs). Criteria, in order of priority:
 
+0. coil deployed (% of its length, higher is better): a run that jammed (its coil withdrawn)
+   or timed out before the coil was in has not delivered the treatment, whatever its herniation;
 1. herniated length (mm, lower is better): coil outside the sac (in the parent vessel);
 2. occlusion grade (Raymond–Roy class I = 1, II = 2, III / IIIa = 3, IIIb = 4; lower is
    better), from ``result.json["occlusion"]["modified_raymond_roy_class"]`` (else
@@ -71,6 +73,11 @@ def _herniated(result: dict) -> float | None:
     return result.get("length_outside_sac_mm")
 
 
+def _deployed(result: dict) -> float | None:
+    deployed, total = result.get("deployed_length_mm"), result.get("coil_length_mm")
+    return None if deployed is None or not total else 100.0 * deployed / total
+
+
 @dataclass(frozen=True)
 class Criterion:
     """One ranking criterion: how to read it from a result.json, which way is better,
@@ -91,8 +98,10 @@ class Criterion:
 
 
 CRITERIA = (
+    Criterion("deployed_percent", "coil deployed", "%", False, 1.0, _deployed),
     Criterion("herniated_length_mm", "herniated length", "mm", True, 0.5, _herniated),
-    Criterion("raymond_roy_class", "occlusion (Raymond–Roy: 1 = I, 2 = II, 3 = IIIa, 4 = IIIb)", "", True, 0.5, _occlusion),
+    Criterion("modified_raymond_roy_class", "occlusion (Raymond–Roy: 1 = I, 2 = II, 3 = IIIa, 4 = IIIb)", "", True,
+              0.5, _occlusion),
     Criterion("neck_coverage_percent", "neck coverage", "%", False, 2.0, _neck_coverage),
     Criterion("packing_density_percent", "packing density in the sac", "%", False, 1.0, _packing),
     Criterion("peak_push_force_mN", "peak push force (largest frame mean)", "mN", True, 0.0, _push_force,
