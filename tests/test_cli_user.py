@@ -242,6 +242,30 @@ def test_a_catheter_pointing_out_of_the_sac_is_warned_about(tmp_path):
     assert json.loads((tmp_path / "out" / "result.json").read_text())["warnings"][0].endswith("catheter.angle_deg)")
 
 
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_a_neck_that_does_not_cut_the_wall_is_one_line_naming_the_key(tmp_path, command):
+    """A neck plane beside the wall (the sac cannot be cut): one line naming the scene file and the
+    neck key, exit 2, no traceback and no output folder, from run and sweep alike."""
+    path = scene(tmp_path, **{"[output]": "[neck]\nplane_point_mm = [0.0, 0.0, 10.0]\n"
+                                          "plane_normal = [0.0, 0.0, 1.0]\n\n[output]"})
+    extra = ["--vary", "simulation.push_speed_mm_s=100,150"] if command == "sweep" else []
+    code, _, err = cli(tmp_path, command, str(path), *extra, "-o", "never")
+    line = [line for line in err.splitlines() if line.startswith(f"warpcoil {command}: ")]
+    assert code == 2 and len(line) == 1 and "Traceback" not in err, err
+    assert "tiny.toml: neck.plane_point_mm / plane_normal: " in line[0] and "fix:" in line[0], line[0]
+    assert not (tmp_path / "never").exists()
+
+
+def test_a_porous_field_too_fine_to_hold_is_refused_before_the_run(tmp_path):
+    """porous_voxel_mm = 0.001 over a 3.5 mm sphere: ~4e10 voxels; refused before the run (exit 2, one
+    line naming the key and a voxel size that fits), not after it."""
+    path = scene(tmp_path, **{"usd = false": "usd = false\nporous = true\nporous_voxel_mm = 0.001"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "never")
+    line = one_line(err)
+    assert code == 2 and "tiny.toml: output.porous_voxel_mm: voxels of 0.001 mm make" in line and "fix:" in line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_warned_about(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     warned before the run, naming the key and how far to move the tip; kept in result.json."""

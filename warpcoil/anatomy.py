@@ -11,8 +11,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .sac import Sac, catheter_from_neck, neck_from_contour, neck_from_plane, sac_from_neck
+from .sac import NeckError, Sac, catheter_from_neck, neck_from_contour, neck_from_plane, sac_from_neck
 from .settings import CatheterSpec, Scene
+from .scene import SceneError
 from .wall import WallMesh, load_wall
 
 
@@ -39,12 +40,19 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
     sac = None
     if scene.neck is not None:
         hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
-        if scene.neck.contour is not None:
-            neck = neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
-        else:
-            neck = neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
-                                        wall, sac_side_point_mm=hint)
-        sac = sac_from_neck(wall, neck)
+        key = "neck.contour" if scene.neck.contour is not None else "neck.plane_point_mm / plane_normal"
+        try:
+            if scene.neck.contour is not None:
+                neck = neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
+            else:
+                neck = neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
+                                       wall, sac_side_point_mm=hint)
+            sac = sac_from_neck(wall, neck)
+        except NeckError as error:  # one line naming the scene and its key (exit 2), not a traceback
+            if "sac_side_point_mm" in str(error):
+                key = "neck.sac_point_mm"
+            raise SceneError(f"{scene.source or 'scene'}: {key}: "
+                             f"{str(error).replace('sac_side_point_mm', 'the sac point')}") from None
     catheter = scene.catheter
     if catheter.placement == "neck":
         tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)

@@ -170,6 +170,16 @@ def _voxel_occupancy(origin: wp.vec3d, h: wp.float64, ny: int, nz: int, sac_mesh
     radius_sum[v] = weighted_radius
 
 
+MAX_POROUS_VOXELS = 20_000_000  # a field larger than this is refused before the run (~100 bytes a voxel)
+
+
+def porous_grid_shape(sac_vertices_mm: np.ndarray, voxel_mm: float) -> tuple[int, int, int]:
+    """Voxels per axis of the field over the sac's bounding box, one voxel of margin on each side."""
+    vertices = np.asarray(sac_vertices_mm, dtype=np.float64)
+    span = vertices.max(axis=0) - vertices.min(axis=0)
+    return tuple(int(n) for n in np.ceil(span / voxel_mm).astype(np.int64) + 2)
+
+
 def porous_field(sac_vertices_mm: np.ndarray, sac_faces: np.ndarray, coils_mm: list[np.ndarray],
                  wire_diameters_mm: list[float], voxel_mm: float | None = None, device=None) -> PorousField:
     """The porous-medium fields of ``coils_mm`` (node polylines) in the closed sac surface.
@@ -184,9 +194,8 @@ def porous_field(sac_vertices_mm: np.ndarray, sac_faces: np.ndarray, coils_mm: l
         raise ValueError(f"porous_field: voxel_mm must be a positive number of mm, got {voxel_mm}")
     device = wp.get_device(device)
     surface = SurfaceBVH(sac_vertices_mm, sac_faces, device)
-    vertices = np.asarray(sac_vertices_mm, dtype=np.float64)
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    shape = tuple(int(n) for n in np.ceil((hi - lo) / h).astype(np.int64) + 2)
+    lo = np.asarray(sac_vertices_mm, dtype=np.float64).min(axis=0)
+    shape = porous_grid_shape(sac_vertices_mm, h)
     origin = lo - h  # one voxel of margin on each side
 
     starts, ends, radii = [], [], []

@@ -191,6 +191,25 @@ def check_coil_lengths(scene: Scene) -> list[str]:
     return warnings
 
 
+def check_porous(scene: Scene, anatomy) -> None:
+    """Raise SetupError when ``[output] porous`` asks for more than MAX_POROUS_VOXELS voxels
+    (the field is computed after the run: refused before it, not after)."""
+    from .porous import MAX_POROUS_VOXELS, porous_grid_shape
+
+    if not scene.output.porous or anatomy.wall is None:
+        return
+    vertices = (np.asarray(anatomy.sac.closed_surface.vertices) if anatomy.sac is not None
+                else anatomy.wall.vertices_mm)
+    h = scene.output.porous_voxel_mm or 0.5 * min(c.wire_diameter_mm for c in scene.coils)
+    count = math.prod(porous_grid_shape(vertices, h))
+    if count > MAX_POROUS_VOXELS:
+        span = np.ptp(vertices, axis=0)
+        coarser = (float(np.prod(span)) / MAX_POROUS_VOXELS) ** (1.0 / 3.0) * 1.05
+        raise SetupError(f"{_where(scene)}: output.porous_voxel_mm: voxels of {h:g} mm make {count:.3g} over the "
+                         f"sac's bounding box ({_vec(span)} mm), more than {MAX_POROUS_VOXELS:.0e}; fix: "
+                         f"porous_voxel_mm = {coarser:.2g} or more")
+
+
 def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     """Warnings for an implicit scene: a ``dt_s`` within the explicit stability bound
     (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed
@@ -225,6 +244,7 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
 def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> list[str]:
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
+    check_porous(scene, anatomy)
     notes = [f"{_where(scene)}: {note}" for note in scene.notes]
     notes += [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
