@@ -42,6 +42,21 @@ def test_a_balloon_axis_outside_the_vessel_names_the_key(vessel):
         balloon_geometry(BalloonSpec(axis_mm=((0.0, 2.0, 0.0), (0.0, 2.0, 5.0))), vessel)
 
 
+def test_a_device_too_wide_for_the_vessel_names_its_size_and_a_degenerate_axis_its_axis(vessel):
+    """A 40 mm balloon (its cap 5 % of it, 2 mm, beyond the 1.5 mm vessel) names balloon.diameter_mm, not
+    the axis on the centreline; a stent of 2 mm struts names strut_diameter_mm; an axis whose points
+    coincide names the axis."""
+    with pytest.raises(DeviceError, match=r"balloon\.diameter_mm: 40 mm needs more than the 1\.4\d\d mm.*fix"):
+        balloon_geometry(BalloonSpec(axis_mm=AXIS, diameter_mm=40.0), vessel)
+    with pytest.raises(DeviceError, match=r"stent\.strut_diameter_mm: 2 mm needs more than"):
+        stent_struts(StentSpec(axis_mm=AXIS, diameter_mm=4.0, strut_diameter_mm=2.0), vessel)
+    point = (*OFF, 0.0)
+    for make, spec in ((balloon_geometry, BalloonSpec(axis_mm=(point, point))),
+                       (stent_struts, StentSpec(axis_mm=(point, point), diameter_mm=4.0))):
+        with pytest.raises(DeviceError, match=r"\.axis: its points .* coincide: the axis has no length; fix"):
+            make(spec, vessel)
+
+
 def test_balloon_contact_is_the_law_along_the_radius_and_vanishes_deflated():
     p0, c0, r_node = 1.0e3, 0.03, 0.15
     stations = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, 2.0]])

@@ -227,6 +227,21 @@ def test_plan_errors_name_the_option_and_key(tmp_path):
     scene.write_text(SCENE.replace("perturbations = 2", "perturbations = 1"))
     with pytest.raises(PlanError, match=r"plan\.perturbations: must be a whole number ≥ 2"):
         read_plan(scene)
+    # a plan setting as an option key (or a --vary key) would change nothing: refused, naming it
+    scene.write_text(SCENE.replace('catheter.depth_mm = 1.0', 'catheter.depth_mm = 1.0\nplan.perturbations = 4'))
+    with pytest.raises(PlanError, match=r"plan\.option\[0\].*plan\.perturbations: is a setting of the plan"):
+        read_plan(scene)
+    scene.write_text(SCENE)
+    with pytest.raises(PlanError, match=r"plan\.perturbations: is a setting of the plan"):
+        read_plan(scene, [("plan.perturbations", [2, 3])])
+
+
+def test_a_scene_device_is_reported_as_every_options_device(tmp_path):
+    """A [balloon] in the scene (no option naming a device) is every option's: plan.md and plan.csv say so."""
+    scene = tmp_path / "plan.toml"
+    balloon = "[balloon]\naxis = [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]]\ndiameter_mm = 1.0\n\n[plan]"
+    scene.write_text(SCENE.replace("[plan]", balloon, 1))
+    assert {o.device for o in read_plan(scene).options} == {"balloon (the scene's)"}
 
 
 def test_the_shipped_c0001_plan_compares_six_options_with_a_balloon():

@@ -46,6 +46,30 @@ def resample(polyline_mm: np.ndarray, spacing_mm: float = STATION_SPACING_MM) ->
     return np.asarray(out)
 
 
+def _axis_stations(device: str, axis_mm, wall, source: str, room_mm: float, room_key: str, room_value: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """A device's axis resampled (stations, mm) and each station's wall distance (mm). Raises
+    DeviceError naming ``{device}.axis`` when the axis has no length or leaves the lumen, and
+    ``{device}.{room_key}`` (its value ``room_value``) when the device needs more than the wall
+    distance ``room_mm`` somewhere on an axis inside the lumen."""
+    axis = np.asarray(axis_mm, np.float64)
+    if not np.linalg.norm(np.diff(axis, axis=0), axis=1).sum() > 0.0:
+        raise DeviceError(f"{source}: {device}.axis: its points {np.round(axis, 3).tolist()} coincide: the axis has "
+                          "no length; fix: give points along the parent vessel's centreline")
+    stations = resample(axis)
+    distance = wall_distances_mm(wall, stations)
+    worst = int(np.argmin(distance))
+    point = np.round(stations[worst], 3).tolist()
+    if distance[worst] <= 0.0:
+        raise DeviceError(f"{source}: {device}.axis: the point {point} is outside the lumen (wall distance "
+                          f"{distance[worst]:.3f} mm); fix: move the axis onto the parent vessel's centreline")
+    if distance[worst] <= room_mm:
+        raise DeviceError(f"{source}: {device}.{room_key}: {room_value:g} mm needs more than the "
+                          f"{distance[worst]:.3f} mm between the axis and the wall at {point}; fix: a "
+                          f"{room_key} that fits the vessel there, or move the axis onto its centreline")
+    return stations, distance
+
+
 def balloon_geometry(spec: BalloonSpec, wall, source: str = "scene") -> tuple[np.ndarray, np.ndarray]:
     """(stations mm, capped radii mm): the axis resampled, each station's radius
     min(diameter/2, its wall distance). Raises DeviceError when the axis leaves
@@ -53,14 +77,8 @@ def balloon_geometry(spec: BalloonSpec, wall, source: str = "scene") -> tuple[np
     if wall is None:
         raise DeviceError(f"{source}: balloon: needs a [wall] (the vessel it is inflated in); fix: add [wall] or "
                           f"remove [balloon]")
-    stations = resample(np.asarray(spec.axis_mm, np.float64))
-    distance = wall_distances_mm(wall, stations)
-    worst = int(np.argmin(distance))
-    if distance[worst] <= 0.05 * spec.diameter_mm:
-        raise DeviceError(
-            f"{source}: balloon.axis: the point {np.round(stations[worst], 3).tolist()} is "
-            f"{'outside the lumen' if distance[worst] <= 0 else 'against the wall'} (wall distance "
-            f"{distance[worst]:.3f} mm); fix: move the axis onto the parent vessel's centreline")
+    stations, distance = _axis_stations("balloon", spec.axis_mm, wall, source, 0.05 * spec.diameter_mm,
+                                        "diameter_mm", spec.diameter_mm)
     return stations, np.minimum(0.5 * spec.diameter_mm, distance)
 
 
@@ -96,14 +114,8 @@ def stent_struts(spec, wall, source: str = "scene") -> tuple[np.ndarray, np.ndar
     if wall is None:
         raise DeviceError(f"{source}: stent: needs a [wall] (the vessel it is deployed in); fix: add [wall] or "
                           f"remove [stent]")
-    stations = resample(np.asarray(spec.axis_mm, np.float64))
-    distance = wall_distances_mm(wall, stations)
-    worst = int(np.argmin(distance))
-    if distance[worst] <= spec.strut_diameter_mm:
-        raise DeviceError(
-            f"{source}: stent.axis: the point {np.round(stations[worst], 3).tolist()} is "
-            f"{'outside the lumen' if distance[worst] <= 0 else 'against the wall'} (wall distance "
-            f"{distance[worst]:.3f} mm); fix: move the axis onto the parent vessel's centreline")
+    stations, distance = _axis_stations("stent", spec.axis_mm, wall, source, spec.strut_diameter_mm,
+                                        "strut_diameter_mm", spec.strut_diameter_mm)
     if 2.0 * distance.max() > spec.diameter_mm:
         raise DeviceError(
             f"{source}: stent.diameter_mm = {spec.diameter_mm:g} mm is smaller than the vessel "

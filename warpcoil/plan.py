@@ -120,7 +120,7 @@ def read_plan(scene_path: Path, varies: list[tuple[str, list]] | None = None) ->
     names = [o.name for o in options]
     for k, name in enumerate(names):
         if names.index(name) != k:
-            raise _error(source, f"{where[k]}.name", f"{name!r} names two options", "give each option its own name")
+            raise _error(source, _at(where[k], "name"), f"{name!r} names two options", "give each option its own name")
     if len(options) < 2:
         raise _error(source, where[0], "a plan compares options, and there is one",
                      "add at least one more [[plan.option]] (or --vary value)")
@@ -135,16 +135,21 @@ def read_plan(scene_path: Path, varies: list[tuple[str, list]] | None = None) ->
     return Plan(tuple(options), perturbations, perturbation_deg, top)
 
 
+def _at(where: str, key: str) -> str:
+    """An option's key as a message names it: plan.option[1].device, or --vary device=x (device)."""
+    return f"{where} ({key})" if where.startswith("--vary") else f"{where}.{key}"
+
+
 def _option(source: Path, document: dict, devices: dict, raw: dict, where: str, index: int) -> Option:
     """One option from its table (or --vary values): name, device, scene keys."""
     keys = _flat({k: v for k, v in raw.items() if k not in ("name", "device")})
     device = raw.get("device", "none")
     if device not in DEVICES:
-        raise _error(source, f"{where}.device", f"{device!r} is not an assist device",
+        raise _error(source, _at(where, "device"), f"{device!r} is not an assist device",
                      f"write device = one of {', '.join(repr(d) for d in DEVICES)}")
     for key in keys:
         if key.split(".")[0] in ("balloon", "stent"):
-            raise _error(source, f"{where}.{key}", "an option names its device, not the device's keys",
+            raise _error(source, _at(where, key), "an option names its device, not the device's keys",
                          f'write device = "{key.split(".")[0]}" and put the geometry in [plan.{key.split(".")[0]}]')
     if device != "none" or "device" in raw:
         for table in ("balloon", "stent"):
@@ -157,12 +162,15 @@ def _option(source: Path, document: dict, devices: dict, raw: dict, where: str, 
             raise _error(source, f"plan.{device}", f"{where} uses a {device}, and the plan gives none",
                          f"add [plan.{device}] with the keys of a scene's [{device}] (axis, diameter_mm, …)")
         keys |= {f"{device}.{k}": v for k, v in geometry.items()}
+    scene_device = next((table for table in ("balloon", "stent") if table in document), None)
+    if device == "none" and scene_device is not None:
+        device = f"{scene_device} (the scene's)"  # every option uses it: reported as theirs
     name = raw.get("name")
     if name is None:
         shown = {k: v for k, v in raw.items() if k != "name"}
         name = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in _flat(shown).items())
     if not isinstance(name, str) or not name.strip():
-        raise _error(source, f"{where}.name", f"must be a non-empty text, got {name!r}",
+        raise _error(source, _at(where, "name"), f"must be a non-empty text, got {name!r}",
                      f'write name = "option {index + 1}"')
     return Option(name.strip(), device, keys)
 

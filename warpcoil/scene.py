@@ -121,7 +121,7 @@ def _direction(value: object, base: Path) -> Vec3:
     vector = _vec3(value, base)
     norm = math.hypot(*vector)
     if norm == 0.0:
-        raise _Invalid("must not be the zero vector", "give the catheter axis, e.g. [0.0, 0.0, 1.0]")
+        raise _Invalid("must not be the zero vector", "give a direction, e.g. [0.0, 0.0, 1.0]")
     return tuple(v / norm for v in vector)
 
 
@@ -458,6 +458,9 @@ def _override(reader: _Reader, document: dict[str, Any], key: str, value: Any) -
     """Set ``table.key`` (or ``coil.key`` for every coil, ``coil.N.key`` for coil N) in the document."""
     parts = key.split(".")
     fix = 'name a scene key as table.key, e.g. catheter.angle_deg, coil.length_mm or coil.0.length_mm'
+    if parts[0] == "plan":  # read by `warpcoil plan` from the file alone: varied, it would change nothing
+        raise reader.error(key, "is a setting of the plan, not of a deployment, and would change nothing here",
+                           "set it in the scene's [plan] table; vary scene keys such as catheter.angle_deg")
     if len(parts) == 3 and parts[0] == "coil" and parts[1].isdigit():
         coils = document.get("coil", [])
         if int(parts[1]) >= len(coils):
