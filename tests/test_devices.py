@@ -197,3 +197,35 @@ def test_cli_runs_an_assisted_scene_and_reports_the_device(tmp_path, device):
         inflation = [f for _, f in result["device"]["inflation_over_time"]]
         assert inflation[0] == 1.0 and inflation[-1] == 0.0  # deflated before the run ended
         assert result["device"]["deflation_started_s"] is not None
+
+
+def test_the_balloon_deflates_with_the_clock_not_the_frames(tmp_path):
+    """A 0.05 s deflation recorded in 0.02 s frames: the solver's inflation is set before every graph
+    replay (≤ 8 steps) to the schedule at its middle, so within a frame it steps down in many small
+    decrements (the largest ≤ 8 steps' share of the schedule), not once a frame."""
+    from warpcoil.deploy import Deployment
+    from warpcoil.scene import load_scene
+    from warpcoil.solver import GRAPH_STEPS_MAX
+
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n'
+                     '[[coil]]\nshape = "helix"\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\n'
+                     'length_mm = 5\n[simulation]\npush_speed_mm_s = 100.0\nframe_interval_s = 0.02\n'
+                     '[output]\nusd = false\n[balloon]\naxis = [[-1.2, 0.8, -0.3], [1.2, 0.8, -0.3]]\n'
+                     'diameter_mm = 0.8\ndeflation_time_s = 0.05\n')
+    run = Deployment(load_scene(scene))
+    seen: list[float] = []
+    set_inflation = run.model.set_inflation
+
+    def record(world, fraction):
+        seen.append(fraction)
+        set_inflation(world, fraction)
+
+    run.model.set_inflation = record
+    result = run.run()
+    assert result.status == "completed", result.reason
+    falling = [f for f in seen if 0.0 < f < 1.0]
+    assert len(falling) > 3 * 0.05 / 0.02  # many more levels than the deflation's frames
+    steps_s = max(run.solver.dt_s, result.settle_dt_s or 0.0)
+    drops = -np.diff([1.0] + falling + [0.0])
+    assert drops.max() <= GRAPH_STEPS_MAX * steps_s / 0.05 + 1e-9

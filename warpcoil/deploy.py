@@ -277,12 +277,29 @@ class Ensemble:
                 self._levels[k] = Stepper(self.solver, state, self.control, chunk=2 * k, graph_steps_max=2)
             self.solver.dt_s = frame_s / (2 * k)
             self.stepper = self._levels[k]
-            self.stepper.run_chunk()
+            self.stepper.run_chunk(self._deflating(live))
             for m in live:
                 m.settle_steps += 2 * k if m.settle_level == k else 0
 
         self._by_level(live, lambda m: m.settle_level, run_level)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
+
+    def _deflating(self, live: list[Member]) -> Callable[[float], None] | None:
+        """For Stepper.run_chunk: while a member's balloon deflates, its inflation set before
+        every graph replay (≤ GRAPH_STEPS_MAX steps) to the schedule at that replay's middle,
+        so the deflation follows the clock, not the frames (a frame's value held over it made
+        it a staircase of frames, and a 0.1 s deflation one step at --frame-interval 0.1);
+        None when none deflates."""
+        deflating = [m for m in live if m.balloon is not None and m.deflate_from_s is not None
+                     and m.inflation is not None and m.inflation > 0.0]
+        if not deflating:
+            return None
+
+        def follow(time_s: float) -> None:
+            for m in deflating:
+                self.model.set_inflation(m.world, deflation(m.balloon, time_s, m.deflate_from_s))
+
+        return follow
 
     def _detaching(self, member: Member, advance: np.ndarray, start_s: float, frame_s: float) -> bool:
         """Whether the member's frame about to run (from ``start_s``, ``frame_s`` long) is a
@@ -321,13 +338,13 @@ class Ensemble:
 
         def run_level(k: int) -> None:
             if k == 1:
-                self.stepper.run_chunk()
+                self.stepper.run_chunk(self._deflating(live))
                 return
             if k not in self._fine:
                 self._fine[k] = Stepper(self.solver, state, self.control, chunk=k * frame_steps, graph_steps_max=2)
             self.solver.dt_s = dt / k
             try:
-                self._fine[k].run_chunk()
+                self._fine[k].run_chunk(self._deflating(live))
             finally:
                 self.solver.dt_s = dt
 

@@ -9,7 +9,7 @@ stability bound of the stiffest term (:func:`stable_step_bound`).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -898,14 +898,27 @@ class Stepper:
             self.solver.step(self._a, self._b, self.control)
             self.solver.step(self._b, self._a, self.control)
 
-    def run_chunk(self) -> State:
+    def run_chunk(self, between: Callable[[float], None] | None = None) -> State:
         """Advance by ``chunk`` steps; returns the current state. A multistep solver's
         start (Solver.needs_start) is launched directly, before the graph, which
-        always captures the solver's steady step."""
+        always captures the solver's steady step. ``between(t_mid_s)``: called before each
+        graph replay (at most GRAPH_STEPS_MAX steps, or ``graph_steps_max``) and each group of
+        direct launches with the middle of the time they advance, for control arrays that
+        follow the clock within a chunk (a deflating balloon)."""
         start = self._a.time_s
+        dt = self.solver.dt_s
+        done = 0  # steps advanced so far in this chunk
+
+        def at(steps: int) -> None:  # ``between`` for the next ``steps`` steps
+            nonlocal done
+            if between is not None and steps:
+                between(start + (done + 0.5 * steps) * dt)
+            done += steps
+
         even = self.chunk - self.chunk % 2
         per_graph = graph_steps(even, self._graph_steps_max)
         if even and self.solver.needs_start(self._a):
+            at(2)
             self._launch_steps(2)
             even -= 2
         if self._use_graph and self._graph is None and per_graph:
@@ -925,11 +938,15 @@ class Stepper:
             self._graph = capture.graph
         if self._graph is not None:
             for _ in range(even // per_graph):
+                at(per_graph)
                 wp.capture_launch(self._graph)
+            at(even % per_graph)
             self._launch_steps(even % per_graph)  # (after a start: the steps short of a whole graph)
         else:
+            at(even)
             self._launch_steps(even)
         if self.chunk % 2:  # the odd step, into the other buffer and back
+            at(1)
             self.solver.step(self._a, self._b, self.control)
             self._a.copy_from(self._b)
         self.steps += self.chunk
