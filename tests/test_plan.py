@@ -214,6 +214,8 @@ def test_a_bad_plan_key_names_file_key_and_fix(tmp_path):
     assert code == 2
     assert stderr.count("\n") == 1 and "plan.toml: plan.perturbation: unknown key" in stderr and "fix:" in stderr
     assert not out.exists()
+    code, _, stderr = _plan(tmp_path, SCENE, out, "--retries", "-1")  # as a sweep takes it
+    assert code == 2 and stderr == "warpcoil plan: --retries -1: give 0 or more\n" and not out.exists()
 
 
 def test_plan_errors_name_the_option_and_key(tmp_path):

@@ -167,8 +167,7 @@ def _sweep(args: argparse.Namespace) -> int:
         if args.workers is not None and (args.workers < 1 or args.scheduler):
             raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler "
                              "(a cluster's size is set where its workers start)")
-        if args.retries < 0:
-            raise SweepError(f"--retries {args.retries}: give 0 or more")
+        _check_retries(args)
         check_output_path(out)
         if not args.scheduler:  # a cluster's workers may have devices this machine lacks
             _device(args.device)
@@ -197,6 +196,18 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if 1 in codes else max(codes)
 
 
+def _add_retries(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--retries", type=int, default=2, metavar="N",
+                        help="rerun a task that raised or whose worker died up to N times (default 2)")
+
+
+def _check_retries(args: argparse.Namespace) -> None:
+    from .sweep import SweepError
+
+    if args.retries < 0:
+        raise SweepError(f"--retries {args.retries}: give 0 or more")
+
+
 def _plan(args: argparse.Namespace) -> int:
     from .model import EnsembleError
     from .plan import PLAN_OUTPUTS, PlanError, read_plan, run_plan
@@ -214,6 +225,7 @@ def _plan(args: argparse.Namespace) -> int:
     try:
         if args.workers is not None and (args.workers < 1 or args.scheduler):
             raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler")
+        _check_retries(args)
         check_output_path(out)
         if not args.scheduler:
             _device(args.device)
@@ -224,7 +236,7 @@ def _plan(args: argparse.Namespace) -> int:
             claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+")
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
-                              args.resume)
+                              args.resume, args.retries)
     except (PlanError, SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError,
             SetupError, OutputFolderError) as error:
         progress.close(failed=True)
@@ -316,8 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786 (docs/SWEEPS.md)")
     sweep.add_argument("--resume", action="store_true",
                        help="keep members whose folder holds a complete result; run the others")
-    sweep.add_argument("--retries", type=int, default=2, metavar="N",
-                       help="rerun a task that raised or whose worker died up to N times (default 2)")
+    _add_retries(sweep)
     sweep.add_argument("-j", "--jobs", type=int, help=argparse.SUPPRESS)  # removed: says to use --workers
     sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
     sweep.add_argument("--overwrite", action="store_true",
@@ -337,6 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="processes of the embedded Dask cluster (default: one per core, or one per GPU)")
     plan.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (docs/SWEEPS.md)")
     plan.add_argument("--resume", action="store_true", help="keep deployments already complete; run the others")
+    _add_retries(plan)
     plan.add_argument("--overwrite", action="store_true",
                       help="replace the outputs of an earlier plan or sweep in the output folder (default: refuse)")
     plan.add_argument("-q", "--quiet", action="store_true", help="no progress")
