@@ -254,3 +254,19 @@ def test_coil_mat_across_the_ostium_covers_the_neck(small_sac: Sac) -> None:
     result = regional_density(small_sac, [mat], [D_MM])
     assert result.neck_coverage >= 0.999
     assert result.neck > 0.0 and result.core == 0.0
+
+
+def test_a_sac_point_in_neither_piece_names_the_scenes_neck_sac_point_key(tmp_path):
+    """Through a scene, a sac-side point outside both pieces the neck cuts is an error naming
+    neck.sac_point_mm, and a plane beside the wall one naming the plane keys."""
+    from warpcoil.anatomy import resolve_anatomy
+    from warpcoil.scene import SceneError, load_scene
+
+    path = tmp_path / "s.toml"
+    base = ('[wall]\nsphere_diameter_mm = 3.5\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
+            'length_mm = 10\n[neck]\nplane_normal = [0.0, 0.0, 1.0]\n')
+    for neck, key in (('plane_point_mm = [0.0, 0.0, 1.0]\nsac_point_mm = [0.0, 0.0, 9.0]\n', "neck.sac_point_mm"),
+                      ('plane_point_mm = [0.0, 0.0, 9.0]\n', "neck.plane_point_mm / plane_normal")):
+        path.write_text(base + neck)
+        with pytest.raises(SceneError, match=rf"s\.toml: {key}: .*fix:"):
+            resolve_anatomy(load_scene(path))

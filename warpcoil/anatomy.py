@@ -49,10 +49,8 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
                                        wall, sac_side_point_mm=hint)
             sac = sac_from_neck(wall, neck)
         except NeckError as error:  # one line naming the scene and its key (exit 2), not a traceback
-            if "sac_side_point_mm" in str(error):
-                key = "neck.sac_point_mm"
-            raise SceneError(f"{scene.source or 'scene'}: {key}: "
-                             f"{str(error).replace('sac_side_point_mm', 'the sac point')}") from None
+            raise SceneError(f"{scene.source or 'scene'}: {'neck.sac_point_mm' if error.sac_point else key}: "
+                             f"{error}") from None
     catheter = scene.catheter
     if catheter.placement == "neck":
         tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)

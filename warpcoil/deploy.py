@@ -653,22 +653,24 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     return steps
 
 
-def explicit_step_bound_s(scene: Scene, anatomy: Anatomy, device=None) -> float:
-    """The explicit step bound (s) of the scene's single run (Member.step_bound_s), host-side:
-    its model built without the wall."""
-    return world_bounds(finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device))[0].dt_s
+def host_models(scenes: Sequence[Scene], anatomies: Sequence[Anatomy], device=None) -> list[Model]:
+    """Each scene's single-run model without its wall: what its step, contact law and explicit
+    step bound (world_bounds: Member.step_bound_s) are read from on the host."""
+    return [finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
+            for scene, anatomy in zip(scenes, anatomies)]
 
 
-def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None
-                    ) -> list[list[int]]:
+def ensemble_groups(scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
+                    models: Sequence[Model] | None = None) -> list[list[int]]:
     """Indices of ``scenes`` grouped so each group can run as one Ensemble (same
     step, contact onset, frame length, contact law, friction and wall query, damping speed, mass
     scale and stent strut radius).
-    ``anatomies``: the scenes' resolved anatomies, if the caller has them."""
+    ``anatomies``: the scenes' resolved anatomies, and ``models`` their :func:`host_models`, if the
+    caller has them."""
     anatomies = anatomies if anatomies is not None else resolve_anatomies(scenes)
+    models = models if models is not None else host_models(scenes, anatomies, device)
     groups: dict[tuple, list[int]] = {}
-    for k, (scene, anatomy) in enumerate(zip(scenes, anatomies)):
-        model = finalize_ensemble([model_builder(scene, replace(anatomy, wall=None))], device)
+    for k, (scene, model) in enumerate(zip(scenes, models)):
         c = model.contact
         key = (world_steps(model, [scene])[0], scene.simulation.allow_unstable_dt, c.p0_uN, c.c0_mm,
                c.exclusion_edges, c.fold_span, model.damping_k, model.mass_scale, scene.contact.wall_query,

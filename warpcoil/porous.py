@@ -180,6 +180,21 @@ def porous_grid_shape(sac_vertices_mm: np.ndarray, voxel_mm: float) -> tuple[int
     return tuple(int(n) for n in np.ceil(span / voxel_mm).astype(np.int64) + 2)
 
 
+def porous_voxel_mm(voxel_mm: float | None, wire_diameters_mm) -> float:
+    """The field's voxel edge (mm): ``voxel_mm``, by default half the smallest wire diameter."""
+    return 0.5 * float(min(wire_diameters_mm)) if voxel_mm is None else float(voxel_mm)
+
+
+def porous_surface(sac, wall) -> tuple[np.ndarray, np.ndarray] | None:
+    """(vertices mm, faces) the field fills: the sac cut at the neck (a Sac), else the whole wall
+    (a WallMesh; None with no wall)."""
+    if sac is not None:
+        return np.asarray(sac.closed_surface.vertices), np.asarray(sac.closed_surface.faces)
+    if wall is not None:
+        return wall.vertices_mm, wall.faces
+    return None
+
+
 def porous_field(sac_vertices_mm: np.ndarray, sac_faces: np.ndarray, coils_mm: list[np.ndarray],
                  wire_diameters_mm: list[float], voxel_mm: float | None = None, device=None) -> PorousField:
     """The porous-medium fields of ``coils_mm`` (node polylines) in the closed sac surface.
@@ -189,7 +204,7 @@ def porous_field(sac_vertices_mm: np.ndarray, sac_faces: np.ndarray, coils_mm: l
     if len(coils_mm) != len(wire_diameters_mm) or not coils_mm:
         raise ValueError(f"porous_field: {len(coils_mm)} coils but {len(wire_diameters_mm)} wire diameters; "
                          "give one diameter per coil and at least one coil")
-    h = 0.5 * float(min(wire_diameters_mm)) if voxel_mm is None else float(voxel_mm)
+    h = porous_voxel_mm(voxel_mm, wire_diameters_mm)
     if not (np.isfinite(h) and h > 0.0):
         raise ValueError(f"porous_field: voxel_mm must be a positive number of mm, got {voxel_mm}")
     device = wp.get_device(device)

@@ -19,7 +19,7 @@ import math
 import numpy as np
 import warp as wp
 
-from .settings import FINE_SEGMENT_RATIO, Scene
+from .settings import Scene, fine_segment_coils
 
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
 MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
@@ -194,13 +194,13 @@ def check_coil_lengths(scene: Scene) -> list[str]:
 def check_porous(scene: Scene, anatomy) -> None:
     """Raise SetupError when ``[output] porous`` asks for more than MAX_POROUS_VOXELS voxels
     (the field is computed after the run: refused before it, not after)."""
-    from .porous import MAX_POROUS_VOXELS, porous_grid_shape
+    from .porous import MAX_POROUS_VOXELS, porous_grid_shape, porous_surface, porous_voxel_mm
 
-    if not scene.output.porous or anatomy.wall is None:
+    surface = porous_surface(anatomy.sac, anatomy.wall) if scene.output.porous else None
+    if surface is None:
         return
-    vertices = (np.asarray(anatomy.sac.closed_surface.vertices) if anatomy.sac is not None
-                else anatomy.wall.vertices_mm)
-    h = scene.output.porous_voxel_mm or 0.5 * min(c.wire_diameter_mm for c in scene.coils)
+    vertices = surface[0]
+    h = porous_voxel_mm(scene.output.porous_voxel_mm, [c.d for c in scene.coils])
     count = math.prod(porous_grid_shape(vertices, h))
     if count > MAX_POROUS_VOXELS:
         span = np.ptp(vertices, axis=0)
@@ -225,7 +225,7 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
                         f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing "
                         f"there and costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or "
                         f"remove dt_s for the implicit step's own (set by accuracy)")
-    fine = [k for k, c in enumerate(scene.coils) if c.l0 < FINE_SEGMENT_RATIO * c.d * (1.0 - 1e-9)]
+    fine = fine_segment_coils(scene.coils)
     if fine:
         coil = scene.coils[fine[0]]
         warnings.append(f"{_where(scene)}: coil[{fine[0]}].segment_length_mm = {coil.l0:g} mm is below d/2 = "

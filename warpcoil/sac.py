@@ -63,7 +63,12 @@ CONTOUR_SUFFIXES = (".vtk", ".vtp", ".csv", ".txt", ".xyz", ".npy")
 
 
 class NeckError(ValueError):
-    """A neck that cannot be used; the message names the file, the problem and the fix."""
+    """A neck that cannot be used; the message names the file, the problem and the fix.
+    ``sac_point``: the problem is the point given for the sac's side, not the neck itself."""
+
+    def __init__(self, message: str, sac_point: bool = False) -> None:
+        super().__init__(message)
+        self.sac_point = sac_point
 
 
 def _error(source: Path | str | None, problem: str, fix: str) -> NeckError:
@@ -469,8 +474,9 @@ def _sac_side(
         point = np.asarray(hint, dtype=np.float64).reshape(1, 3)
         holding = [s for s, piece in pieces.items() if inside_points(SurfaceBVH(piece.vertices, piece.faces), point)[0]]
         if len(holding) != 1:
-            raise _error(source, f"sac_side_point_mm {point[0]} lies in {'neither' if not holding else 'both'} "
-                         "of the two lumen pieces cut off by the neck", "give a point inside the sac lumen")
+            raise NeckError(str(_error(source, f"the sac-side point {point[0]} lies in "
+                                          f"{'neither' if not holding else 'both'} of the two lumen pieces cut off "
+                                          "by the neck", "give a point inside the sac lumen")), sac_point=True)
         return holding[0]
     ostium_diameter = 2.0 * np.sqrt(_fan_area(loop, centroid) / np.pi)
     cap_of_face, cap_area = _caps(wall, CAP_MIN_FRACTION * ostium_diameter)

@@ -229,6 +229,11 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
 FINE_SEGMENT_RATIO = 0.5  # the implicit step is validated for segment lengths l0 ≥ d/2 (up to 2d)
 
 
+def fine_segment_coils(coils) -> list[int]:
+    """Indices of the coils whose segments are shorter than FINE_SEGMENT_RATIO × d."""
+    return [k for k, c in enumerate(coils) if c.l0 < FINE_SEGMENT_RATIO * c.d * (1.0 - 1e-9)]
+
+
 def integrator_for_fine_segments(coils) -> str | None:
     """Why a scene with no ``simulation.integrator`` runs the reference: a coil's segments shorter
     than FINE_SEGMENT_RATIO × d. The implicit step is validated for d/2 ≤ l0 ≤ 2d; below, a released coil
@@ -236,10 +241,10 @@ def integrator_for_fine_segments(coils) -> str | None:
     after its release at l0 = d/4, and timed out without coming to rest at d/3, at steps from 133 down to
     6 µs; docs/FORMULATION.md "Implicit step: segments shorter than d/2"), where the reference completes;
     None: no such coil."""
-    fine = [(k, c) for k, c in enumerate(coils) if c.l0 < FINE_SEGMENT_RATIO * c.d * (1.0 - 1e-9)]
+    fine = fine_segment_coils(coils)
     if not fine:
         return None
-    k, coil = fine[0]
+    k, coil = fine[0], coils[fine[0]]
     return (f"coil[{k}].segment_length_mm = {coil.l0:g} mm is below d/2 = {0.5 * coil.d:g} mm and no "
             "simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) step runs it (its step "
             "shrinks with l0); the implicit step is validated for d/2 ≤ l0 ≤ 2d, and below it a released coil "
@@ -285,4 +290,4 @@ class Scene:
     balloon: BalloonSpec | None = None
     stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from
-    notes: tuple[str, ...] = field(default=(), compare=False)  # what the reader chose (integrator_for_friction): warnings
+    notes: tuple[str, ...] = field(default=(), compare=False)  # what the reader chose (reference_reasons): warnings

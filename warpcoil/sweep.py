@@ -30,7 +30,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from .deploy import COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, explicit_step_bound_s, resolve_anatomies
+from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_models, resolve_anatomies,
+                     world_bounds)
 from .preflight import preflight
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
@@ -350,11 +351,12 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                              f"which this sweep of {len(todo)} members does not have: another sweep's; {REPLACE_HINT}")
     pending = [m.index for m in todo if m.result is None]
     anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
+    models = host_models([scenes[k] for k in pending], anatomies, "cpu")  # step bounds and groups, host-side
     # each member's warnings, as `warpcoil run` would give them (a catheter outside the lumen: SetupError before any
     # step); kept in its result.json, and said once each before the members run and in the summary
     member_warnings = {k: list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu",
-                                                                 explicit_step_bound_s(scenes[k], anatomy))))
-                       for k, anatomy in zip(pending, anatomies)}
+                                                                 world_bounds(model)[0].dt_s)))
+                       for k, anatomy, model in zip(pending, anatomies, models)}
     stored = [w for m in todo if m.resumed for w in m.result.get("warnings", [])]
     warnings = list(dict.fromkeys(unified + [w for k in pending for w in member_warnings[k]] + stored))
     if isinstance(progress, SweepProgress):
@@ -371,7 +373,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             progress(member)
     batches, slots, failures = [], 0, []
     if pending:
-        groups = ensemble_groups([scenes[k] for k in pending], "cpu", anatomies)  # host-side step bounds only
+        groups = ensemble_groups([scenes[k] for k in pending], "cpu", anatomies, models)
         with dask_client(scheduler, workers, device, retries) as client:
             from distributed import as_completed
 

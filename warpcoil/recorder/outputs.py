@@ -132,19 +132,16 @@ class UsdFrames:
 
 def write_porous(path: Path, scene: Scene, wall, sac, positions_mm: list[np.ndarray]) -> None:
     """porous.vti of the final coils in the sac (the whole wall when the scene has no [neck])."""
-    from ..porous import porous_field
+    from ..porous import porous_field, porous_surface
 
     if sac is None and scene.neck is not None:
         from ..anatomy import resolve_anatomy
 
         sac = resolve_anatomy(scene).sac
-    if sac is not None:
-        vertices, faces = np.asarray(sac.closed_surface.vertices), np.asarray(sac.closed_surface.faces)
-    elif wall is not None:
-        vertices, faces = wall.vertices_mm, wall.faces
-    else:
+    surface = porous_surface(sac, wall)
+    if surface is None:
         raise ValueError(f"{scene.source}: output.porous needs a [wall]; fix: add a [wall] or set porous = false")
-    field = porous_field(vertices, faces, positions_mm, [c.d for c in scene.coils], scene.output.porous_voxel_mm)
+    field = porous_field(*surface, positions_mm, [c.d for c in scene.coils], scene.output.porous_voxel_mm)
     write_porous_vti(path, field)
 
 
