@@ -330,6 +330,30 @@ def test_ctrl_c_or_a_schedulers_sigterm_ends_the_run_as_interrupted(tmp_path, st
     assert (folder / "deployment.usdc").exists() and leftovers(folder) == []
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_while_the_command_starts_is_one_line_not_a_traceback(tmp_path, stop):
+    """The installed command (its entry point warpcoil_cli.main, as the console script calls it) stopped
+    0.8 s after its start, inside its imports (Warp, USD, VTK, trimesh: seconds; a stop raised inside USD's
+    plug-in loading was swallowed and the run went on to exit 0): exit 130, one line, no traceback, no
+    outputs."""
+    import warpcoil_cli
+    from warpcoil.cli import EXIT_INTERRUPTED
+    from warpcoil.deploy import STOP_SIGNALS
+
+    assert (warpcoil_cli.EXIT_INTERRUPTED, warpcoil_cli.STOP_SIGNALS) == (EXIT_INTERRUPTED, STOP_SIGNALS)
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with (tmp_path / "log.out").open("w") as stdout, (tmp_path / "log.err").open("w") as stderr:
+        process = subprocess.Popen([sys.executable, "-c", "import sys, warpcoil_cli; sys.exit(warpcoil_cli.main())",
+                                    "run", str(scene(tmp_path)), "-o", "started"], stdout=stdout, stderr=stderr,
+                                   cwd=tmp_path, env=env)
+        time.sleep(0.8)
+        process.send_signal(stop)
+        assert process.wait(timeout=300) == 130
+    err = (tmp_path / "log.err").read_text()
+    assert "Traceback" not in err and "interrupted" in one_line(err)
+    assert not (tmp_path / "started").exists() or leftovers(tmp_path / "started") == []
+
+
 def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
     """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
     outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite

@@ -2,6 +2,7 @@
 energy never rising, scene keys, and ensemble members equal to single runs."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -343,6 +344,38 @@ def test_wall_friction_chooses_the_reference_where_the_scene_names_no_integrator
     assert scene.simulation.integrator == integrator
     chose = bool(scene.notes) and "the reference (symplectic) step runs it" in scene.notes[0]
     assert chose == (integrator == "symplectic")
+
+
+@pytest.mark.parametrize("contact, simulation, integrator", [
+    ({"friction_wall": 0.2}, {}, "symplectic"),  # as the TOML reader: wall friction, none named
+    ({"friction_coil": 0.2}, {}, "implicit"),
+    ({"friction_wall": 0.2}, {"integrator": "implicit"}, "implicit"),
+    ({"friction_wall": 0.2}, {"implicit_scheme": "euler"}, "implicit"),
+    ({"friction_wall": 0.2}, {"dt_s": 2e-4}, "implicit")])
+def test_a_scene_built_in_python_gets_the_readers_integrator_rule(contact, simulation, integrator):
+    """A Scene built in Python that names no integrator runs what the same scene read from TOML runs
+    (deploy.chosen_integrator, settings.resolve_integrator), and says why in a warning; replacing a
+    field of a Python-built scene before its run chooses again."""
+    import warnings
+
+    from warpcoil.deploy import IntegratorChoice
+
+    scene = wc.Scene(coils=(wc.CoilSpec(wire_diameter_mm=0.3, loop_diameter_mm=3.0, length_mm=10.0),),
+                     contact=wc.ContactSettings(**contact), simulation=wc.SimulationSettings(**simulation),
+                     output=OutputSettings(usd=False))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        deployment = Deployment(scene)
+    assert deployment.integrator == deployment.scene.simulation.integrator == integrator
+    chose = [w for w in said if issubclass(w.category, IntegratorChoice)]
+    assert bool(chose) == (integrator == "symplectic")
+    assert all("the reference (symplectic) step runs it" in str(w.message) for w in chose)
+    assert deployment.scene.notes == tuple(str(w.message) for w in chose)
+    if not simulation:  # the same rule from the other side: friction added to a frictionless scene
+        other = replace(scene, contact=wc.ContactSettings(friction_wall=0.0 if contact.get("friction_wall") else 0.3))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IntegratorChoice)
+            assert Deployment(other).integrator == ("implicit" if integrator == "symplectic" else "symplectic")
 
 
 def test_a_malformed_simulation_table_beside_wall_friction_is_one_clear_error(tmp_path):

@@ -154,7 +154,7 @@ def test_minimal_scene_gives_defaults(tmp_path: Path) -> None:
     assert scene.coils[0].name == "coil_0"
     assert scene.catheter == CatheterSpec()
     assert scene.contact == ContactSettings()
-    assert scene.simulation == SimulationSettings()
+    assert scene.simulation == SimulationSettings(integrator="implicit")  # "auto" resolved: no reason for the reference
     assert scene.output == OutputSettings()
 
 

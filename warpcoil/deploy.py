@@ -12,6 +12,7 @@ import math
 import signal
 import threading
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -27,7 +28,7 @@ from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
                        settle_step_s)
-from .settings import Scene
+from .settings import AUTO_INTEGRATOR, Scene, resolve_integrator
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
 
@@ -121,6 +122,23 @@ class Member:
         return self.stored_energy_nJ + self.pusher_work_nJ + 0.5 * released * speed**2 + 1.0
 
 
+class IntegratorChoice(UserWarning):
+    """The reference runs a scene built in Python that names no integrator (settings.resolve_integrator):
+    the scene reader's rule, said as `warpcoil run` says it before a run."""
+
+
+def chosen_integrator(scene: Scene) -> Scene:
+    """``scene`` with its integrator resolved (settings.resolve_integrator); where that chose the reference
+    here (a scene built in Python: one read from TOML comes resolved, and its notes reach the run's
+    warnings), each reason is an IntegratorChoice warning."""
+    if scene.simulation.integrator != AUTO_INTEGRATOR:
+        return scene
+    resolved = resolve_integrator(scene)
+    for note in resolved.notes[len(scene.notes):]:
+        warnings.warn(note, IntegratorChoice, stacklevel=3)
+    return resolved
+
+
 class Ensemble:
     """Deployments of several scenes advanced by one set of launches (one world
     each), frame by frame; ``run()`` returns one RunResult per scene, each equal
@@ -135,7 +153,7 @@ class Ensemble:
 
     def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
                  solver_options: dict | None = None):
-        self.scenes = list(scenes)
+        self.scenes = [chosen_integrator(s) for s in scenes]
         if not self.scenes:
             raise ValueError("an ensemble needs at least one scene")
         self.device = device
@@ -630,7 +648,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     arc = model.arc_s.numpy()
     steps = []
     for w, scene in enumerate(scenes):
-        sim = scene.simulation
+        sim = resolve_integrator(scene).simulation
         explicit_dt = sim.dt_safety * bounds[w].dt_s
         settle_dt, push_time = 0.0, 0.0
         if sim.integrator == "implicit":
@@ -686,7 +704,7 @@ class Deployment(Ensemble):
 
     def __init__(self, scene: Scene, device=None, solver_options: dict | None = None):
         super().__init__([scene], device, solver_options=solver_options)
-        self.scene = scene
+        self.scene = self.scenes[0]
 
     @property
     def anatomy(self) -> Anatomy:
@@ -709,5 +727,5 @@ def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:
     return Deployment(scene, device).run(on_frame)
 
 
-__all__ = ["COMPLETED", "Deployment", "Ensemble", "FAILED", "Frame", "JAMMED", "RunResult", "TIMEOUT",
-           "build_model", "deploy", "ensemble_groups"]
+__all__ = ["COMPLETED", "Deployment", "Ensemble", "FAILED", "Frame", "IntegratorChoice", "JAMMED", "RunResult",
+           "TIMEOUT", "build_model", "deploy", "ensemble_groups"]

@@ -62,7 +62,7 @@ from .kernels import implicit as kernels
 from .kernels import node_theta
 from .kernels import elastic
 from .model import Model
-from .settings import DEFAULT_DT_SAFETY
+from .settings import DEFAULT_DT_SAFETY, DEFAULT_IMPLICIT_SCHEME
 from .solver import Control, Solver, contact_linear_onset
 from .state import State
 from .wall_field import GRAD_TOLERANCE
@@ -186,7 +186,6 @@ IMPLICIT_SCHEMES = {
     "gated_chord": GATED_CHORD,
     "bdf2": {"method": "bdf2", **BDF2_DEFAULTS},
 }
-DEFAULT_IMPLICIT_SCHEME = "gated_chord"
 _UNSET = object()  # a solver option not given: the method's default
 
 

@@ -28,12 +28,13 @@ from .settings import (
     Scene,
     SimulationSettings,
     WallSpec,
-    reference_reasons,
+    AUTO_INTEGRATOR,
+    resolve_integrator,
 )
 
 Vec3 = tuple[float, float, float]
 # [simulation] keys that choose the integrator (a step dt_s is chosen for one): a scene with none of them
-# and wall friction or segments below d/2 run the reference (settings.reference_reasons)
+# and wall friction or segments below d/2 runs the reference (settings.resolve_integrator)
 INTEGRATOR_KEYS = ("integrator", "implicit_scheme", "dt_s")
 
 
@@ -205,7 +206,7 @@ _SIMULATION = {
     "push_speed_mm_s": _Key(_positive),
     "damping_uN_per_mm": _Key(_positive),
     "damping_speed_mm_s": _Key(_positive),
-    "integrator": _Key(_choice("symplectic", "implicit")),
+    "integrator": _Key(_choice("auto", "symplectic", "implicit")),
     "implicit_scheme": _Key(_choice("euler", "gated_chord", "bdf2")),  # = implicit.IMPLICIT_SCHEMES (tested)
     "dt_s": _Key(_positive),
     "dt_safety": _Key(_fraction),
@@ -403,21 +404,17 @@ class _Reader:
         return self.build(WallSpec, values, "wall")
 
     def simulation(self, document: dict[str, Any]) -> SimulationSettings:
+        """The [simulation] table; an ``implicit_scheme`` or ``dt_s`` without ``integrator`` names the
+        implicit step (a step or scheme chosen for it: not switched by settings.resolve_integrator)."""
         simulation = self.section(document, "simulation", _SIMULATION, SimulationSettings)
-        if "implicit_scheme" in document.get("simulation", {}) and simulation.integrator != "implicit":
+        if "implicit_scheme" in document.get("simulation", {}) and simulation.integrator == "symplectic":
             raise self.error("simulation.implicit_scheme", f"applies only to integrator = 'implicit' (this scene's is "
                              f"{simulation.integrator!r}, which it would not change)",
                              'add integrator = "implicit", or remove implicit_scheme')
+        if simulation.integrator == AUTO_INTEGRATOR and any(key in document.get("simulation", {})
+                                                            for key in ("implicit_scheme", "dt_s")):
+            simulation = replace(simulation, integrator="implicit")
         return simulation
-
-    @staticmethod
-    def chosen_integrator(document: dict[str, Any], scene: Scene) -> list[str]:
-        """Why a scene that names no integrator (neither ``integrator`` nor ``implicit_scheme``) and
-        sets no ``dt_s`` (a step chosen for one integrator) runs the reference (settings.reference_reasons:
-        wall friction, segments below d/2); empty: as the scene says, or the default. Called once the
-        [simulation] table is known to be a table."""
-        named = any(key in document.get("simulation", {}) for key in INTEGRATOR_KEYS)
-        return [] if named else reference_reasons(scene)
 
     def output(self, document: dict[str, Any]) -> OutputSettings:
         output = self.section(document, "output", _OUTPUT, OutputSettings)
@@ -448,10 +445,7 @@ class _Reader:
             stent=self.section(document, "stent", _STENT, StentSpec) if "stent" in document else None,
             source=self.source,
         )
-        chosen = self.chosen_integrator(document, scene)
-        if not chosen:
-            return scene
-        return replace(scene, simulation=replace(scene.simulation, integrator="symplectic"), notes=tuple(chosen))
+        return resolve_integrator(scene)
 
 
 def _override(reader: _Reader, document: dict[str, Any], key: str, value: Any) -> None:

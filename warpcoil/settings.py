@@ -6,7 +6,7 @@ default from the coil" (documented per field).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 
@@ -139,6 +139,10 @@ class ContactSettings:
         return max(self.friction_wall, self.friction_coil, self.friction_catheter) > 0.0
 
 
+AUTO_INTEGRATOR = "auto"  # SimulationSettings.integrator: chosen by resolve_integrator
+DEFAULT_IMPLICIT_SCHEME = "gated_chord"  # implicit.IMPLICIT_SCHEMES' default
+
+
 @dataclass(frozen=True)
 class SimulationSettings:
     """Push, damping, step size and stopping rules.
@@ -151,13 +155,16 @@ class SimulationSettings:
       ``k = damping_speed_mm_s``; low-speed coefficient c/k. Defaults damp
       the slow unwinding of a released 3 mm loop close to critically (the helix
       recovery settles fastest near 5–10 µN/mm).
-    * integrator: "implicit" (the default: the linearly implicit θ-method,
-      warpcoil/implicit.py: no stability bound, step set by accuracy; on `warpcoil bench
-      accuracy`'s run-time/error front, BENCHMARKS.md) or "symplectic" (the reference:
-      semi-implicit Euler under the explicit stability bound, ~6–15× the steps' run time on
-      the seed case, 7–25× the whole run's on frictional packs; a scene read from TOML with
-      wall friction or segments below d/2 and none of integrator, implicit_scheme, dt_s runs
-      it: reference_reasons).
+    * integrator: "auto" (the default: the implicit step, except where the scene has wall
+      friction or segments below d/2 and sets neither dt_s nor another implicit_scheme than the
+      default; the reference runs those: resolve_integrator, reference_reasons, applied alike to a
+      scene read from TOML and to one built in Python, when its Ensemble is built), "implicit"
+      (the linearly implicit θ-method, warpcoil/implicit.py: no stability bound, step set by
+      accuracy; on `warpcoil bench accuracy`'s run-time/error front, BENCHMARKS.md) or
+      "symplectic" (the reference: semi-implicit Euler under the explicit stability bound,
+      ~6–15× the steps' run time on the seed case, 7–25× the whole run's on frictional packs).
+      A scene read from TOML comes resolved (its ``notes`` say why); ``dataclasses.replace`` of
+      a resolved scene keeps its integrator: give integrator="auto" to choose again.
     * implicit_scheme (integrator "implicit" only): "gated_chord" (the default: θ 0.65,
       θ_i = 1 near an obstacle or where an edge turns fast, chord contact stiffness),
       "euler" (linearly implicit Euler, tangent contact stiffness) or "bdf2"
@@ -195,8 +202,8 @@ class SimulationSettings:
     push_speed_mm_s: float = 50.0
     damping_uN_per_mm: float = 10.0
     damping_speed_mm_s: float = 20.0
-    integrator: str = "implicit"
-    implicit_scheme: str = "gated_chord"
+    integrator: str = AUTO_INTEGRATOR
+    implicit_scheme: str = DEFAULT_IMPLICIT_SCHEME
     dt_s: float | None = None
     dt_safety: float = DEFAULT_DT_SAFETY
     allow_unstable_dt: bool = False
@@ -259,6 +266,20 @@ def reference_reasons(scene) -> list[str]:
             if note is not None]
 
 
+def resolve_integrator(scene: "Scene") -> "Scene":
+    """``scene`` with its integrator chosen where it is "auto": the reference where the scene has
+    reference_reasons and chose no step or scheme of the implicit step's (a ``dt_s``, or an
+    implicit_scheme other than the default), its notes then saying why; else the implicit step.
+    A scene with a named integrator is returned as it is."""
+    sim = scene.simulation
+    if sim.integrator != AUTO_INTEGRATOR:
+        return scene
+    named = sim.dt_s is not None or sim.implicit_scheme != DEFAULT_IMPLICIT_SCHEME
+    reasons = () if named else tuple(reference_reasons(scene))
+    return replace(scene, simulation=replace(sim, integrator="symplectic" if reasons else "implicit"),
+                   notes=scene.notes + reasons)
+
+
 @dataclass(frozen=True)
 class OutputSettings:
     """What a run writes besides result.json and the CSVs: the USD animation, a
@@ -290,4 +311,4 @@ class Scene:
     balloon: BalloonSpec | None = None
     stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from
-    notes: tuple[str, ...] = field(default=(), compare=False)  # what the reader chose (reference_reasons): warnings
+    notes: tuple[str, ...] = field(default=(), compare=False)  # why resolve_integrator chose the reference: warnings
