@@ -1,6 +1,8 @@
 """The Python API's one-call controls: stop the pusher, read the push force without
 counting steps, Stepper chunks of any size (issue 13, item 12)."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -71,3 +73,60 @@ def test_a_chunk_below_one_step_is_refused():
     model, solver, control = pushed_coil()
     with pytest.raises(ValueError, match="1 or more"):
         wc.Stepper(solver, wc.packed_state(model), control, chunk=0)
+
+
+# --- a Scene built in Python gets the checks of a scene file (deploy.Ensemble) -----------------------
+def python_scene(**changes):
+    """A 10 mm coil into a 3.5 mm sphere, built in Python, with ``changes`` (Scene fields) made."""
+    from dataclasses import replace
+
+    scene = wc.Scene(coils=(wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=3.0, length_mm=10.0),),
+                     catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), direction=(0.0, 0.0, 1.0)),
+                     wall=wc.WallSpec(sphere_diameter_mm=3.5))
+    return replace(scene, **changes)
+
+
+@pytest.mark.parametrize("changes, key", [
+    ({"simulation": wc.SimulationSettings(dt_s=-1e-4)}, "simulation.dt_s"),  # ran backwards for ever
+    ({"simulation": wc.SimulationSettings(push_speed_mm_s=-50.0)}, "simulation.push_speed_mm_s"),
+    ({"simulation": wc.SimulationSettings(push_speed_mm_s=float("nan"))}, "simulation.push_speed_mm_s"),
+    ({"simulation": wc.SimulationSettings(mass_scale=0.0)}, "simulation.mass_scale"),
+    ({"contact": wc.ContactSettings(friction_wall=-0.2)}, "contact.friction_wall"),
+    ({"contact": wc.ContactSettings(P0_uN=-1.0)}, "contact.P0_uN"),
+    ({"wall": wc.WallSpec(sphere_diameter_mm=3.5, mesh="sac.stl")}, "wall.mesh"),
+    ({"catheter": wc.CatheterSpec(direction=(0.0, 0.0, 0.0))}, "catheter.direction"),
+    ({"catheter": wc.CatheterSpec(placement="neck")}, "catheter.placement"),  # no neck: was an AttributeError
+    ({"catheter": wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), centerline_mm=((-5.0, 0.0, -1.45), (0.0, 0.0, -1.45)))},
+     "catheter.direction"),  # the centerline leaves along x, the direction says z
+    ({"coils": (wc.CoilSpec(wire_diameter_mm=0.3, loop_diameter_mm=0.2, length_mm=10.0),)}, "coil[0].loop_diameter_mm"),
+])
+def test_a_scene_built_in_python_is_refused_where_its_file_would_be(changes, key):
+    """Each value the scene reader refuses in a file is refused from Python too, naming its table and
+    key, before anything is built (before: runs that hung, timed out, "completed" or raised deep inside)."""
+    from warpcoil.deploy import Deployment
+    from warpcoil.scene import SceneError
+
+    with pytest.raises(SceneError, match="<Scene built in Python>: " + re.escape(key)):
+        Deployment(python_scene(**changes))
+
+
+def test_a_scene_built_in_python_gets_the_runs_checks_and_warnings():
+    """preflight as `warpcoil run` does it: a tip outside the sac is refused (SetupError, where the run
+    used to fail with advice to reduce dt_s), and warnings (segments above 1.5 d, whose coils can pass
+    through each other) are SceneWarnings; a deployment runs once."""
+    import warnings
+
+    from warpcoil.deploy import Deployment, SceneWarning
+    from warpcoil.preflight import SetupError
+
+    with pytest.raises(SetupError, match="catheter"):
+        Deployment(python_scene(catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -3.0), direction=(0.0, 0.0, 1.0))))
+    coarse = wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=3.0, length_mm=10.0, segment_length_mm=0.6)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        deployment = Deployment(python_scene(coils=(coarse,), output=wc.settings.OutputSettings(usd=False)))
+    assert any(issubclass(w.category, SceneWarning) and "segment_length_mm = 0.6 mm is above 1.5 d" in str(w.message)
+               for w in said)
+    deployment.run()
+    with pytest.raises(RuntimeError, match="has run"):
+        deployment.run()

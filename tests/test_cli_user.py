@@ -668,3 +668,26 @@ def test_a_bad_implicit_scheme_is_one_line_naming_file_and_key(tmp_path, lines, 
     line = one_line(err)
     assert str(path) in line and message in line and "fix:" in line
     assert not (tmp_path / "never").exists()
+
+
+def test_a_preshape_that_cannot_be_made_names_its_file_and_coil(tmp_path):
+    """A second coil whose spherical pre-shape cannot hold its length: one line naming the scene file
+    and coil[1] (the pre-shape's own message names neither), exit 2, no outputs."""
+    second = ('[[coil]]\nshape = "spherical"\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\n'
+              "length_mm = 100.0\n\n[simulation]")
+    path = scene(tmp_path, **{"[simulation]": second})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "ps")
+    line = one_line(err)
+    assert code == 2 and str(path) in line and "coil[1]" in line and "does not fit" in line
+    assert not (tmp_path / "ps").exists() or leftovers(tmp_path / "ps") == []
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_ends_validate_not_only_the_case_that_runs(tmp_path, stop):
+    """`warpcoil validate` (every case, minutes) stopped 8 s in: the whole command ends (exit 130,
+    one line, no traceback) instead of one run ending as interrupted and the next case beginning."""
+    process, out, err = cli(tmp_path, "validate", wait=False)
+    time.sleep(8.0)
+    process.send_signal(stop)
+    assert process.wait(timeout=120) == 130
+    assert "Traceback" not in err.read_text() and "interrupted" in one_line(err.read_text())

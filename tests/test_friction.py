@@ -354,7 +354,7 @@ def test_wall_friction_chooses_the_reference_where_the_scene_names_no_integrator
     ({"friction_wall": 0.2}, {"dt_s": 2e-4}, "implicit")])
 def test_a_scene_built_in_python_gets_the_readers_integrator_rule(contact, simulation, integrator):
     """A Scene built in Python that names no integrator runs what the same scene read from TOML runs
-    (deploy.chosen_integrator, settings.resolve_integrator), and says why in a warning; replacing a
+    (settings.resolve_integrator), and says why in a warning (its preflight); replacing a
     field of a Python-built scene before its run chooses again."""
     import warnings
 
@@ -370,7 +370,7 @@ def test_a_scene_built_in_python_gets_the_readers_integrator_rule(contact, simul
     chose = [w for w in said if issubclass(w.category, IntegratorChoice)]
     assert bool(chose) == (integrator == "symplectic")
     assert all("the reference (symplectic) step runs it" in str(w.message) for w in chose)
-    assert deployment.scene.notes == tuple(str(w.message) for w in chose)
+    assert deployment.scene.notes == tuple(str(w.message).removeprefix("scene: ") for w in chose)
     if not simulation:  # the same rule from the other side: friction added to a frictionless scene
         other = replace(scene, contact=wc.ContactSettings(friction_wall=0.0 if contact.get("friction_wall") else 0.3))
         with warnings.catch_warnings():

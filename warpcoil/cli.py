@@ -253,6 +253,9 @@ def _plan(args: argparse.Namespace) -> int:
 
 def _validate(args: argparse.Namespace) -> int:
     from . import validation
+    from .deploy import stop_at_once
+
+    stop_at_once()  # a stop ends the command, not the case that runs (the next would begin)
 
     unknown = sorted(set(args.cases) - set(validation.CASES))
     if unknown:
@@ -267,6 +270,9 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    from .deploy import stop_at_once
+
+    stop_at_once()  # a stop ends the benchmark, not the run that steps (the next would begin)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     if args.kind == "ensemble":

@@ -28,7 +28,10 @@ from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
                        settle_step_s)
-from .settings import AUTO_INTEGRATOR, Scene, resolve_integrator
+from .preflight import preflight
+from .preshape import PreshapeError
+from .scene import check_built_scene
+from .settings import Scene, resolve_integrator
 from .solver import Control, Stepper
 from .state import State, new_state_like, packed_state
 
@@ -44,8 +47,12 @@ def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
                            wall=anatomy.wall)
     builder.balloon = anatomy.balloon
     builder.stent = anatomy.stent
-    for coil in scene.coils:
-        builder.add_coil(coil)
+    for k, coil in enumerate(scene.coils):
+        try:
+            builder.add_coil(coil)
+        except PreshapeError as error:  # which scene and coil: a pre-shape's own message names neither
+            where = scene.source if scene.source is not None else "scene"
+            raise PreshapeError(f"{where}: coil[{k}] ({coil.name}): {error}") from None
     return builder
 
 
@@ -122,21 +129,13 @@ class Member:
         return self.stored_energy_nJ + self.pusher_work_nJ + 0.5 * released * speed**2 + 1.0
 
 
-class IntegratorChoice(UserWarning):
+class SceneWarning(UserWarning):
+    """What `warpcoil run` warns about before a run (preflight), for a Scene built in Python."""
+
+
+class IntegratorChoice(SceneWarning):
     """The reference runs a scene built in Python that names no integrator (settings.resolve_integrator):
     the scene reader's rule, said as `warpcoil run` says it before a run."""
-
-
-def chosen_integrator(scene: Scene) -> Scene:
-    """``scene`` with its integrator resolved (settings.resolve_integrator); where that chose the reference
-    here (a scene built in Python: one read from TOML comes resolved, and its notes reach the run's
-    warnings), each reason is an IntegratorChoice warning."""
-    if scene.simulation.integrator != AUTO_INTEGRATOR:
-        return scene
-    resolved = resolve_integrator(scene)
-    for note in resolved.notes[len(scene.notes):]:
-        warnings.warn(note, IntegratorChoice, stacklevel=3)
-    return resolved
 
 
 class Ensemble:
@@ -153,14 +152,21 @@ class Ensemble:
 
     def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
                  solver_options: dict | None = None):
-        self.scenes = [chosen_integrator(s) for s in scenes]
+        self.scenes = [resolve_integrator(s) for s in scenes]  # a scene built in Python: its preflight says why
         if not self.scenes:
             raise ValueError("an ensemble needs at least one scene")
+        built = [k for k, s in enumerate(self.scenes) if s.source is None]  # in Python: checked as a file would be
+        for k in built:
+            check_built_scene(self.scenes[k])
         self.device = device
         self.anatomies = list(anatomies) if anatomies is not None else resolve_anatomies(self.scenes)
         self.model = finalize_ensemble([model_builder(s, a) for s, a in zip(self.scenes, self.anatomies)], device)
         sims = [s.simulation for s in self.scenes]
         bounds = world_bounds(self.model)
+        for k in built:  # what `warpcoil run` checks before a run: errors raise SetupError, warnings are said
+            for note in preflight(self.scenes[k], self.anatomies[k], device, bounds[k].dt_s):
+                chose = any(note.endswith(reason) for reason in self.scenes[k].notes)  # resolve_integrator's
+                warnings.warn(note, IntegratorChoice if chose else SceneWarning, stacklevel=2)
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
@@ -193,6 +199,7 @@ class Ensemble:
         self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
+        self._ran = False  # run() once
         self._steps_before = 0  # steps of chunks dropped by a step halving
         self._work_before = (0.0, 0.0)  # a single run's pusher work and advance at the last frame
 
@@ -508,7 +515,12 @@ class Ensemble:
 
     def run(self, on_frame: Callable[[Member, Frame, State], None] | None = None) -> list[RunResult]:
         """Deploy every member; Ctrl-C (SIGINT) or SIGTERM, in the main thread, ends the run after
-        the current frame, each unfinished member with status ``interrupted``."""
+        the current frame, each unfinished member with status ``interrupted``. Runs once: its
+        state and results are those of that run (build another for another run)."""
+        if self._ran:
+            raise RuntimeError("this deployment has run: its state is at the end of that run, and its results "
+                               "are kept; build a new Deployment (or Ensemble) of the scene to run it again")
+        self._ran = True
         with _stop_on_interrupt() as interrupted:
             return self._run(on_frame, interrupted)
 
@@ -598,6 +610,20 @@ class Ensemble:
         return [m.result for m in self.members]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C, and a batch scheduler's stop (before its kill)
+CLEAN_STOP = [True]  # False: a stop raises at once (stop_at_once), as a program of many runs wants
+
+
+def stop_at_once() -> None:
+    """From now on Ctrl-C or SIGTERM stop this process at once (KeyboardInterrupt) instead of ending the
+    current run cleanly with status interrupted: for commands of many runs (`validate`, `bench`), where
+    ending one run let the next begin."""
+    CLEAN_STOP[0] = False
+
+    def stop(_number, _frame):
+        raise KeyboardInterrupt
+
+    for number in STOP_SIGNALS:
+        signal.signal(number, stop)
 
 
 @contextmanager
@@ -605,9 +631,9 @@ def _stop_on_interrupt() -> Iterator[list[bool]]:
     """While a run steps, the first Ctrl-C (SIGINT) or SIGTERM only sets the yielded
     flag, which the run checks between frames (its outputs are then written, status
     interrupted); a second one interrupts at once. Outside the main thread (where no
-    handler can be set) nothing changes."""
+    handler can be set), and after stop_at_once, nothing changes."""
     flag = [False]
-    if threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread() or not CLEAN_STOP[0]:
         yield flag
         return
 
@@ -728,4 +754,4 @@ def deploy(scene: Scene, device=None, on_frame=None) -> RunResult:
 
 
 __all__ = ["COMPLETED", "Deployment", "Ensemble", "FAILED", "Frame", "IntegratorChoice", "JAMMED", "RunResult",
-           "TIMEOUT", "build_model", "deploy", "ensemble_groups"]
+           "SceneWarning", "TIMEOUT", "build_model", "deploy", "ensemble_groups"]

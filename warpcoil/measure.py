@@ -213,15 +213,16 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
              for k, c in enumerate(coil_specs)]
     finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
     regions = regional_densities(model, member, x, free)
+    coil_gap = finite([f.min_coil_gap_mm for f in frames])
     return RunResult(
-        status=status, reason=reason, steps=member.steps, dt_s=solver.dt_s,
+        status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs)), steps=member.steps, dt_s=solver.dt_s,
         step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
         simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
         deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
         packing_density=coil_volume / sac_volume if sac_volume else None,
         length_outside_sac_mm=last.length_outside_sac_mm,
         min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
-        min_coil_gap_mm=finite([f.min_coil_gap_mm for f in frames]),
+        min_coil_gap_mm=coil_gap,
         max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
         push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
         push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
@@ -239,6 +240,20 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
             if sac_volume else None),
         device=device_report(member.scene, member.anatomy, frames, member.deflate_from_s),
         wall_field=_field_report(solver.wall_fields[member.world]), scheme=dict(scheme or solver.scheme))
+
+
+CROSSED_GAP_RATIO = 0.5  # a coil gap below −d/2: two wires' centre lines closer than half a diameter
+
+
+def crossing_note(min_coil_gap_mm: float, d_mm: float) -> str:
+    """What a run's reason adds where its smallest coil gap (mm) went below −CROSSED_GAP_RATIO × d
+    (the thinnest wire's, mm): segments that deep in each other may have passed through (the contact
+    law keeps overlaps to a small part of c0 where it holds); empty otherwise."""
+    if not min_coil_gap_mm < -CROSSED_GAP_RATIO * d_mm:
+        return ""
+    return (f"; but coil segments came within {d_mm + min_coil_gap_mm:.3g} mm of each other's centre lines (smallest "
+            f"coil gap {min_coil_gap_mm:.3g} mm, d = {d_mm:g} mm): coils may have passed through each other, and the "
+            "geometry is not to be trusted there")
 
 
 def _field_report(field) -> dict | None:

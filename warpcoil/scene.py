@@ -10,7 +10,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
-from dataclasses import replace
+from dataclasses import MISSING, fields, replace
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -470,6 +470,49 @@ def _override(reader: _Reader, document: dict[str, Any], key: str, value: Any) -
         if not isinstance(table, dict):
             raise reader.error(key, f"{parts[0]} is not a table", fix)
         table[parts[-1]] = value
+
+
+BUILT_IN_PYTHON = Path("<Scene built in Python>")  # where check_built_scene's errors say the scene is from
+_SECTIONS = (("catheter", _CATHETER), ("wall", _WALL), ("neck", _NECK), ("contact", _CONTACT),
+             ("simulation", _SIMULATION), ("output", _OUTPUT), ("regions", _REGIONS), ("balloon", _BALLOON),
+             ("stent", _STENT))  # Scene field = [table], its keys
+
+
+def _toml_value(value: Any) -> Any:
+    """A dataclass field's value as TOML gives it (tuples as lists, paths as strings)."""
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, tuple | list):
+        return [_toml_value(v) for v in value]
+    return value
+
+
+def _table_of(spec: Any, schema: dict[str, _Key], keep: Sequence[str] = ()) -> dict[str, Any]:
+    """The TOML table that gives the dataclass ``spec``: its required keys, ``keep``, and every field
+    that differs from its default (a default written out would trip the reader's "only with" rules)."""
+    defaults = {f.name: f.default if f.default is not MISSING else
+                f.default_factory() if f.default_factory is not MISSING else MISSING for f in fields(spec)}
+    table = {}
+    for key, item in schema.items():
+        name = item.field or key
+        value = getattr(spec, name, None)
+        if value is not None and (item.required or key in keep or value != defaults.get(name, MISSING)):
+            table[key] = _toml_value(value)
+    return table
+
+
+def check_built_scene(scene: Scene) -> None:
+    """Raise SceneError where the scene reader would refuse the same scene written as TOML: each
+    value's range and type, and the rules between keys (a mesh and a sphere, a neck placement
+    without a neck, a centerline off the direction, ...), named by table and key as in a file
+    (``BUILT_IN_PYTHON`` for the file). For a Scene built in Python (deploy.Ensemble calls it)."""
+    document: dict[str, Any] = {"coil": [_table_of(c, _COIL) for c in scene.coils]}
+    for name, schema in _SECTIONS:
+        spec = getattr(scene, name)
+        if spec is not None:
+            keep = ("direction",) if name == "catheter" and spec.centerline_mm is not None else ()
+            document[name] = _table_of(spec, schema, keep)
+    _Reader(BUILT_IN_PYTHON).scene(document)
 
 
 def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:

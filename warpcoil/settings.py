@@ -233,7 +233,8 @@ def integrator_for_friction(contact: ContactSettings) -> str | None:
             "\"implicit\" for the fast step where the push force does not matter")
 
 
-FINE_SEGMENT_RATIO = 0.5  # the implicit step is validated for segment lengths l0 ≥ d/2 (up to 2d)
+FINE_SEGMENT_RATIO = 0.5  # the implicit step is validated for segment lengths l0 ≥ d/2 (up to 1.5 d)
+COARSE_SEGMENT_RATIO = 1.5  # above l0 = 1.5 d crossing segments' nodes sit outside the other's wire: warned
 
 
 def fine_segment_coils(coils) -> list[int]:
@@ -243,7 +244,7 @@ def fine_segment_coils(coils) -> list[int]:
 
 def integrator_for_fine_segments(coils) -> str | None:
     """Why a scene with no ``simulation.integrator`` runs the reference: a coil's segments shorter
-    than FINE_SEGMENT_RATIO × d. The implicit step is validated for d/2 ≤ l0 ≤ 2d; below, a released coil
+    than FINE_SEGMENT_RATIO × d. The implicit step is validated for d/2 ≤ l0 ≤ 1.5 d; below, a released coil
     gains energy at its free ends (measured: a 6 mm helix of d 0.25 mm failed with an energy blow-up
     after its release at l0 = d/4, and timed out without coming to rest at d/3, at steps from 133 down to
     6 µs; docs/FORMULATION.md "Implicit step: segments shorter than d/2"), where the reference completes;
@@ -254,7 +255,7 @@ def integrator_for_fine_segments(coils) -> str | None:
     k, coil = fine[0], coils[fine[0]]
     return (f"coil[{k}].segment_length_mm = {coil.l0:g} mm is below d/2 = {0.5 * coil.d:g} mm and no "
             "simulation.integrator, implicit_scheme or dt_s: the reference (symplectic) step runs it (its step "
-            "shrinks with l0); the implicit step is validated for d/2 ≤ l0 ≤ 2d, and below it a released coil "
+            "shrinks with l0); the implicit step is validated for d/2 ≤ l0 ≤ 1.5 d, and below it a released coil "
             "gains energy at its free ends (docs/FORMULATION.md \"Implicit step: segments shorter than d/2\"); "
             "add integrator = \"implicit\" to run it anyway")
 
