@@ -615,9 +615,10 @@ CLEAN_STOP = [True]  # False: a stop raises at once (stop_at_once), as a program
 
 def stop_at_once() -> None:
     """From now on Ctrl-C or SIGTERM stop this process at once (KeyboardInterrupt) instead of ending the
-    current run cleanly with status interrupted: for commands of many runs (`validate`, `bench`), where
-    ending one run let the next begin."""
+    current run cleanly with status interrupted, and SceneWarnings are not shown: for the commands of
+    many runs of the project's own scenes (`validate`, `bench`), where ending one run let the next begin."""
     CLEAN_STOP[0] = False
+    warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
 
     def stop(_number, _frame):
         raise KeyboardInterrupt
