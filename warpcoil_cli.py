@@ -1,14 +1,15 @@
-"""The ``warpcoil`` command's entry point. Its start-up imports the package and the libraries a run
-needs (Warp, USD, VTK, trimesh: ~3 s) with Ctrl-C and SIGTERM only noted, then ends the command like a
-stop during a run would (exit 130, one line) where one came: raised inside those imports, a
-KeyboardInterrupt can be swallowed by a library's own error handling (USD's plug-in loading prints a
-warning and goes on), and the run then ignored the stop. Everything else is warpcoil.cli."""
+"""The ``warpcoil`` command's entry point. Its start-up imports the package and, for the commands that
+deploy, the libraries a run needs (Warp, USD, VTK, trimesh: ~3 s) with Ctrl-C and SIGTERM only noted,
+then ends the command like a stop during a run would (exit 130, one line) where one came: raised inside
+those imports, a KeyboardInterrupt can be swallowed by a library's own error handling (USD's plug-in
+loading prints a warning and goes on), and the run then ignored the stop. Everything else is warpcoil.cli."""
 
 import signal
 import sys
 
 EXIT_INTERRUPTED = 130  # = warpcoil.cli.EXIT_INTERRUPTED (tested)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # = warpcoil.deploy.STOP_SIGNALS (tested)
+DEPLOYING = ("run", "sweep", "plan", "validate", "bench")  # commands that import what a run needs at start
 
 
 def main() -> int:
@@ -17,8 +18,9 @@ def main() -> int:
                 for number in STOP_SIGNALS}
     try:
         from warpcoil.cli import main as command
-        import warpcoil.deploy  # noqa: F401  (what a run imports: Warp's kernels, USD, VTK, trimesh)
-        import warpcoil.recorder.outputs  # noqa: F401
+        if set(sys.argv[1:2]) & set(DEPLOYING):
+            import warpcoil.deploy  # noqa: F401  (Warp's kernels, USD, VTK, trimesh)
+            import warpcoil.recorder.outputs  # noqa: F401
     finally:
         for number, action in previous.items():
             signal.signal(number, action)

@@ -2,6 +2,7 @@
 counting steps, Stepper chunks of any size (issue 13, item 12)."""
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -76,6 +77,9 @@ def test_a_chunk_below_one_step_is_refused():
 
 
 # --- a Scene built in Python gets the checks of a scene file (deploy.Ensemble) -----------------------
+SAC_MESH = Path(__file__).resolve().parents[1] / "scenes" / "aneurisk" / "C0003_closed.stl"
+
+
 def python_scene(**changes):
     """A 10 mm coil into a 3.5 mm sphere, built in Python, with ``changes`` (Scene fields) made."""
     from dataclasses import replace
@@ -93,11 +97,12 @@ def python_scene(**changes):
     ({"simulation": wc.SimulationSettings(mass_scale=0.0)}, "simulation.mass_scale"),
     ({"contact": wc.ContactSettings(friction_wall=-0.2)}, "contact.friction_wall"),
     ({"contact": wc.ContactSettings(P0_uN=-1.0)}, "contact.P0_uN"),
-    ({"wall": wc.WallSpec(sphere_diameter_mm=3.5, mesh="sac.stl")}, "wall.mesh"),
+    ({"wall": wc.WallSpec(sphere_diameter_mm=3.5, mesh=SAC_MESH)}, "wall.mesh / wall.sphere_diameter_mm: both"),
     ({"catheter": wc.CatheterSpec(direction=(0.0, 0.0, 0.0))}, "catheter.direction"),
     ({"catheter": wc.CatheterSpec(placement="neck")}, "catheter.placement"),  # no neck: was an AttributeError
-    ({"catheter": wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), centerline_mm=((-5.0, 0.0, -1.45), (0.0, 0.0, -1.45)))},
-     "catheter.direction"),  # the centerline leaves along x, the direction says z
+    ({"catheter": wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.45), direction=(0.0, 1.0, 0.0),
+                                  centerline_mm=((-5.0, 0.0, -1.45), (0.0, 0.0, -1.45)))},
+     "catheter.direction"),  # the centerline leaves along x, the direction says y
     ({"coils": (wc.CoilSpec(wire_diameter_mm=0.3, loop_diameter_mm=0.2, length_mm=10.0),)}, "coil[0].loop_diameter_mm"),
 ])
 def test_a_scene_built_in_python_is_refused_where_its_file_would_be(changes, key):
@@ -130,3 +135,15 @@ def test_a_scene_built_in_python_gets_the_runs_checks_and_warnings():
     deployment.run()
     with pytest.raises(RuntimeError, match="has run"):
         deployment.run()
+
+
+def test_numpy_values_and_a_centerline_without_a_direction_pass_the_checks_of_a_python_scene():
+    """What the model takes from Python passes check_built_scene as it did before it: numpy arrays and
+    scalars (a tip, a length), and a centerline with the default direction (the TOML catheter without
+    a direction: the centerline sets it)."""
+    from warpcoil.scene import check_built_scene
+
+    check_built_scene(python_scene(
+        coils=(wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=3.0, length_mm=np.float32(10.0)),),
+        catheter=wc.CatheterSpec(tip_mm=np.array([0.0, 0.0, -1.45]),
+                                 centerline_mm=np.array([[-5.0, 0.0, -1.45], [0.0, 0.0, -1.45]]))))

@@ -359,6 +359,7 @@ def test_a_scene_built_in_python_gets_the_readers_integrator_rule(contact, simul
     import warnings
 
     from warpcoil.deploy import IntegratorChoice
+    from warpcoil.settings import resolve_integrator
 
     scene = wc.Scene(coils=(wc.CoilSpec(wire_diameter_mm=0.3, loop_diameter_mm=3.0, length_mm=10.0),),
                      contact=wc.ContactSettings(**contact), simulation=wc.SimulationSettings(**simulation),
@@ -371,6 +372,9 @@ def test_a_scene_built_in_python_gets_the_readers_integrator_rule(contact, simul
     assert bool(chose) == (integrator == "symplectic")
     assert all("the reference (symplectic) step runs it" in str(w.message) for w in chose)
     assert deployment.scene.notes == tuple(str(w.message).removeprefix("scene: ") for w in chose)
+    again = resolve_integrator(replace(deployment.scene, contact=wc.ContactSettings(),
+                                       simulation=replace(deployment.scene.simulation, integrator="auto")))
+    assert again.simulation.integrator == "implicit" and again.notes == ()  # chosen again: no stale reason
     if not simulation:  # the same rule from the other side: friction added to a frictionless scene
         other = replace(scene, contact=wc.ContactSettings(friction_wall=0.0 if contact.get("friction_wall") else 0.3))
         with warnings.catch_warnings():

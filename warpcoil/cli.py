@@ -253,9 +253,6 @@ def _plan(args: argparse.Namespace) -> int:
 
 def _validate(args: argparse.Namespace) -> int:
     from . import validation
-    from .deploy import stop_at_once
-
-    stop_at_once()  # a stop ends the command, not the case that runs (the next would begin)
 
     unknown = sorted(set(args.cases) - set(validation.CASES))
     if unknown:
@@ -270,9 +267,6 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .deploy import stop_at_once
-
-    stop_at_once()  # a stop ends the benchmark, not the run that steps (the next would begin)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     if args.kind == "ensemble":
@@ -380,6 +374,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        if args.command in ("validate", "bench"):  # many runs: a stop ends the command, not the run that steps
+            from .deploy import stop_at_once
+
+            with stop_at_once():
+                return args.func(args)
         return args.func(args)
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the stepping (a run's first ends it cleanly)
         print(f"warpcoil {args.command}: interrupted", file=sys.stderr)

@@ -151,11 +151,13 @@ class Ensemble:
     then sees that member's frames again from its start."""
 
     def __init__(self, scenes: Sequence[Scene], device=None, anatomies: Sequence[Anatomy] | None = None,
-                 solver_options: dict | None = None):
+                 solver_options: dict | None = None, checked: bool = False):
+        """``checked``: the scenes were checked already (a member rerun alone): scenes built in Python
+        are otherwise checked as a scene file would be, with the run's preflight."""
         self.scenes = [resolve_integrator(s) for s in scenes]  # a scene built in Python: its preflight says why
         if not self.scenes:
             raise ValueError("an ensemble needs at least one scene")
-        built = [k for k, s in enumerate(self.scenes) if s.source is None]  # in Python: checked as a file would be
+        built = [] if checked else [k for k, s in enumerate(self.scenes) if s.source is None]  # as a file would be
         for k in built:
             check_built_scene(self.scenes[k])
         self.device = device
@@ -166,7 +168,8 @@ class Ensemble:
         for k in built:  # what `warpcoil run` checks before a run: errors raise SetupError, warnings are said
             for note in preflight(self.scenes[k], self.anatomies[k], device, bounds[k].dt_s):
                 chose = any(note.endswith(reason) for reason in self.scenes[k].notes)  # resolve_integrator's
-                warnings.warn(note, IntegratorChoice if chose else SceneWarning, stacklevel=2)
+                warnings.warn(note, IntegratorChoice if chose else SceneWarning,
+                              stacklevel=3 if type(self) is Deployment else 2)  # the caller's line
         steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
@@ -603,7 +606,8 @@ class Ensemble:
             self._interrupt(rerun, started)  # (restored to their last healthy frame)
             rerun = []
         for member in rerun:
-            alone = Ensemble([member.scene], self.device, [member.anatomy], solver_options=self._solver_options)
+            alone = Ensemble([member.scene], self.device, [member.anatomy], solver_options=self._solver_options,
+                             checked=True)
             alone.members[0].index = member.index
             result = alone.run(on_frame)[0]
             member.frames, member.result = alone.members[0].frames, result
@@ -613,18 +617,25 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C, and a batch scheduler'
 CLEAN_STOP = [True]  # False: a stop raises at once (stop_at_once), as a program of many runs wants
 
 
-def stop_at_once() -> None:
-    """From now on Ctrl-C or SIGTERM stop this process at once (KeyboardInterrupt) instead of ending the
-    current run cleanly with status interrupted, and SceneWarnings are not shown: for the commands of
-    many runs of the project's own scenes (`validate`, `bench`), where ending one run let the next begin."""
-    CLEAN_STOP[0] = False
-    warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
-
+@contextmanager
+def stop_at_once() -> Iterator[None]:
+    """Within it, Ctrl-C or SIGTERM stop at once (KeyboardInterrupt) instead of ending the current run
+    cleanly with status interrupted, and SceneWarnings are not shown: for the commands of many runs of
+    the project's own scenes (`validate`, `bench`), where ending one run let the next begin. Everything
+    is as before after it."""
     def stop(_number, _frame):
         raise KeyboardInterrupt
 
-    for number in STOP_SIGNALS:
-        signal.signal(number, stop)
+    previous = {number: signal.signal(number, stop) for number in STOP_SIGNALS}
+    CLEAN_STOP[0] = False
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
+            yield
+    finally:
+        CLEAN_STOP[0] = True
+        for number, action in previous.items():
+            signal.signal(number, action)
 
 
 @contextmanager

@@ -251,9 +251,9 @@ def crossing_note(min_coil_gap_mm: float, d_mm: float) -> str:
     law keeps overlaps to a small part of c0 where it holds); empty otherwise."""
     if not min_coil_gap_mm < -CROSSED_GAP_RATIO * d_mm:
         return ""
-    return (f"; but coil segments came within {d_mm + min_coil_gap_mm:.3g} mm of each other's centre lines (smallest "
-            f"coil gap {min_coil_gap_mm:.3g} mm, d = {d_mm:g} mm): coils may have passed through each other, and the "
-            "geometry is not to be trusted there")
+    return (f"; but coil segments came within half a wire diameter of each other's centre lines (smallest coil gap "
+            f"{min_coil_gap_mm:.3g} mm, thinnest wire d = {d_mm:g} mm): coils may have passed through each other, and "
+            "the geometry is not to be trusted there")
 
 
 def _field_report(field) -> dict | None:

@@ -15,6 +15,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from .catalog import CatalogueError, find_line
 from .coil import SHAPES, CoilSpec
 from .settings import (
@@ -482,22 +484,26 @@ def _toml_value(value: Any) -> Any:
     """A dataclass field's value as TOML gives it (tuples as lists, paths as strings)."""
     if isinstance(value, Path):
         return str(value)
+    if isinstance(value, np.ndarray | np.generic):  # numpy arrays and scalars, as the model takes them
+        return _toml_value(value.tolist())
     if isinstance(value, tuple | list):
         return [_toml_value(v) for v in value]
     return value
 
 
-def _table_of(spec: Any, schema: dict[str, _Key], keep: Sequence[str] = ()) -> dict[str, Any]:
-    """The TOML table that gives the dataclass ``spec``: its required keys, ``keep``, and every field
-    that differs from its default (a default written out would trip the reader's "only with" rules)."""
-    defaults = {f.name: f.default if f.default is not MISSING else
-                f.default_factory() if f.default_factory is not MISSING else MISSING for f in fields(spec)}
+def _table_of(spec: Any, schema: dict[str, _Key]) -> dict[str, Any]:
+    """The TOML table that gives the dataclass ``spec``: its required keys and every field that differs
+    from its default (a default written out would trip the reader's "only with" rules; a catheter's
+    default direction beside a centerline is the TOML catheter without one: the centerline sets it)."""
+    defaults = {f.name: _toml_value(f.default) if f.default is not MISSING else
+                _toml_value(f.default_factory()) if f.default_factory is not MISSING else MISSING
+                for f in fields(spec)}
     table = {}
     for key, item in schema.items():
         name = item.field or key
-        value = getattr(spec, name, None)
-        if value is not None and (item.required or key in keep or value != defaults.get(name, MISSING)):
-            table[key] = _toml_value(value)
+        value = _toml_value(getattr(spec, name, None))
+        if value is not None and (item.required or value != defaults.get(name, MISSING)):
+            table[key] = value
     return table
 
 
@@ -510,8 +516,7 @@ def check_built_scene(scene: Scene) -> None:
     for name, schema in _SECTIONS:
         spec = getattr(scene, name)
         if spec is not None:
-            keep = ("direction",) if name == "catheter" and spec.centerline_mm is not None else ()
-            document[name] = _table_of(spec, schema, keep)
+            document[name] = _table_of(spec, schema)
     _Reader(BUILT_IN_PYTHON).scene(document)
 
 

@@ -270,15 +270,15 @@ def reference_reasons(scene) -> list[str]:
 def resolve_integrator(scene: "Scene") -> "Scene":
     """``scene`` with its integrator chosen where it is "auto": the reference where the scene has
     reference_reasons and chose no step or scheme of the implicit step's (a ``dt_s``, or an
-    implicit_scheme other than the default), its notes then saying why; else the implicit step.
+    implicit_scheme other than the default), its notes then saying why (any earlier choice's replaced); else
+    the implicit step.
     A scene with a named integrator is returned as it is."""
     sim = scene.simulation
     if sim.integrator != AUTO_INTEGRATOR:
         return scene
     named = sim.dt_s is not None or sim.implicit_scheme != DEFAULT_IMPLICIT_SCHEME
     reasons = () if named else tuple(reference_reasons(scene))
-    return replace(scene, simulation=replace(sim, integrator="symplectic" if reasons else "implicit"),
-                   notes=scene.notes + reasons)
+    return replace(scene, simulation=replace(sim, integrator="symplectic" if reasons else "implicit"), notes=reasons)
 
 
 @dataclass(frozen=True)

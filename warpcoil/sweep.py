@@ -37,7 +37,7 @@ from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import RESULT_JSON
 from .scene import INTEGRATOR_KEYS, load_scene
-from .settings import Scene, reference_reasons
+from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
 from .sweep_task import MemberOutput, make_task, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
@@ -288,7 +288,7 @@ def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) ->
     that they differ by what is varied and not by their integrator; (scenes, the notes saying so)."""
     by_rule = [s for s in scenes if any(note in s.notes for note in reference_reasons(s))]
     switch = [k for k, (m, s) in enumerate(zip(todo, scenes)) if s.simulation.integrator == "implicit"
-              and not any(key in m.values for key in NAMING_INTEGRATOR)]
+              and not any(key in m.values and m.values[key] != AUTO_INTEGRATOR for key in NAMING_INTEGRATOR)]
     if not by_rule or not switch:
         return scenes, []
     scenes = list(scenes)
