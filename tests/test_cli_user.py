@@ -691,3 +691,19 @@ def test_a_stop_ends_validate_not_only_the_case_that_runs(tmp_path, stop):
     process.send_signal(stop)
     assert process.wait(timeout=120) == 130
     assert "Traceback" not in err.read_text() and "interrupted" in one_line(err.read_text())
+
+
+@pytest.mark.parametrize("integrator", ["implicit", "symplectic"])
+def test_frames_shorter_than_two_steps_are_refused(tmp_path, integrator):
+    """frame_interval_s = 1e-9 s: the implicit step's settling, which splits frames into steps, ran at
+    5e-10 s steps and never ended; a frame is at least two steps on either integrator. Refused before the
+    run: one line naming the file, key and the interval that fixes it, exit 2, no outputs; that interval runs."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": f'frame_interval_s = 1e-9\nintegrator = "{integrator}"'})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "fast")
+    line = one_line(err)
+    assert code == 2 and f"{path}: simulation.frame_interval_s = 1e-09 s is shorter than two" in line, err
+    assert not (tmp_path / "fast").exists() or leftovers(tmp_path / "fast") == []
+    fixed = line.split("fix: frame_interval_s = ")[1].split(" ")[0]
+    path.write_text(path.read_text().replace("frame_interval_s = 1e-9", f"frame_interval_s = {fixed}"))
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "fixed", "--no-usd", log="fixed")
+    assert code == 0, err

@@ -28,7 +28,7 @@ from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
                        settle_step_s)
-from .preflight import preflight
+from .preflight import SetupError, preflight
 from .preshape import PreshapeError
 from .scene import check_built_scene
 from .settings import Scene, resolve_integrator
@@ -165,12 +165,12 @@ class Ensemble:
         self.model = finalize_ensemble([model_builder(s, a) for s, a in zip(self.scenes, self.anatomies)], device)
         sims = [s.simulation for s in self.scenes]
         bounds = world_bounds(self.model)
+        steps = world_steps(self.model, self.scenes, bounds)
         for k in built:  # what `warpcoil run` checks before a run: errors raise SetupError, warnings are said
             for note in preflight(self.scenes[k], self.anatomies[k], device, bounds[k].dt_s):
                 chose = any(note.endswith(reason) for reason in self.scenes[k].notes)  # resolve_integrator's
                 warnings.warn(note, IntegratorChoice if chose else SceneWarning,
                               stacklevel=3 if type(self) is Deployment else 2)  # the caller's line
-        steps = world_steps(self.model, self.scenes, bounds)
         if len(set(steps)) > 1:
             raise EnsembleError("ensemble members need the same step and frame length, got (dt_s, contact onset, "
                                 f"steps per frame, integrator, settling step, push time, implicit scheme) = {steps}; split them with warpcoil.deploy.ensemble_groups")
@@ -670,6 +670,12 @@ def world_bounds(model: Model) -> list:
     return [stable_step_bound(model, contact_k, model.world_nodes(w)) for w in range(model.world_count)]
 
 
+def _rounded_up(value: float, digits: int = 2) -> float:
+    """``value`` (> 0) rounded up to ``digits`` significant digits: a bound a user can type and meet."""
+    unit = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return math.ceil(value / unit - 1e-9) * unit
+
+
 def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = None
                 ) -> list[tuple[float, float, int, str, float, float, str]]:
     """Per world: (dt_s, contact linear onset, steps per frame, integrator, settling
@@ -703,6 +709,11 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
         else:
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
+        if sim.frame_interval_s < 2.0 * dt * (1.0 - 1e-9):  # a frame is two steps or more; settling splits frames
+            raise SetupError(f"{scene.source if scene.source is not None else 'scene'}: simulation.frame_interval_s = "
+                             f"{sim.frame_interval_s:g} s is shorter than two of the run's steps ({dt:.3g} s each): a "
+                             "frame is a whole, even number of steps, and the implicit step's settling splits frames "
+                             f"(it would not end); fix: frame_interval_s = {_rounded_up(2.0 * dt):g} or more")
         steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
                       max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator, settle_dt, push_time,
                       sim.implicit_scheme if sim.integrator == "implicit" else ""))
