@@ -49,7 +49,7 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
                                        wall, sac_side_point_mm=hint)
             sac = sac_from_neck(wall, neck)
         except NeckError as error:  # one line naming the scene and its key (exit 2), not a traceback
-            raise SceneError(f"{scene.source or 'scene'}: {'neck.sac_point_mm' if error.sac_point else key}: "
+            raise SceneError(f"{scene.where}: {'neck.sac_point_mm' if error.sac_point else key}: "
                              f"{error}") from None
     catheter = scene.catheter
     if catheter.placement == "neck":

@@ -51,8 +51,7 @@ def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
         try:
             builder.add_coil(coil)
         except PreshapeError as error:  # which scene and coil: a pre-shape's own message names neither
-            where = scene.source if scene.source is not None else "scene"
-            raise PreshapeError(f"{where}: coil[{k}] ({coil.name}): {error}") from None
+            raise PreshapeError(f"{scene.where}: coil[{k}] ({coil.name}): {error}") from None
     return builder
 
 
@@ -614,7 +613,21 @@ class Ensemble:
         return [m.result for m in self.members]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C, and a batch scheduler's stop (before its kill)
-CLEAN_STOP = [True]  # False: a stop raises at once (stop_at_once), as a program of many runs wants
+
+
+@contextmanager
+def _stop_handler(handler: Callable) -> Iterator[None]:
+    """``handler`` for each of STOP_SIGNALS within it, the previous handlers after."""
+    previous = {number: signal.signal(number, handler) for number in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for number, action in previous.items():
+            signal.signal(number, action)
+
+
+def _raise_at_once(_number, _frame) -> None:
+    raise KeyboardInterrupt
 
 
 @contextmanager
@@ -623,19 +636,9 @@ def stop_at_once() -> Iterator[None]:
     cleanly with status interrupted, and SceneWarnings are not shown: for the commands of many runs of
     the project's own scenes (`validate`, `bench`), where ending one run let the next begin. Everything
     is as before after it."""
-    def stop(_number, _frame):
-        raise KeyboardInterrupt
-
-    previous = {number: signal.signal(number, stop) for number in STOP_SIGNALS}
-    CLEAN_STOP[0] = False
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
-            yield
-    finally:
-        CLEAN_STOP[0] = True
-        for number, action in previous.items():
-            signal.signal(number, action)
+    with _stop_handler(_raise_at_once), warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
+        yield
 
 
 @contextmanager
@@ -643,9 +646,9 @@ def _stop_on_interrupt() -> Iterator[list[bool]]:
     """While a run steps, the first Ctrl-C (SIGINT) or SIGTERM only sets the yielded
     flag, which the run checks between frames (its outputs are then written, status
     interrupted); a second one interrupts at once. Outside the main thread (where no
-    handler can be set), and after stop_at_once, nothing changes."""
+    handler can be set), and within stop_at_once, nothing changes."""
     flag = [False]
-    if threading.current_thread() is not threading.main_thread() or not CLEAN_STOP[0]:
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is _raise_at_once:
         yield flag
         return
 
@@ -654,12 +657,8 @@ def _stop_on_interrupt() -> Iterator[list[bool]]:
             raise KeyboardInterrupt
         flag[0] = True
 
-    previous = {number: signal.signal(number, handler) for number in STOP_SIGNALS}
-    try:
+    with _stop_handler(handler):
         yield flag
-    finally:
-        for number, action in previous.items():
-            signal.signal(number, action)
 
 
 def world_bounds(model: Model) -> list:
@@ -710,7 +709,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             dt = sim.dt_s if sim.dt_s is not None else explicit_dt
             onset_dt = dt
         if sim.frame_interval_s < 2.0 * dt * (1.0 - 1e-9):  # a frame is two steps or more; settling splits frames
-            raise SetupError(f"{scene.source if scene.source is not None else 'scene'}: simulation.frame_interval_s = "
+            raise SetupError(f"{scene.where}: simulation.frame_interval_s = "
                              f"{sim.frame_interval_s:g} s is shorter than two of the run's steps ({dt:.3g} s each): a "
                              "frame is a whole, even number of steps, and the implicit step's settling splits frames "
                              f"(it would not end); fix: frame_interval_s = {_rounded_up(2.0 * dt):g} or more")

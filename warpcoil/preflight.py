@@ -74,10 +74,6 @@ def _polyline_samples(points: np.ndarray, spacing_mm: float) -> tuple[np.ndarray
     return np.vstack(samples), np.array(segment)
 
 
-def _where(scene: Scene) -> str:
-    return str(scene.source) if scene.source is not None else "scene"
-
-
 def _vec(values) -> str:
     return "[" + ", ".join(f"{v:.3g}" for v in np.round(np.asarray(values, dtype=float), 4) + 0.0) + "]"
 
@@ -96,10 +92,10 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
     if depth <= 0.0:
         if catheter.placement == "neck":
             raise SetupError(
-                f"{_where(scene)}: catheter.depth_mm = {catheter.depth_mm:g} puts the tip at {_vec(tip)} mm, "
+                f"{scene.where}: catheter.depth_mm = {catheter.depth_mm:g} puts the tip at {_vec(tip)} mm, "
                 f"{-depth:.3g} mm outside the lumen; fix: give a depth that stays inside the sac (e.g. 0.5)")
         raise SetupError(
-            f"{_where(scene)}: catheter.tip {_vec(tip)} mm is {-depth:.3g} mm outside the lumen (the wall spans "
+            f"{scene.where}: catheter.tip {_vec(tip)} mm is {-depth:.3g} mm outside the lumen (the wall spans "
             f"{_vec(low)} to {_vec(high)} mm); fix: move catheter.tip inside the wall, a little inside the sac")
     if catheter.centerline_mm is not None:
         line = np.asarray(catheter.centerline_mm, dtype=np.float64)
@@ -108,14 +104,14 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
         if outside.size:
             k = int(segment[outside[0]])
             raise SetupError(
-                f"{_where(scene)}: catheter.centerline leaves the lumen at {_vec(samples[outside[0]])} mm, between "
+                f"{scene.where}: catheter.centerline leaves the lumen at {_vec(samples[outside[0]])} mm, between "
                 f"points {k} and {k + 1}; fix: route the centerline inside the vessel and sac (every point and the "
                 "straight pieces between them)")
     warnings = []
     radius = 0.5 * max(c.wire_diameter_mm for c in scene.coils)
     if depth < radius:
         key = "catheter.depth_mm" if catheter.placement == "neck" else "catheter.tip"
-        warnings.append(f"{_where(scene)}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
+        warnings.append(f"{scene.where}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
                         f"the coil's radius d/2 = {radius:.3g} mm: the coil leaves the catheter pressed into the wall "
                         f"(large contact forces in the first frames); move the tip at least {radius - depth:.2g} mm "
                         "further into the lumen")
@@ -125,7 +121,7 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
     if np.dot(direction, to_centre) < 0.0:
         angle = math.degrees(math.acos(np.clip(np.dot(direction, to_centre) / max(np.linalg.norm(to_centre), 1e-12),
                                                -1.0, 1.0)))
-        warnings.append(f"{_where(scene)}: catheter direction {_vec(direction)} points away from the sac (at "
+        warnings.append(f"{scene.where}: catheter direction {_vec(direction)} points away from the sac (at "
                         f"{angle:.0f}° to the line from the tip to the sac's centre {_vec(centre)} mm): the coil will "
                         "first run into the wall next to the tip; check catheter.direction (or catheter.angle_deg)")
     return warnings
@@ -158,14 +154,14 @@ def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
                 f"{100 * scene.simulation.stall_packing:.0f} % of it, after about {at_mm:.0f} mm"
                 if filled >= stall * (1 - 1e-9) else "")
         warnings.append(
-            f"{_where(scene)}: the coils' volume {volume:.3g} mm³ is {100 * volume / sac_volume_mm3:.0f} % of the "
+            f"{scene.where}: the coils' volume {volume:.3g} mm³ is {100 * volume / sac_volume_mm3:.0f} % of the "
             f"sac's {sac_volume_mm3:.3g} mm³ (clinical packing is 20–35 %; above {100 * MAX_PACKING:.0f} % the sac "
             f"cannot hold them){when}; use shorter coils (coil.length_mm)")
     sac_diameter = (6.0 * sac_volume_mm3 / math.pi) ** (1.0 / 3.0)
     for k, coil in enumerate(scene.coils):
         if coil.loop_diameter_mm > MAX_LOOP_OVER_SAC * sac_diameter:
             warnings.append(
-                f"{_where(scene)}: coil[{k}].loop_diameter_mm = {coil.loop_diameter_mm:g} is "
+                f"{scene.where}: coil[{k}].loop_diameter_mm = {coil.loop_diameter_mm:g} is "
                 f"{coil.loop_diameter_mm / sac_diameter:.1f}× the sac's size ({sac_diameter:.2g} mm, the diameter "
                 "of a sphere of its volume): the coil cannot form its loops; choose a loop about the sac's size")
     return warnings
@@ -182,7 +178,7 @@ def check_coil_lengths(scene: Scene) -> list[str]:
     for k, coil in enumerate(scene.coils):
         if coil.l0 > COARSE_SEGMENT_RATIO * coil.d * (1.0 + 1e-9):
             warnings.append(
-                f"{_where(scene)}: coil[{k}].segment_length_mm = {coil.l0:g} mm is above {COARSE_SEGMENT_RATIO:g} d "
+                f"{scene.where}: coil[{k}].segment_length_mm = {coil.l0:g} mm is above {COARSE_SEGMENT_RATIO:g} d "
                 f"= {COARSE_SEGMENT_RATIO * coil.d:g} mm: the coil–coil contact acts at the nodes, and two segments "
                 f"crossing near their middles hold their nodes {0.5 * coil.l0:g} mm apart, "
                 f"{'beyond' if coil.l0 >= 2.0 * coil.d else 'hardly inside'} the wire's diameter d = {coil.d:g} "
@@ -194,7 +190,7 @@ def check_coil_lengths(scene: Scene) -> list[str]:
         short = 1.0 - chords_mm / coil.length_mm
         if short > MAX_LENGTH_SHORTFALL:
             fine_mm = 0.95 * coil.l0 * math.sqrt(MAX_LENGTH_SHORTFALL / short)  # the shortfall goes as l0²
-            warnings.append(f"{_where(scene)}: coil[{k}]: its {len(rest) - 1} segments of {coil.l0:g} mm sample the "
+            warnings.append(f"{scene.where}: coil[{k}]: its {len(rest) - 1} segments of {coil.l0:g} mm sample the "
                             f"pre-shape's loops coarsely: as chords they make the coil {100 * short:.1f} % shorter "
                             f"than length_mm ({chords_mm:.4g} of {coil.length_mm:g} mm), and its deployed length and "
                             f"packing density with it; fix: segment_length_mm = {fine_mm:.2g} or less keeps it within "
@@ -216,7 +212,7 @@ def check_porous(scene: Scene, anatomy) -> None:
     if count > MAX_POROUS_VOXELS:
         span = np.ptp(vertices, axis=0)
         coarser = (float(np.prod(span)) / MAX_POROUS_VOXELS) ** (1.0 / 3.0) * 1.05
-        raise SetupError(f"{_where(scene)}: output.porous_voxel_mm: voxels of {h:g} mm make {count:.3g} over the "
+        raise SetupError(f"{scene.where}: output.porous_voxel_mm: voxels of {h:g} mm make {count:.3g} over the "
                          f"sac's bounding box ({_vec(span)} mm), more than {MAX_POROUS_VOXELS:.0e}; fix: "
                          f"porous_voxel_mm = {coarser:.2g} or more")
 
@@ -232,20 +228,20 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
         return []
     warnings = []
     if sim.dt_s is not None and sim.dt_s <= step_bound_s:
-        warnings.append(f"{_where(scene)}: simulation.dt_s = {sim.dt_s:g} s is within the explicit step bound "
+        warnings.append(f"{scene.where}: simulation.dt_s = {sim.dt_s:g} s is within the explicit step bound "
                         f"({step_bound_s:.3g} s) on the implicit step (the default integrator), which gains nothing "
                         f"there and costs ~3× a symplectic step; add integrator = \"symplectic\" for the reference, or "
                         f"remove dt_s for the implicit step's own (set by accuracy)")
     fine = fine_segment_coils(scene.coils)
     if fine:
         coil = scene.coils[fine[0]]
-        warnings.append(f"{_where(scene)}: coil[{fine[0]}].segment_length_mm = {coil.l0:g} mm is below d/2 = "
+        warnings.append(f"{scene.where}: coil[{fine[0]}].segment_length_mm = {coil.l0:g} mm is below d/2 = "
                         f"{0.5 * coil.d:g} mm on the implicit step, which is validated for d/2 ≤ l0 ≤ 1.5 d: below "
                         "it a released coil gains energy at its free ends and the run may fail (docs/FORMULATION.md "
                         "\"Implicit step: segments shorter than d/2\"); add integrator = \"symplectic\" for such "
                         "segments")
     if scene.contact.friction_wall > 0.0:
-        warnings.append(f"{_where(scene)}: contact.friction_wall on the implicit step: its "
+        warnings.append(f"{scene.where}: contact.friction_wall on the implicit step: its "
                         f"impacts are inelastic, so the coil lies on the wall where the reference's bounces, and the "
                         f"push force comes out several times the reference's (docs/FORMULATION.md \"Implicit step: "
                         f"impacts are inelastic\"); add integrator = \"symplectic\" for push forces")
@@ -256,7 +252,7 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
     check_porous(scene, anatomy)
-    notes = [f"{_where(scene)}: {note}" for note in scene.notes]
-    notes += [f"{_where(scene)}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
+    notes = [f"{scene.where}: {note}" for note in scene.notes]
+    notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
             + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))

@@ -313,3 +313,8 @@ class Scene:
     stent: StentSpec | None = None
     source: Path | None = None  # the TOML file it was read from
     notes: tuple[str, ...] = field(default=(), compare=False)  # why resolve_integrator chose the reference: warnings
+
+    @property
+    def where(self) -> str:
+        """Where a message about the scene says it is from: its file, or "scene" (built in Python)."""
+        return str(self.source) if self.source is not None else "scene"
