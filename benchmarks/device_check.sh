@@ -15,8 +15,11 @@
 #                                             # 256, 4096 deployed to the end) and the test suite; ≤ 580 s,
 #                                             # everything under $OUT (status.txt, one log per step)
 #
-# vtk (140 MB) is left behind: the tests that write or read VTK files fail there and are listed in
-# $OUT/pytest.log as such. Each step is cut off by its own timeout so the report always comes back.
+# vtk (140 MB) is left behind: warpcoil imports it only to read .vtk/.vtp walls and necks and to write
+# tube meshes and porous.vti, so the seed case runs without its tube mesh and the tests that need VTK
+# fail there (listed in $OUT/pytest.log; collection goes on past them). Each step is cut off by its own
+# timeout with SIGINT (pytest then prints its summary, a run ends "interrupted" with its outputs), so the
+# report always comes back.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PART_MIB=${PART_MIB:-56}
@@ -42,7 +45,7 @@ step() {  # step NAME TIMEOUT_S COMMAND…: its output in $OUT/NAME.log, its exi
     local name=$1 limit=$2
     shift 2
     local start=$SECONDS
-    timeout "$limit" "$@" > "$OUT/$name.log" 2>&1
+    timeout -s INT -k 15 "$limit" "$@" > "$OUT/$name.log" 2>&1
     echo "$name: exit $? in $((SECONDS - start)) s" | tee -a "$OUT/status.txt"
 }
 
@@ -55,15 +58,20 @@ run() {
     nvidia-smi -L > "$OUT/device.txt" 2>&1
     python3 -c "import warp as wp; wp.init(); print(wp.__version__, [str(d) for d in wp.get_devices()])" \
         >> "$OUT/device.txt" 2>&1
+    step probe 30 python3 -m benchmarks.cuda_probe cuda:0  # graph conditionals and hash grids on this driver
     # every kernel module for the GPU and the CPU, eight at a time, before the tests share the cache
     step compile 150 bash -c "python3 -c 'from benchmarks.cuda_compile import KERNEL_MODULES as k; print(*k)' \
         | tr ' ' '\n' | xargs -P 8 -I{} python3 -c 'import importlib, warp as wp; wp.config.quiet = True; \
 m = importlib.import_module(\"{}\"); [wp.load_module(m, device=d) for d in (\"cuda:0\", \"cpu\")]'"
-    step seed 60 python3 -m warpcoil.cli run scenes/seed_sphere.toml --device cuda:0 --no-usd -o /tmp/seed
+    sed 's/^tube_mesh = true/tube_mesh = false/' scenes/seed_sphere.toml > /tmp/seed.toml  # (no VTK there)
+    step seed 60 python3 -m warpcoil.cli run /tmp/seed.toml --device cuda:0 --no-usd -o /tmp/seed
     cp /tmp/seed/result.json "$OUT/seed_result.json" 2>/dev/null
     step ensemble 200 python3 -m warpcoil.cli bench ensemble --device cuda:0 -o /tmp/ensemble
-    cp /tmp/ensemble/ensemble.md "$OUT/ensemble.md" 2>/dev/null
-    step pytest 170 python3 -m pytest -q --timeout 160 -n 8 -p no:cacheprovider  # Warp's default device: cuda:0
+    cp /tmp/ensemble/ensemble.md "$OUT/ensemble.md" 2>/dev/null  # (written after each size: kept if cut off)
+    # the GPU-relevant modules first; Warp's default device there is cuda:0
+    step pytest 140 python3 -m pytest -q -rfE --timeout 130 -n 8 -p no:cacheprovider --continue-on-collection-errors \
+        tests/test_solver.py tests/test_implicit.py tests/test_contact.py tests/test_ensemble.py \
+        tests/test_cheap_steps.py tests/test_friction.py tests/test_pair_once.py tests
 }
 
 case "${1:-}" in

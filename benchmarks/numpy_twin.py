@@ -234,6 +234,9 @@ class NumpyTwin:
                                       "compare it on models without one")
         self.inv_mass = model.inv_mass.numpy()
         self.contact_share = model.contact_share.numpy()
+        if np.any(model.contact_samples.numpy() != 1):
+            raise NotImplementedError("the numpy twin has no contact samples between nodes (segments above 1.5 d): "
+                                      "compare it on coils with segment_length_mm ≤ 1.5 d")
         self.damping_c = model.damping_c.numpy()
         self.damping_k = float(model.damping_k)
         self.external = model.external.numpy()

@@ -117,8 +117,8 @@ def test_a_scene_built_in_python_is_refused_where_its_file_would_be(changes, key
 
 def test_a_scene_built_in_python_gets_the_runs_checks_and_warnings():
     """preflight as `warpcoil run` does it: a tip outside the sac is refused (SetupError, where the run
-    used to fail with advice to reduce dt_s), and warnings (segments above 1.5 d, whose coils can pass
-    through each other) are SceneWarnings; a deployment runs once."""
+    used to fail with advice to reduce dt_s), and warnings (segments whose chords make the coil over 1 %
+    shorter than asked) are SceneWarnings; a deployment runs once."""
     import warnings
 
     from warpcoil.deploy import Deployment, SceneWarning
@@ -126,12 +126,11 @@ def test_a_scene_built_in_python_gets_the_runs_checks_and_warnings():
 
     with pytest.raises(SetupError, match="catheter"):
         Deployment(python_scene(catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -3.0), direction=(0.0, 0.0, 1.0))))
-    coarse = wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=3.0, length_mm=10.0, segment_length_mm=0.6)
+    coarse = wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=2.0, length_mm=10.0, segment_length_mm=1.0)
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
         deployment = Deployment(python_scene(coils=(coarse,), output=wc.settings.OutputSettings(usd=False)))
-    assert any(issubclass(w.category, SceneWarning) and "segment_length_mm = 0.6 mm is above 1.5 d" in str(w.message)
-               for w in said)
+    assert any(issubclass(w.category, SceneWarning) and "shorter than length_mm" in str(w.message) for w in said)
     deployment.run()
     with pytest.raises(RuntimeError, match="has run"):
         deployment.run()

@@ -219,3 +219,67 @@ def test_frictions_normal_guard_stopped_at_its_fixed_point_is_bit_identical_to_e
         single.run_chunk()
         passes.append(int(leaving.solver._guard_loop.numpy()[friction.GUARD_DONE]))
     assert max(passes) <= 2, passes
+
+
+def fail_first_launch(monkeypatch, fail: bool) -> list:
+    """Graph launches recorded in the returned list; with ``fail``, the first one fails as a GPU's would
+    when it cannot instantiate the graph (warpcoil.solver.uninstantiated says so for it alone)."""
+    from warpcoil import solver as solver_module
+
+    calls = []
+    launch = wp.capture_launch
+
+    def first_fails(graph, stream=None):
+        calls.append(graph)
+        if fail and len(calls) == 1:
+            raise RuntimeError("Graph creation error: (played)")
+        launch(graph, stream)
+
+    monkeypatch.setattr(solver_module.wp, "capture_launch", first_fails)
+    monkeypatch.setattr(solver_module, "uninstantiated", lambda graph: len(calls) == 1)
+    return calls
+
+
+def test_a_graph_a_gpu_cannot_instantiate_is_captured_again_without_conditionals(monkeypatch):
+    """CUDA instantiates a graph at its first launch, before any of it runs; a driver that captured the
+    conditional neighbour-grid rebuild but cannot instantiate it fails there. The Stepper then captures
+    the graph again without conditionals (the grid built every step, every guard pass run) and goes on:
+    the same steps bit for bit. Played here on the CPU by failing the first launch as uninstantiated."""
+    from test_contact import crossing_pair
+
+    def run(fail_first: bool):
+        model, state, _ = crossing_pair(200.0)
+        solver = wc.Solver(model)
+        stepper = wc.Stepper(solver, state, wc.Control.create(model), chunk=40)
+        fail_first_launch(monkeypatch, fail_first)
+        x = stepper.run_steps(400).x.numpy().copy()
+        monkeypatch.undo()
+        return x, solver._conditional_rebuild
+
+    reference, conditional = run(False)
+    fallen_back, after = run(True)
+    assert conditional and not after
+    assert np.array_equal(reference, fallen_back)
+
+
+def test_a_frame_measurement_a_gpu_cannot_instantiate_is_captured_again_without_conditionals(monkeypatch):
+    """The same for a frame's measurement graph (Solver._replayed): captured again without conditionals
+    at the failed first launch, the same contact forces and gaps."""
+    from test_contact import crossing_pair
+
+    def measure(fail_first: bool):
+        model, state, _ = crossing_pair(200.0)
+        x = state.x.numpy()
+        x[: len(x) // 2, 2] = 0.2  # coil A down onto coil B: in contact
+        state.x.assign(x)
+        solver = wc.Solver(model)
+        calls = fail_first_launch(monkeypatch, fail_first)
+        solver.measure_contacts(state, wc.Control.create(model).running)
+        monkeypatch.undo()
+        return solver.contact_force.numpy().copy(), solver.coil_gap.numpy().copy(), solver._conditional_rebuild, calls
+
+    force, gap, conditional, _ = measure(False)
+    force_again, gap_again, after, calls = measure(True)
+    assert conditional and not after and len(calls) == 2 and calls[0] is not calls[1]
+    assert np.abs(force).max() > 0.0
+    assert np.array_equal(force, force_again) and np.array_equal(gap, gap_again)

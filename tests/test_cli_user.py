@@ -550,7 +550,7 @@ def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
 
 def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force(tmp_path):
     """A 35 mm loop for the 3.5 mm sac: warned before the run; it ends as jammed
-    ("stalled") once the frame-mean push force has stayed above stall_force_ratio (30)
+    ("stalled") once the frame-mean push force has stayed above stall_force_ratio (100)
     × the coil's self-deployment force (its elastic energy per mm straightened in the
     catheter, about 9 µN for so flat a loop) for the whole stall window (0.1 s)."""
     path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
@@ -560,8 +560,8 @@ def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force
     assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
     result = json.loads((tmp_path / "big" / "result.json").read_text())
     self_force = result["stored_energy_nJ"] / result["coil_length_mm"]  # nJ/mm = µN
-    stall_force = 30.0 * self_force
-    assert result["status"] == "jammed" and "stall_force_ratio = 30 ×" in result["reason"], result["reason"]
+    stall_force = 100.0 * self_force
+    assert result["status"] == "jammed" and "stall_force_ratio = 100 ×" in result["reason"], result["reason"]
     assert f"self-deployment force {self_force:.4g} µN = {stall_force:.4g} µN" in result["reason"]
     assert out.startswith("jammed: stalled") and "stall_force_ratio" in out
     rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
@@ -590,14 +590,14 @@ def test_an_absolute_stall_force_replaces_the_ratio(tmp_path):
 
 def test_a_coil_that_fits_completes_well_below_the_stall_force(tmp_path):
     """15 mm of the 2.5 mm helix (4.5 % packing) fills the sphere without a stall: it
-    completes, its largest frame-mean push force far below 30 × its self-deployment force."""
+    completes, its largest frame-mean push force far below the stall force (100 × its self-deployment force)."""
     path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 15.0"})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "fits", "-q")
     assert code == 0, err
     result = json.loads((tmp_path / "fits" / "result.json").read_text())
     assert result["status"] == "completed" and out.startswith("completed")
     self_force = result["stored_energy_nJ"] / result["coil_length_mm"]
-    assert result["push_force_mean_max_uN"] < 0.3 * 30.0 * self_force  # margin ≥ 3×
+    assert result["push_force_mean_max_uN"] < 0.1 * 100.0 * self_force  # margin ≥ 10×
 
 
 def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):

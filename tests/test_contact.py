@@ -60,15 +60,17 @@ def wp_law(h, p0, c0, u_linear):
     return out.numpy()
 
 
-def crossing_pair(speed_mm_s, l0_mm=D, middles=False):
+def crossing_pair(speed_mm_s, l0_mm=D, offset_mm=None):
     """Coil A along x at z = +0.6 falls onto coil B along y at z = 0, aimed so that a
     node of B passes exactly between two nodes of A (the worst case for node–node
-    contact), or with ``middles`` so that the two segments cross at their middles (the
-    worst case for node–capsule contact: each node l0/2 from the other's axis). Undamped."""
+    contact), or, with ``offset_mm``, so that the two segments cross that far from a node
+    of each (l0/2: at their middles, the worst case for the nodes' terms alone; l0/(2K):
+    midway between two of K contact samples per edge). Undamped."""
     n = 9
     s = (np.arange(n) - n // 2) * l0_mm
     a = np.stack([s, np.zeros(n), np.full(n, 0.6)], axis=1)
-    b = np.stack([np.full(n, l0_mm / 2), s + (l0_mm / 2 if middles else 0.0), np.zeros(n)], axis=1)
+    across = l0_mm / 2 if offset_mm is None else offset_mm
+    b = np.stack([np.full(n, across), s + (0.0 if offset_mm is None else offset_mm), np.zeros(n)], axis=1)
     spec = wc.CoilSpec(length_mm=(n - 1) * l0_mm, segment_length_mm=l0_mm)
     # true inertia: an impact at metres per second is no quasi-static motion for mass scaling
     builder = wc.ModelBuilder(settings=wc.SimulationSettings(damping_uN_per_mm=0.0, mass_scale=1.0))
@@ -121,10 +123,12 @@ def test_two_coil_segments_driven_across_each_other_do_not_cross(speed_mm_s, bou
         assert v[:n, 2].mean() > 0 and v[n:, 2].mean() < 0
 
 
-def closest_approach(model, state, n, speed_mm_s):
-    """Drive the pair across each other (the approach three times over): the closest distance
-    between their segments' centre lines (mm), and whether A stayed above B throughout."""
-    stepper = wc.Stepper(wc.Solver(model), state, wc.Control.create(model), chunk=10)
+def closest_approach(model, state, n, speed_mm_s, solver=None):
+    """Drive the pair across each other (the approach three times over) with ``solver``
+    (default: the reference's): the closest distance between their segments' centre lines
+    (mm), and whether A stayed above B throughout."""
+    solver = wc.Solver(model) if solver is None else solver
+    stepper = wc.Stepper(solver, state, wc.Control.create(model), chunk=10)
     steps = int(3 * 0.6 / (2 * speed_mm_s) / stepper.solver.dt_s)
     closest, above = np.inf, True
     for _ in range(steps // stepper.chunk + 1):
@@ -133,18 +137,35 @@ def closest_approach(model, state, n, speed_mm_s):
     return closest, above
 
 
-@pytest.mark.parametrize("l0_factor, holds", [(1.5, True), (2.0, False)])
-def test_segments_crossing_at_their_middles_hold_up_to_one_and_a_half_diameters(l0_factor, holds):
-    """The node–capsule contact holds two segments crossing at their middles apart where their
-    nodes, l0/2 from the other's axis, sit inside the other's wire: at l0 = 1.5 d (500 mm/s, the
-    stress bench's fastest push ×2.5) they part with their centre lines over d/2 apart; at 2d
-    they pass through, which is why a scene with segments above 1.5 d is warned about
-    (preflight.check_coil_lengths; crossing_note says so after such a run)."""
-    model, state, n = crossing_pair(500.0, l0_factor * D, middles=True)
-    closest, above = closest_approach(model, state, n, 500.0)
-    assert above == holds
-    if holds:
-        assert closest > 0.5 * D
+def test_nodes_alone_let_segments_of_two_diameters_cross_at_their_middles():
+    """Why coarse coils have contact samples: with the nodes' terms alone (K = 1 forced) two
+    segments of l0 = 2d crossing at their middles hold each node l0/2 = d from the other's
+    axis, at the contact's onset, and at 500 mm/s they pass through each other."""
+    model, state, n = crossing_pair(500.0, 2.0 * D, offset_mm=D)
+    assert set(model.contact_samples.numpy()) == {2}  # the middle of each edge
+    model.contact_samples.fill_(1)
+    assert not closest_approach(model, state, n, 500.0)[1]
+
+
+@pytest.mark.parametrize("integrator", ["symplectic", "implicit"])
+@pytest.mark.parametrize("l0_factor", [1.0, 1.5, 2.0, 3.0, 4.5])
+def test_segments_crossing_between_contact_samples_hold_at_any_segment_length(l0_factor, integrator):
+    """Two coils of segment length l0 driven across each other at 500 mm/s (the stress bench's
+    fastest push ×2.5), crossing midway between two contact points of each (the nodes for
+    l0 ≤ 1.5 d; else K = ⌈l0 / d⌉ samples per edge, l0/(2K) from the nearest): they part with
+    A above B and their centre lines over d/2 apart, on both integrators."""
+    l0 = l0_factor * D
+    samples = 1 if l0_factor <= 1.5 else math.ceil(l0_factor - 1e-9)
+    model, state, n = crossing_pair(500.0, l0, offset_mm=l0 / (2 * samples))
+    assert set(model.contact_samples.numpy()) == {samples}
+    solver = None
+    if integrator == "implicit":
+        from warpcoil.implicit import ImplicitSolver, implicit_step_s
+
+        solver = ImplicitSolver(model, dt_s=implicit_step_s(model, 500.0))
+    closest, above = closest_approach(model, state, n, 500.0, solver)
+    assert above
+    assert closest > 0.5 * D
 
 
 def test_a_run_whose_coils_came_within_half_a_diameter_says_they_may_have_crossed():
@@ -228,3 +249,15 @@ def test_a_sharp_fold_is_pushed_open_by_the_neighbouring_windings():
     assert model.contact.fold_span == 1
     assert force[1] @ apart >= law > 100 * model.contact.p0_uN
     assert force[3] @ -apart >= law
+
+
+def test_contact_samples_keep_the_pressure_per_length_and_converge_on_a_crossing():
+    """`warpcoil validate contact-samples`: parallel coils at l0 = 3d press each other as the nodes
+    alone would (P0 law per unit length, to 1e-9), and the force of two crossing coils converges to
+    the law's integral along the wire as the samples per edge grow (within 5 % from K = 6, order ≥ 1.5)."""
+    from warpcoil.validation_contact import contact_sample_cases
+
+    rows = contact_sample_cases()
+    assert len(rows) == 6 and all(row.passed for row in rows), [(r.case, r.error) for r in rows if not r.passed]
+    crossing = [row.error for row in rows if "coils crossing" in row.case]
+    assert crossing[1] > crossing[2] > crossing[3]

@@ -270,3 +270,25 @@ def test_a_sac_point_in_neither_piece_names_the_scenes_neck_sac_point_key(tmp_pa
         path.write_text(base + neck)
         with pytest.raises(SceneError, match=rf"s\.toml: {key}: .*fix:"):
             resolve_anatomy(load_scene(path))
+
+
+def test_a_neck_plane_along_a_flat_part_of_the_wall_is_refused() -> None:
+    """A plane lying on a flat part of the wall (a helper's duct roof, here a box's top) has no
+    defined cut there: "on the plane counts as above" traced its rounding across the roof into an
+    ostium 4.5× too large with no word. It is refused, naming the fix; a plane across the sides cuts."""
+    box = wall_of(trimesh.creation.box(extents=(4.0, 4.0, 2.0)).subdivide().subdivide().subdivide())
+    with pytest.raises(NeckError, match=r"lies along 128 faces of a flat part of the wall.*fix: move the plane point"):
+        neck_from_plane([0.0, 0.0, 1.0], UP, box)
+    loop = neck_from_plane([0.0, 0.0, 0.1], UP, box).contour_mm
+    assert np.allclose(loop[:, 2], 0.1) and np.abs(loop[:, :2]).max() == pytest.approx(2.0)
+
+
+def test_a_flat_part_far_from_the_neck_in_the_same_plane_does_not_refuse_it(sphere: WallMesh) -> None:
+    """Only flat faces within the loop's reach count: a sphere beside a box whose top lies in the
+    neck plane, 20 mm away, cuts as the sphere alone does."""
+    far_box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    far_box.apply_translation([20.0, 0.0, -3.0 - 1.0])  # its top in the plane z = −3
+    both = trimesh.util.concatenate([trimesh.Trimesh(sphere.vertices_mm, sphere.faces), far_box])
+    alone = neck_from_plane([0.0, 0.0, -3.0], UP, sphere).contour_mm
+    beside = neck_from_plane([0.0, 0.0, -3.0], UP, wall_of(both)).contour_mm
+    assert np.allclose(np.sort(alone, axis=0), np.sort(beside, axis=0))

@@ -353,13 +353,30 @@ def test_a_coil_its_segments_shorten_by_more_than_one_percent_is_warned_about(tm
     chords_mm = np.linalg.norm(np.diff(rest_centerline(coarse.coils[0]), axis=0), axis=1).sum()
     assert 0.95 < chords_mm / 20.0 < 0.97
     said = check_coil_lengths(coarse)
-    assert len(said) == 2 and "is above 1.5 d" in said[0]  # 1 mm segments of a 0.2921 mm wire: coils may cross
-    said = said[1:]
+    assert len(said) == 1  # 1 mm segments of a 0.2921 mm wire: their contact samples keep coils apart, no word
     short = f"{100 * (1 - chords_mm / 20.0):.1f} % shorter than length_mm ({chords_mm:.4g} of 20 mm)"
     assert short in said[0], said
     suggested = float(said[0].split("segment_length_mm = ")[1].split(" ")[0])
     finer = replace(coarse, coils=(replace(coarse.coils[0], segment_length_mm=suggested),))
     assert [w for w in check_coil_lengths(finer) if "shorter than length_mm" in w] == []
     assert check_coil_lengths(load_scene(write(tmp_path, with_coil(loop_diameter_mm="2.0")))) == []
-    at_limit = with_coil(loop_diameter_mm="2.0", segment_length_mm=f"{1.5 * 0.2921!r}")  # 1.5 d: not above it
-    assert check_coil_lengths(load_scene(write(tmp_path, at_limit))) == []
+
+
+@pytest.mark.parametrize(("segment_mm", "simulation", "warned"), [
+    ("0.6", "", True),  # 2d (+) on the implicit step: outside bench accuracy's range, said before the run
+    ("0.6", 'integrator = "symplectic"\n', False),  # the reference: nothing to say
+    ("1.0", 'integrator = "implicit"\n', True),
+    ("0.59", "", False),  # within 2d: no word
+])
+def test_segments_above_twice_the_diameter_on_the_implicit_step_are_warned_about(
+        tmp_path: Path, segment_mm: str, simulation: str, warned: bool) -> None:
+    """The implicit step's accuracy is measured for d/2 ≤ l0 ≤ 2d (`bench accuracy`); coarser coils run
+    (their coil–coil contact holds with its contact samples) with a warning that names the fix."""
+    from warpcoil.preflight import check_integrator
+
+    path = write(tmp_path, f"[[coil]]\nwire_diameter_mm = 0.295\nloop_diameter_mm = 3\nlength_mm = 10\n"
+                           f"segment_length_mm = {segment_mm}\n[simulation]\n{simulation}")
+    said = [w for w in check_integrator(load_scene(path), 0.0) if "above 2d" in w]
+    assert bool(said) == warned
+    if warned:
+        assert "is above 2d = 0.59 mm" in said[0] and "fix: segment_length_mm ≤ 0.59, or integrator" in said[0]

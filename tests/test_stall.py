@@ -25,7 +25,7 @@ def test_self_deployment_force_is_the_straightened_helix_energy_per_length(loop_
     curvature, torsion = radius / (radius**2 + rise**2), rise / (radius**2 + rise**2)
     expected = model.EI * curvature**2 / 2.0 + model.GJ * torsion**2 / 2.0
     assert member.self_deployment_force_uN == pytest.approx(expected, rel=0.03)  # ends and discretisation
-    assert member.stall_force_uN == pytest.approx(30.0 * member.self_deployment_force_uN)
+    assert member.stall_force_uN == pytest.approx(scene.simulation.stall_force_ratio * member.self_deployment_force_uN)
 
 
 def test_stall_signals_summary_reads_the_window_mean_and_the_released_energy():

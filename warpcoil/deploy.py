@@ -196,8 +196,7 @@ class Ensemble:
             wp.load_module(module, device=self.model.device)  # not at the first step inside the run's clock
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
-        host = {name: getattr(self.model, name).numpy() for name in ("arc_s", "inv_mass", "node_radius",
-                                                                       "rest_length")}
+        host = {name: self.model.host(name) for name in ("arc_s", "inv_mass", "node_radius", "rest_length")}
         self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []
@@ -228,6 +227,7 @@ class Ensemble:
         fixed[inside] = 1
         m.has_next.assign(has_next)
         m.fixed.assign(fixed)
+        m.forget_host("has_next", "fixed")
 
     def _halve_step(self, snapshot: State, why: str) -> None:
         """Go back to the frame's start with half the step (and a new captured graph).
@@ -688,7 +688,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     from .solver import contact_linear_onset
 
     bounds = bounds or world_bounds(model)
-    arc = model.arc_s.numpy()
+    arc = model.host("arc_s")
     steps = []
     for w, scene in enumerate(scenes):
         sim = resolve_integrator(scene).simulation

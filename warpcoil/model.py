@@ -34,6 +34,13 @@ from .kernels import elastic, integrate
 from .settings import CatheterSpec, ContactSettings, SimulationSettings
 
 EDGE_STRETCH_MARGIN = 1.1  # the coil–coil search holds for edges stretched up to 10 % past the longest rest edge
+# coil–coil contact at the nodes alone holds two segments crossing at their middles apart up to l0 = 1.5 d (each
+# node, l0/2 from the other's axis, inside the other's wire; tests/test_contact.py); a coarser coil adds contact
+# samples between its nodes, K − 1 evenly spaced per edge with K = ⌈l0 / d⌉: samples a diameter apart hold crossing
+# segments of 2–4.5 d apart at 500 mm/s with their centre lines ≥ 0.66 d apart, where 1.5 d spacing let them come to
+# 0.41 d (each sample weighs 1/K; docs/FORMULATION.md "Segments longer than 1.5 d")
+NODE_CONTACT_MAX_SEGMENT_D = 1.5
+CONTACT_SAMPLE_SPACING_D = 1.0
 CONTACT_DESIGN_OVERLAP_U = 3.0  # u = 1 − h/c0 at which the step bound takes the contact stiffness (h = −2 c0)
 
 
@@ -116,6 +123,15 @@ def _default_director(t: np.ndarray) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+def contact_samples_per_edge(segment_mm: np.ndarray, d_mm: np.ndarray) -> np.ndarray:
+    """Coil–coil contact samples per edge (int32, ≥ 1) of coils with segment length
+    ``segment_mm`` and wire diameter ``d_mm`` (mm): 1 (the nodes) up to
+    NODE_CONTACT_MAX_SEGMENT_D · d, else the fewest K with l0 / K ≤ CONTACT_SAMPLE_SPACING_D · d."""
+    ratio = np.asarray(segment_mm, float) / np.asarray(d_mm, float)
+    samples = np.ceil(ratio / CONTACT_SAMPLE_SPACING_D * (1.0 - 1e-9))
+    return np.where(ratio <= NODE_CONTACT_MAX_SEGMENT_D * (1.0 + 1e-9), 1, samples).astype(np.int32)
+
+
 def catheter_path(spec: CatheterSpec) -> np.ndarray:
     """Catheter centerline from proximal end to tip, mm (straight: 2 points)."""
     tip = np.asarray(spec.tip_mm, dtype=np.float64)
@@ -146,6 +162,7 @@ class Model:
     inv_mass: wp.array  # 1/g
     damping_c: wp.array  # µN (high-speed limit of the damping force per node)
     contact_share: wp.array  # per node: weight of its contact law, l̄_i / its coil's segment length (½ at a free end)
+    contact_samples: wp.array  # per node: its coil's coil–coil contact samples per edge K (1: the nodes alone)
     damping_k: float  # mm/s
     external: wp.array  # µN, constant applied forces
     # per edge
@@ -197,6 +214,21 @@ class Model:
     strut_world: wp.array | None = None
     strut_radius_mm: float = 0.0
     strut_host: tuple | None = None  # (starts, ends, world) numpy, for output
+    _host: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # host(): copies kept
+
+    def host(self, name: str) -> np.ndarray:
+        """The static array ``name`` on the host, copied once and kept (on a GPU each ``.numpy()``
+        copies the whole array: per-world loops over an ensemble of B members would copy it B
+        times). For arrays that stay fixed after :meth:`ModelBuilder.finalize`; one that is
+        changed later (a retracted coil's topology) is :meth:`forget_host`-ed."""
+        if name not in self._host:
+            self._host[name] = getattr(self, name).numpy()
+        return self._host[name]
+
+    def forget_host(self, *names: str) -> None:
+        """Drop the kept host copies of ``names`` (arrays just changed on the device)."""
+        for name in names:
+            self._host.pop(name, None)
 
     @property
     def has_stent(self) -> bool:
@@ -204,7 +236,7 @@ class Model:
 
     @property
     def has_balloon(self) -> bool:
-        return self.balloon_count is not None and int(self.balloon_count.numpy().max()) >= 2
+        return self.balloon_count is not None and int(self.host("balloon_count").max()) >= 2
 
     def set_inflation(self, world: int, fraction: float) -> None:
         self.balloon_inflation[world:world + 1].fill_(float(fraction))
@@ -384,6 +416,7 @@ class ModelBuilder:
         damping_c = s.damping_uN_per_mm * node_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
         segment = np.repeat([edge_len[f:l].mean() for f, l in zip(first, last)], counts)  # the coil's l0
         contact_share = node_len / segment  # its contact per unit mass is every node's of its coil
+        contact_samples = contact_samples_per_edge(segment, per_coil(lambda c: c.d))
         twist_damping = s.damping_uN_per_mm * spin_len * s.mass_scale / s.damping_speed_mm_s * winding_r**2
         vertex_len = np.zeros(n)
         interior = np.zeros(n, bool)
@@ -418,7 +451,7 @@ class ModelBuilder:
         return dict(
             coils=list(self._coils), coil_first=first, coil_last=last, rest=rest, has_next=has_next,
             coil_of=coil_of, arc_s=arc_s, fixed=fixed, clamp_tangent=clamp_tangent, mass=mass, damping_c=damping_c,
-            contact_share=contact_share, external=external,
+            contact_share=contact_share, contact_samples=contact_samples, external=external,
             edge_len=edge_len, k_stretch=k_stretch, inertia=inertia,
             twist_damping=twist_damping, k_bend=k_bend, k_twist=k_twist,
             radius=0.5 * d, path=catheter_path(self.catheter), contact=contact_model,
@@ -482,6 +515,7 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         fixed=arr(cat("fixed"), wp.int32), clamp_tangent=arr(cat("clamp_tangent"), wp.vec3d),
         clamp_director=arr(np.zeros((n, 3)), wp.vec3d), inv_mass=arr(1.0 / cat("mass"), wp.float64),
         damping_c=arr(cat("damping_c"), wp.float64), contact_share=arr(cat("contact_share"), wp.float64),
+        contact_samples=arr(cat("contact_samples"), wp.int32),
         damping_k=damping_k, external=arr(cat("external"), wp.vec3d),
         rest_length=arr(cat("edge_len"), wp.float64), k_stretch=arr(cat("k_stretch"), wp.float64),
         inv_inertia=arr(1.0 / cat("inertia"), wp.float64), twist_damping=arr(cat("twist_damping"), wp.float64),

@@ -47,7 +47,6 @@ import numpy as np
 import trimesh
 from scipy.ndimage import distance_transform_edt
 from trimesh.grouping import group_rows
-from vtkmodules.util.numpy_support import vtk_to_numpy
 
 from .geometry import SurfaceBVH, inside_points, inside_voxels, points_near_segments, ray_hits, surface_bvh, \
     surface_voxels
@@ -275,6 +274,8 @@ def _read_contour(path: Path) -> np.ndarray:
 
 def _read_vtk_contour(path: Path) -> np.ndarray:
     """Points of the first polygon (else polyline) cell of a VTK PolyData file."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
     try:
         data = read_vtk_polydata(path)
     except ValueError as exc:
@@ -349,6 +350,10 @@ def _fan_area(loop: np.ndarray, centroid: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(spokes, np.roll(spokes, -1, axis=0)), axis=1).sum())
 
 
+FLAT_CUT_TOLERANCE = 1.0e-4  # a face within this many median edge lengths of the neck plane lies along it
+# (counted within the loop's reach of the plane point: a flat cap far off at the same height is no concern)
+
+
 def _plane_loop(wall: WallMesh, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Ordered points of the loop of plane ∩ wall nearest to ``point`` (one point per crossed edge).
 
@@ -378,7 +383,27 @@ def _plane_loop(wall: WallMesh, point: np.ndarray, normal: np.ndarray) -> np.nda
     gap = np.full(len(edge_ids), np.inf)
     np.minimum.at(gap, loop_id, np.linalg.norm(points - point, axis=1))
     members = np.flatnonzero(loop_id == int(np.argmin(gap)))
-    return points[members[np.argsort(-rank[members], kind="stable")]]
+    loop = points[members[np.argsort(-rank[members], kind="stable")]]
+    _refuse_flat_cut(wall, point, normal, height, loop)
+    return loop
+
+
+def _refuse_flat_cut(wall: WallMesh, point: np.ndarray, normal: np.ndarray, height: np.ndarray,
+                     loop: np.ndarray) -> None:
+    """NeckError when the plane lies along faces of a flat part of the wall within the loop's reach of
+    ``point`` (``height``: the vertices' heights over the plane, mm): "on the plane counts as above"
+    traces the rounding of their heights across the flat part, so the loop there is not the ostium."""
+    vertices, faces = wall.vertices_mm, wall.faces
+    edges = np.linalg.norm(vertices[faces] - vertices[np.roll(faces, -1, axis=1)], axis=2)
+    along = np.abs(height[faces]).max(axis=1) <= FLAT_CUT_TOLERANCE * float(np.median(edges))
+    reach = float(np.linalg.norm(loop - point, axis=1).max()) + float(edges.max())
+    along &= np.linalg.norm(vertices[faces].mean(axis=1) - point, axis=1) <= reach
+    if along.any():
+        step = 0.5 * float(np.median(edges[along]))
+        raise _error(wall.source, f"the plane through {point} with normal {normal} lies along {int(along.sum())} "
+                     "faces of a flat part of the wall, where its cut is undefined",
+                     f"move the plane point off the flat part along the normal (e.g. by {step:.2g} mm) to where the "
+                     "plane crosses the ostium")
 
 
 def _cycles(successor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

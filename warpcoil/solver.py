@@ -82,7 +82,7 @@ def _contact_inv_mass(model: Model, nodes: slice) -> np.ndarray:
     node–capsule terms) is weighted by its share of the coil, as its mass is, so an
     end node of half mass meets half the law and has an interior node's contact
     frequency."""
-    return model.contact_share.numpy()[nodes] * model.inv_mass.numpy()[nodes]
+    return model.host("contact_share")[nodes] * model.host("inv_mass")[nodes]
 
 
 def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes: slice = slice(None)) -> StepBound:
@@ -102,24 +102,24 @@ def stable_step_bound(model: Model, contact_stiffness_uN_mm: float = 0.0, nodes:
 
     ``nodes``: one world's nodes (default: every world, the smallest bound).
     """
-    inv_m = model.inv_mass.numpy()[nodes]
-    has_next = model.has_next.numpy()[nodes] == 1
-    ks = model.k_stretch.numpy()[nodes]
-    kb = model.k_bend.numpy()[nodes]
-    kt = model.k_twist.numpy()[nodes]
-    rest_len = model.rest_length.numpy()[nodes]
+    inv_m = model.host("inv_mass")[nodes]
+    has_next = model.host("has_next")[nodes] == 1
+    ks = model.host("k_stretch")[nodes]
+    kb = model.host("k_bend")[nodes]
+    kt = model.host("k_twist")[nodes]
+    rest_len = model.host("rest_length")[nodes]
     l_edge = np.where(has_next, rest_len, np.inf)
     ks_prev = np.concatenate([[0.0], ks[:-1]])
-    kbar = np.maximum(np.linalg.norm(model.rest_K0.numpy()[nodes], axis=1),
-                      np.linalg.norm(model.rest_K1.numpy()[nodes], axis=1))
+    kbar = np.maximum(np.linalg.norm(model.host("rest_K0")[nodes], axis=1),
+                      np.linalg.norm(model.host("rest_K1")[nodes], axis=1))
     kt_max = np.max(np.stack([kt, np.roll(kt, -1)]), axis=0)
     kb_max = np.max(np.stack([kb, np.roll(kb, -1)]), axis=0)
     l_min = np.minimum(l_edge, np.concatenate([[np.inf], l_edge[:-1]]))  # vertex j: its shorter edge
-    clamped = np.linalg.norm(model.clamp_tangent.numpy()[nodes], axis=1) > 0.0
+    clamped = np.linalg.norm(model.host("clamp_tangent")[nodes], axis=1) > 0.0
     l_min = np.where(clamped, l_edge, l_min)  # a clamp vertex's virtual edge has no length
     c = 4.0 * kb / l_min**2  # per vertex (k_b = 0 where there is none)
     bend_row = np.concatenate([[0.0], c[:-1]]) + 2.0 * c + np.concatenate([c[1:], [0.0]])
-    inv_j = model.inv_inertia.numpy()[nodes]
+    inv_j = model.host("inv_inertia")[nodes]
     omega_sq = {
         "stretching (coil axial_stiffness_uN)": np.max(2.0 * (ks_prev + ks) * inv_m),
         "bending (coil bending_stiffness_uN_mm2)": np.max(bend_row * inv_m),
@@ -153,6 +153,11 @@ def contact_linear_onset(model: Model, dt_s: float, nodes: slice = slice(None)) 
         mid = 0.5 * (low + high)
         low, high = (mid, high) if model.contact.stiffness_uN_mm(mid) <= k_max else (low, mid)
     return low
+
+
+def uninstantiated(graph) -> bool:
+    """A CUDA graph whose launch failed before it was instantiated (so before any of its work ran)."""
+    return graph.device.is_cuda and graph.graph_exec is None
 
 
 @dataclass
@@ -454,7 +459,8 @@ class Solver:
                 self._touch_count, self._chord_count])
             pass_args = [
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.contact_share, self._grid.id, self._neighbours, self._neighbour_count, self._midpoints,
+                m.node_radius, m.contact_share, m.contact_samples, self._grid.id, self._neighbours, self._neighbour_count,
+                self._midpoints,
                 m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
                 self._touch_count, self._touch_b,
@@ -532,7 +538,9 @@ class Solver:
         captured at its first call for this (name, state, extra): a frame's
         measurements launch ~12 kernels, ~0.5 ms from Python on the CPU. The last
         MEASURE_GRAPHS graphs are kept (each holding its state and extra, so their
-        ids stay theirs); a device that cannot capture them launches them as they are."""
+        ids stay theirs); a device that cannot capture them launches them as they are, and one that
+        cannot instantiate a graph with conditionals at its first launch (a GPU, before anything
+        runs) captures it again without them (:meth:`drop_conditionals`)."""
         dev = self.model.device
         key = (name, id(state), id(extra))
         if key not in self._graphs:
@@ -547,8 +555,21 @@ class Solver:
                 return
             if len(self._graphs) >= MEASURE_GRAPHS:
                 self._graphs.pop(next(iter(self._graphs)))
-            self._graphs[key] = (state, extra, capture.graph)
-        wp.capture_launch(self._graphs[key][2])
+            self._graphs[key] = (state, extra, capture.graph, self._conditional_rebuild)
+        graph = self._graphs[key][2]
+        try:
+            wp.capture_launch(graph)
+        except RuntimeError:
+            if not (uninstantiated(graph) and self._graphs[key][3]):
+                raise
+            del self._graphs[key]
+            self.drop_conditionals()
+            self._replayed(name, state, extra, launches)  # captured again, without them
+
+    def drop_conditionals(self) -> None:
+        """This driver cannot branch in a graph: graphs captured from now on build the neighbour grid
+        every step and run every friction guard pass (the same forces, bit for bit)."""
+        self._conditional_rebuild = self._conditional_graphs = False
 
     def host(self, array: wp.array) -> np.ndarray:
         """``array.numpy()``: on the CPU a view of the array's memory, kept per array
@@ -641,7 +662,8 @@ class Solver:
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=[
                 state_in.x, m.rest_x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.contact_share, m.inv_mass, self.coil_contacts, wall_force, device_force,
+                m.node_radius, m.contact_share, m.contact_samples, m.inv_mass, self.coil_contacts, wall_force,
+                device_force,
                 self._grid.id,
                 self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius,
                 c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil, c.friction_catheter,
@@ -882,6 +904,7 @@ class Stepper:
         self._b.copy_from(state)
         self.steps = 0
         self._graph = None
+        self._graph_conditional = False  # whether that graph holds conditionals (_capture)
         self._use_graph = use_graph and (solver.model.device.is_cpu or solver.model.device.is_cuda)
 
     @property
@@ -926,20 +949,16 @@ class Stepper:
                 wp.load_module(module, device=self.solver.model.device)
             self.solver.allocate_neighbour_grid(self._a)  # no allocation inside the capture
             try:
-                with wp.ScopedCapture(device=self.solver.model.device) as capture:
-                    self._launch_steps(per_graph)
+                self._graph = self._capture(per_graph)
             except RuntimeError:
                 if not self.solver._conditional_rebuild:
                     raise
-                # this driver cannot branch in a graph: build every step, run every guard pass
-                self.solver._conditional_rebuild = self.solver._conditional_graphs = False
-                with wp.ScopedCapture(device=self.solver.model.device) as capture:
-                    self._launch_steps(per_graph)
-            self._graph = capture.graph
+                self.solver.drop_conditionals()
+                self._graph = self._capture(per_graph)
         if self._graph is not None:
             for _ in range(even // per_graph):
                 at(per_graph)
-                wp.capture_launch(self._graph)
+                self._replay(per_graph)
             at(even % per_graph)
             self._launch_steps(even % per_graph)  # (after a start: the steps short of a whole graph)
         else:
@@ -952,6 +971,27 @@ class Stepper:
         self.steps += self.chunk
         self._a.time_s = start + self.chunk * self.solver.dt_s
         return self._a
+
+    def _capture(self, steps: int):
+        """A graph of ``steps`` steps from the current buffers (noting whether it holds conditionals)."""
+        self._graph_conditional = self.solver._conditional_rebuild
+        with wp.ScopedCapture(device=self.solver.model.device) as capture:
+            self._launch_steps(steps)
+        return capture.graph
+
+    def _replay(self, steps: int) -> None:
+        """Launch the captured graph (``steps`` steps). On a GPU the first launch instantiates it,
+        before any step runs; a driver that captured the conditional neighbour-grid rebuild but cannot
+        instantiate it (the build's host-to-device copy inside a conditional body) fails there, and
+        the graph is captured again without conditionals."""
+        try:
+            wp.capture_launch(self._graph)
+        except RuntimeError:
+            if not (uninstantiated(self._graph) and self._graph_conditional):
+                raise
+            self.solver.drop_conditionals()
+            self._graph = self._capture(steps)
+            wp.capture_launch(self._graph)
 
     def run_steps(self, steps: int, check_every_chunk: bool = True) -> State:
         """Advance by at least ``steps`` (rounded up to whole chunks)."""

@@ -67,7 +67,7 @@ def packed_state(model: Model, gap_mm: float = 1.0) -> State:
     the first coil's distal node at the tip (in each world, in its own
     catheter); directors carried along the catheter so each edge keeps its
     pre-shape frame orientation (MODEL.md, Step 2)."""
-    lengths = np.array([model.arc_s.numpy()[last] for last in model.coil_last])
+    lengths = model.host("arc_s")[model.coil_last]
     advance = np.zeros(model.coil_count)
     for w in range(model.world_count):
         coils = model.world_coils(w)

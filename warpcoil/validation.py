@@ -596,6 +596,13 @@ def contact_share() -> list[CaseResult]:
     return contact_share_cases()
 
 
+def contact_samples() -> list[CaseResult]:
+    """Contact samples between the nodes of segments above 1.5 d: pressure per length kept, the
+    crossing force converging to its integral as the samples grow (validation_contact.py)."""
+    from .validation_contact import contact_sample_cases
+    return contact_sample_cases()
+
+
 def regions() -> list[CaseResult]:
     """Regional packing densities on a cut sphere with analytic regions (validation_regions.py)."""
     from .validation_regions import region_cases
@@ -951,6 +958,7 @@ CASES = {
     "energy": energy_conservation,
     "friction": friction,
     "contact-share": contact_share,
+    "contact-samples": contact_samples,
     "regions": regions,
 
 

@@ -67,10 +67,10 @@ def free_space_push_force(integrator: str, dt_s: float | None = None, out_mm: fl
 
 
 def _law_uN(h_mm: float, p0_uN: float, c0_mm: float, u_linear: float) -> float:
-    f = wp.zeros(1, dtype=wp.float64)
-    k = wp.zeros(1, dtype=wp.float64)
-    wp.launch(contact.evaluate_law, 1, inputs=[wp.array([h_mm], dtype=wp.float64), p0_uN, c0_mm, u_linear, f, k],
-              device="cpu")
+    f = wp.zeros(1, dtype=wp.float64, device="cpu")  # on the CPU whatever the default device (a GPU's)
+    k = wp.zeros(1, dtype=wp.float64, device="cpu")
+    wp.launch(contact.evaluate_law, 1, inputs=[wp.array([h_mm], dtype=wp.float64, device="cpu"), p0_uN, c0_mm,
+                                               u_linear, f, k], device="cpu")
     return float(f.numpy()[0])
 
 

@@ -6,7 +6,7 @@ in :attr:`WallMesh.notes` for the run log; what it cannot fix raises
 :class:`WallError` naming the file, the problem and the fix.
 
 Readers: trimesh for STL/OBJ/PLY, VTK for legacy ``.vtk`` and XML ``.vtp``
-PolyData (meshio reads neither PolyData flavour).
+PolyData (meshio reads neither PolyData flavour; imported only to read such a file).
 """
 
 from __future__ import annotations
@@ -17,12 +17,6 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from trimesh.grouping import group_rows
-from vtkmodules.util.misc import calldata_type
-from vtkmodules.util.numpy_support import vtk_to_numpy
-from vtkmodules.vtkCommonCore import VTK_STRING, vtkCommand
-from vtkmodules.vtkFiltersCore import vtkTriangleFilter
-from vtkmodules.vtkIOLegacy import vtkPolyDataReader
-from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
 
 from .settings import WallSpec
 
@@ -149,6 +143,12 @@ def read_vtk_polydata(path: Path, triangulate: bool = False):
     """Legacy ``.vtk`` or XML ``.vtp`` PolyData read with VTK (``triangulate``:
     polygons split into triangles, line and vertex cells dropped). VTK's errors
     and warnings are collected instead of printed and raised as one ValueError."""
+    from vtkmodules.util.misc import calldata_type
+    from vtkmodules.vtkCommonCore import VTK_STRING, vtkCommand
+    from vtkmodules.vtkFiltersCore import vtkTriangleFilter
+    from vtkmodules.vtkIOLegacy import vtkPolyDataReader
+    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
     if path.suffix.lower() == ".vtp":
         reader = vtkXMLPolyDataReader()
         if not reader.CanReadFile(str(path)):
@@ -179,6 +179,8 @@ def read_vtk_polydata(path: Path, triangulate: bool = False):
 
 def _read_vtk(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Legacy or XML VTK PolyData; polygons triangulated, line and vertex cells dropped."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
     try:
         surface = read_vtk_polydata(path, triangulate=True)
     except ValueError as exc:

@@ -115,27 +115,42 @@ def launch_floor_us(device) -> float:
 
 
 def main(out: Path, quick: bool, repeats: int, device=None) -> int:
+    """The full runs and windows of every size; the report is rewritten after each measurement, so a
+    run stopped by a time limit (a lent GPU's) keeps what it measured."""
     device = wp.get_device(device)
     sizes = (1, 4, 16) if quick else (1, 16, 256, 4096)
     full_sizes = [b for b in sizes if b <= (1 if quick else 16)] if device.is_cpu else list(sizes)
     rows = {b: Row(b) for b in sizes}
-    mid: dict = {}
-    for b in full_sizes:
-        row, state = run_full(b, device)
-        rows[b] = row
-        mid = mid or state
-        print(f"B = {b:5d} full: {row.deployments_per_min:.3g} deployments/min ({row.completed}/{b} completed, "
-              f"{row.full_wall_time_s:.1f} s)", flush=True)
-    for b in sizes:
+    floor = launch_floor_us(device)
+    row, mid = run_full(1, device)  # the windows start from its half-deployed state
+    rows[1] = row
+    print(f"B =     1 full: {row.deployments_per_min:.3g} deployments/min ({row.completed}/1 completed, "
+          f"{row.full_wall_time_s:.1f} s)", flush=True)
+    for b in sizes:  # the windows first: cheap at any size
         steps = 40 if b * 200 < 100_000 or device.is_cuda else 10
         rows[b].window_steps = steps
         rows[b].us_per_member_step = window_us_per_member_step(b, mid, steps, device)
-        if rows[b].full_wall_time_s is None:
-            rows[b].extrapolated = True
-            rows[b].deployments_per_min = (rows[1].deployments_per_min * b * rows[1].us_per_member_step
-                                           / (b * rows[b].us_per_member_step))
         print(f"B = {b:5d} window: {rows[b].us_per_member_step:.3g} µs per member-step", flush=True)
-    floor = launch_floor_us(device)
+        write_ensemble_report(out, rows, floor, quick, device)
+    for b in full_sizes[1:]:
+        row, _ = run_full(b, device)
+        row.window_steps, row.us_per_member_step = rows[b].window_steps, rows[b].us_per_member_step
+        rows[b] = row
+        print(f"B = {b:5d} full: {row.deployments_per_min:.3g} deployments/min ({row.completed}/{b} completed, "
+              f"{row.full_wall_time_s:.1f} s)", flush=True)
+        write_ensemble_report(out, rows, floor, quick, device)
+    return 0
+
+
+def write_ensemble_report(out: Path, rows: dict, floor: float, quick: bool, device) -> None:
+    """ensemble.md and ensemble.json from the rows measured so far (deployments per minute of a size
+    without a full run extrapolated from its window; sizes not yet measured left out)."""
+    one = rows[1]
+    rows = {b: r for b, r in rows.items() if r.us_per_member_step or r.full_wall_time_s is not None}
+    for r in rows.values():
+        r.extrapolated = r.full_wall_time_s is None
+        if r.extrapolated and r.us_per_member_step:
+            r.deployments_per_min = one.deployments_per_min * one.us_per_member_step / r.us_per_member_step
     table = markdown_table(
         ["B (members)", "full run: wall time (s)", "completed", "µs per member-step (half deployed)",
          "deployments / min"],
@@ -143,7 +158,6 @@ def main(out: Path, quick: bool, repeats: int, device=None) -> int:
           "" if r.completed is None else f"{r.completed}/{r.members}", r.us_per_member_step,
           f"{r.deployments_per_min:.3g}" + (" (from the window)" if r.extrapolated else "")]
          for r in rows.values()])
-    one = rows[1]
     notes = (f"Launch floor (the same launches per step on a 3-node coil, graph replay): {floor:.3g} µs per step; "
              f"compute of the half-deployed seed case: {one.us_per_member_step:.3g} µs per step; the single run "
              f"averages {one.full_wall_time_s / one.full_steps * 1e6:.3g} µs per step over {one.full_steps} steps "
@@ -154,4 +168,3 @@ def main(out: Path, quick: bool, repeats: int, device=None) -> int:
                  [f"Device: {device.alias} ({device.name}).", table, notes])
     write_text_atomic(out / "ensemble.json", json.dumps({"rows": [asdict(r) for r in rows.values()],
                                                           "launch_floor_us_per_step": floor}, indent=1))
-    return 0

@@ -782,16 +782,15 @@ def rest_offset(rest_gap: wp.float64, c0: wp.float64) -> wp.float64:
 
 
 @wp.func
-def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
-                      node_radius: wp.array(dtype=wp.float64),
-                      contact_share: wp.array(dtype=wp.float64), j: int, b: int, p0: wp.float64, c0: wp.float64,
-                      u_linear: wp.float64, rest_near: bool):
-    """½ s_j × the law of the gap between node sphere j and capsule b (|x_j − closest
-    point of edge b| − r_j − r_b, plus the rest offset of a same-coil pair), s_j node
-    j's contact share: (force on node j along x_j − closest point, µN; the closest
-    point's parameter t on b). ``rest_near`` False: the pair's rest offset is 0
-    (:func:`rest_apart`), not computed."""
-    p = x[j]
+def point_segment_term(p: wp.vec3d, rest_p: wp.vec3d, radius: wp.float64, share: wp.float64,
+                       x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
+                       node_radius: wp.array(dtype=wp.float64), b: int, p0: wp.float64, c0: wp.float64,
+                       u_linear: wp.float64, rest_near: bool):
+    """½ ``share`` × the law of the gap between a sphere of ``radius`` (mm) at ``p`` (a node
+    or a contact sample, rest position ``rest_p``) and capsule b (|p − closest point of
+    edge b| − radius − r_b, plus the rest offset of a same-coil pair): (force on p along
+    p − closest point, µN; the closest point's parameter t on b). ``rest_near`` False:
+    the pair's rest offset is 0 (:func:`rest_apart`), not computed."""
     pb0 = x[b]
     pb1 = x[b + 1]
     eb = pb1 - pb0
@@ -801,15 +800,44 @@ def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec
         t = wp.clamp(wp.dot(p - pb0, eb) / length_sq, wp.float64(0.0), wp.float64(1.0))
     delta = p - pb0 - t * eb
     dist = wp.length(delta)
-    gap = dist - node_radius[j] - node_radius[b]
+    gap = dist - radius - node_radius[b]
     f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     if gap < c0 and dist > wp.float64(1.0e-12):
         if rest_near:
-            rest = closest_on_segment(rest_x[j], rest_x[b], rest_x[b + 1])
-            gap = gap + rest_offset(wp.length(rest_x[j] - rest) - node_radius[j] - node_radius[b], c0)
+            rest = closest_on_segment(rest_p, rest_x[b], rest_x[b + 1])
+            gap = gap + rest_offset(wp.length(rest_p - rest) - radius - node_radius[b], c0)
         if gap < c0:
-            f = (wp.float64(0.5) * contact_share[j] * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+            f = (wp.float64(0.5) * share * contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
     return f, t
+
+
+@wp.func
+def node_segment_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
+                      node_radius: wp.array(dtype=wp.float64), share: wp.float64, j: int, b: int, p0: wp.float64,
+                      c0: wp.float64, u_linear: wp.float64, rest_near: bool):
+    """:func:`point_segment_term` of node j (weight ``share``: its contact share over its
+    coil's contact samples per edge) on capsule b."""
+    return point_segment_term(x[j], rest_x[j], node_radius[j], share, x, rest_x, node_radius, b, p0, c0, u_linear,
+                              rest_near)
+
+
+@wp.func
+def point_node_term(p: wp.vec3d, rest_p: wp.vec3d, radius: wp.float64, x: wp.array(dtype=wp.vec3d),
+                    rest_x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64), k: int,
+                    p0: wp.float64, c0: wp.float64, u_linear: wp.float64, rest_near: bool) -> wp.vec3d:
+    """The law of the gap between a sphere of ``radius`` (mm) at ``p`` (rest position
+    ``rest_p``) and node sphere k (with a same-coil pair's rest offset; ``rest_near``
+    False: 0, not computed), along p − x_k: the force on p of the term φ(|p − x_k|)."""
+    delta = p - x[k]
+    dist = wp.length(delta)
+    gap = dist - radius - node_radius[k]
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    if gap < c0 and dist > wp.float64(1.0e-12):
+        if rest_near:
+            gap = gap + rest_offset(wp.length(rest_p - rest_x[k]) - radius - node_radius[k], c0)
+        if gap < c0:
+            f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
+    return f
 
 
 @wp.func
@@ -817,19 +845,42 @@ def node_node_term(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d)
                    node_radius: wp.array(dtype=wp.float64),
                    j: int, k: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                    rest_near: bool) -> wp.vec3d:
-    """The law of the gap between node spheres j and k (with a same-coil pair's rest
-    offset; ``rest_near`` False: 0, not computed), along x_j − x_k: the force on j of
-    the term φ(|x_j − x_k|)."""
-    delta = x[j] - x[k]
-    dist = wp.length(delta)
-    gap = dist - node_radius[j] - node_radius[k]
-    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    if gap < c0 and dist > wp.float64(1.0e-12):
-        if rest_near:
-            gap = gap + rest_offset(wp.length(rest_x[j] - rest_x[k]) - node_radius[j] - node_radius[k], c0)
-        if gap < c0:
-            f = (contact_force_magnitude(gap, p0, c0, u_linear) / dist) * delta
-    return f
+    """:func:`point_node_term` of node j on node k: the force on j of the term φ(|x_j − x_k|)."""
+    return point_node_term(x[j], rest_x[j], node_radius[j], x, rest_x, node_radius, k, p0, c0, u_linear, rest_near)
+
+
+@wp.func
+def edge_samples(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d),
+                 node_radius: wp.array(dtype=wp.float64), samples: int, a: int, b: int, joint_b: wp.float64,
+                 p0: wp.float64, c0: wp.float64, u_linear: wp.float64, rest_near: bool):
+    """The terms of edge a's contact samples (its ``samples`` − 1 interior points at
+    parameters m / ``samples``, each of weight 1 / ``samples``: the coil's samples per edge)
+    on capsule b, with their correction at joint b when ``joint_b`` (1: node b joins
+    edges b − 1 and b, both touched): (forces on a's start and end node, reactions on b's
+    start and end node, µN), each summed over the samples in order."""
+    zero = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    own_start = zero
+    own_end = zero
+    react_start = zero
+    react_end = zero
+    share = wp.float64(1.0) / wp.float64(samples)
+    for m in range(1, samples):
+        s = wp.float64(m) / wp.float64(samples)
+        p = x[a] + s * (x[a + 1] - x[a])
+        rest_p = rest_x[a] + s * (rest_x[a + 1] - rest_x[a])
+        radius = (wp.float64(1.0) - s) * node_radius[a] + s * node_radius[a + 1]
+        f, t = point_segment_term(p, rest_p, radius, share, x, rest_x, node_radius, b, p0, c0, u_linear, rest_near)
+        g = f
+        react_start = react_start - (wp.float64(1.0) - t) * f
+        react_end = react_end - t * f
+        if joint_b > wp.float64(0.0):
+            w = wp.float64(0.5) * share * joint_b
+            n = point_node_term(p, rest_p, radius, x, rest_x, node_radius, b, p0, c0, u_linear, rest_near)
+            g = g - w * n
+            react_start = react_start + w * n
+        own_start = own_start + (wp.float64(1.0) - s) * g
+        own_end = own_end + s * g
+    return own_start, own_end, react_start, react_end
 
 
 @wp.func
@@ -907,7 +958,8 @@ def rest_clearance_gap(rest_x: wp.array(dtype=wp.vec3d), node_radius: wp.array(d
 def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                 free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                 fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                contact_share: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), a: int, b: int,
+                contact_share: wp.array(dtype=wp.float64), contact_samples: wp.array(dtype=wp.int32),
+                mid: wp.array(dtype=wp.vec3d), a: int, b: int,
                 exclusion: int, reach_a: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                 far: wp.float64):
     """The forces that the terms of the coil–coil energy joining edge a's and edge
@@ -971,32 +1023,39 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             gap_b = gap_a  # the same segment pair (b's own evaluation may differ in the last bit)
             two_a = owned_nodes(has_next, a) == 2
             two_b = owned_nodes(has_next, b) == 2
+            # each node's weight: its contact share over its coil's contact samples per edge (1 for l0 ≤ 1.5 d)
+            samples_a = contact_samples[a]
+            samples_b = contact_samples[b]
+            share_a0 = contact_share[a] / wp.float64(samples_a)
+            share_a1 = contact_share[a + 1] / wp.float64(samples_a)
+            share_b0 = contact_share[b] / wp.float64(samples_b)
+            share_b1 = contact_share[b + 1] / wp.float64(samples_b)
             # node–capsule terms: a's nodes on capsule b, b's nodes on capsule a (force on the node, parameter)
-            ta0, sa0 = node_segment_term(x, rest_x, node_radius, contact_share, a, b, p0, c0, u_linear, rest_near)
+            ta0, sa0 = node_segment_term(x, rest_x, node_radius, share_a0, a, b, p0, c0, u_linear, rest_near)
             ta1 = zero
             sa1 = wp.float64(0.0)
             if two_a:
-                ta1, sa1 = node_segment_term(x, rest_x, node_radius, contact_share, a + 1, b, p0, c0, u_linear, rest_near)
-            tb0, sb0 = node_segment_term(x, rest_x, node_radius, contact_share, b, a, p0, c0, u_linear, rest_near)
+                ta1, sa1 = node_segment_term(x, rest_x, node_radius, share_a1, a + 1, b, p0, c0, u_linear, rest_near)
+            tb0, sb0 = node_segment_term(x, rest_x, node_radius, share_b0, b, a, p0, c0, u_linear, rest_near)
             tb1 = zero
             sb1 = wp.float64(0.0)
             if two_b:
-                tb1, sb1 = node_segment_term(x, rest_x, node_radius, contact_share, b + 1, a, p0, c0, u_linear, rest_near)
+                tb1, sb1 = node_segment_term(x, rest_x, node_radius, share_b1, b + 1, a, p0, c0, u_linear, rest_near)
             # joint corrections w_mq φ(a + m, b + q) (force on a + m)
             ja0 = joint(free, has_next, fixed, coil_of, exclusion, a, b)
             ja1 = joint(free, has_next, fixed, coil_of, exclusion, a + 1, b)
             jb0 = joint(free, has_next, fixed, coil_of, exclusion, b, a)
             jb1 = joint(free, has_next, fixed, coil_of, exclusion, b + 1, a)
-            w00 = wp.float64(0.5) * (contact_share[a] * jb0 + contact_share[b] * ja0)
+            w00 = wp.float64(0.5) * (share_a0 * jb0 + share_b0 * ja0)
             w01 = wp.float64(0.0)
             w10 = wp.float64(0.0)
             w11 = wp.float64(0.0)
             if two_b:
-                w01 = wp.float64(0.5) * (contact_share[a] * jb1 + contact_share[b + 1] * ja0)
+                w01 = wp.float64(0.5) * (share_a0 * jb1 + share_b1 * ja0)
             if two_a:
-                w10 = wp.float64(0.5) * (contact_share[a + 1] * jb0 + contact_share[b] * ja1)
+                w10 = wp.float64(0.5) * (share_a1 * jb0 + share_b0 * ja1)
             if two_a and two_b:
-                w11 = wp.float64(0.5) * (contact_share[a + 1] * jb1 + contact_share[b + 1] * ja1)
+                w11 = wp.float64(0.5) * (share_a1 * jb1 + share_b1 * ja1)
             n00 = zero
             n01 = zero
             n10 = zero
@@ -1047,6 +1106,15 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
             if two_a:
                 fb_start = fb_start - (wp.float64(1.0) - sa1) * ta1
                 fb_end = fb_end - sa1 * ta1
+            if samples_a > 1 or samples_b > 1:  # segments above 1.5 d: their contact samples, each side as b's own
+                oa_start, oa_end, rb_start, rb_end = edge_samples(x, rest_x, node_radius, samples_a, a, b, jb0, p0, c0,
+                                                                  u_linear, rest_near)
+                ob_start, ob_end, ra_start, ra_end = edge_samples(x, rest_x, node_radius, samples_b, b, a, ja0, p0, c0,
+                                                                  u_linear, rest_near)
+                fa_start = fa_start + oa_start + ra_start
+                fa_end = fa_end + oa_end + ra_end
+                fb_start = fb_start + ob_start + rb_start
+                fb_end = fb_end + ob_end + rb_end
     return fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw, st
 
 
@@ -1054,14 +1122,15 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
 def pair_contact(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                  free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
                  fixed: wp.array(dtype=wp.int32), node_radius: wp.array(dtype=wp.float64),
-                 contact_share: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), a: int, b: int,
+                 contact_share: wp.array(dtype=wp.float64), contact_samples: wp.array(dtype=wp.int32),
+                 mid: wp.array(dtype=wp.vec3d), a: int, b: int,
                  exclusion: int, reach_a: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                  far: wp.float64):
     """Edge a's side of :func:`pair_forces`: (fixed-point forces on a's start and end
     node, segment gap or ``far`` when not evaluated, 1 if touching, 1 if non-finite)."""
     f_start, f_end, fb_start, fb_end, gap, gap_b, raw, st = pair_forces(
-        x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a, p0, c0,
-        u_linear, far)
+        x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, contact_samples, mid, a, b, exclusion,
+        reach_a, p0, c0, u_linear, far)
     bad = int(0)
     if not (finite_vec(f_start) and finite_vec(f_end) and gap == gap):
         bad = 1
@@ -1186,7 +1255,8 @@ def chord_candidate(x: wp.array(dtype=wp.vec3d), free: wp.array(dtype=wp.int32),
 def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
                node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
-               mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, reach_a: wp.float64, p0: wp.float64,
+               contact_samples: wp.array(dtype=wp.int32), mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int,
+               reach_a: wp.float64, p0: wp.float64,
                c0: wp.float64, u_linear: wp.float64, far: wp.float64, sum_start: wp.array(dtype=vec3l),
                sum_end: wp.array(dtype=vec3l), min_gap: wp.array(dtype=wp.float64),
                contacts: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32), record: int,
@@ -1204,8 +1274,8 @@ def visit_pair(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
     if b > a or not b_runs:
         handled = True
         fa_start, fa_end, fb_start, fb_end, gap_a, gap_b, raw_a, st_a = pair_forces(
-            x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, mid, a, b, exclusion, reach_a,
-            p0, c0, u_linear, far)
+            x, rest_x, coil_of, free, has_next, fixed, node_radius, contact_share, contact_samples, mid, a, b,
+            exclusion, reach_a, p0, c0, u_linear, far)
         if raw_a == -FAR_MM:  # not evaluated: zero forces and the gap the sums start from (clear_edge_sums)
             return raw_a, st_a, handled, b_runs
         add_side(a, fa_start, fa_end, gap_a, c0, sum_start, sum_end, min_gap, contacts, bad)
@@ -1250,6 +1320,7 @@ def edge_contact(
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     contact_share: wp.array(dtype=wp.float64),
+    contact_samples: wp.array(dtype=wp.int32),
     grid: wp.uint64,
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
@@ -1315,7 +1386,7 @@ def edge_contact(
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
             raw, st, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius,
-                                                  contact_share, mid, a, b, exclusion, reach_a, p0, c0, u_linear,
+                                                  contact_share, contact_samples, mid, a, b, exclusion, reach_a, p0, c0, u_linear,
                                                   radius, sum_start, sum_end, min_gap, contacts, bad, record,
                                                   touch_count, touch_b)
             if note_chord == 0:

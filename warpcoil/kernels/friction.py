@@ -134,7 +134,8 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
                  coil_of: wp.array(dtype=wp.int32), free: wp.array(dtype=wp.int32),
                  has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
                  node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
-                 inv_mass: wp.array(dtype=wp.float64), mid: wp.array(dtype=wp.vec3d), contacts: wp.array(dtype=wp.int32),
+                 contact_samples: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64),
+                 mid: wp.array(dtype=wp.vec3d), contacts: wp.array(dtype=wp.int32),
                  wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
                  exclusion: int, far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
                  mu_coil: wp.float64, mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
@@ -157,7 +158,8 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
         pb1 = x[b + 1]
         reach_a = wp.float64(0.5) * wp.length(pa1 - pa0) + node_radius[a] + c0
         f_start, f_end, gap, touching, bad = pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius,
-                                                          contact_share, mid, a, b, exclusion, reach_a, p0, c0, u_linear, far)
+                                                          contact_share, contact_samples, mid, a, b, exclusion, reach_a,
+                                                          p0, c0, u_linear, far)
         force = from_fixed(f_start) + from_fixed(f_end)  # the pair's normal force on edge a, µN
         load = wp.length(force)
         if touching != 0 and bad == 0 and load > F64_0:
@@ -195,6 +197,7 @@ def edge_friction(
     fixed: wp.array(dtype=wp.int32),
     node_radius: wp.array(dtype=wp.float64),
     contact_share: wp.array(dtype=wp.float64),
+    contact_samples: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
     wall_force: wp.array(dtype=wp.vec3d),
@@ -231,8 +234,9 @@ def edge_friction(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share, inv_mass, mid,
-                                  contacts, wall_force, device_force, a, b, exclusion, radius, p0, c0, u_linear, mu_coil,
+            d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share,
+                                  contact_samples, inv_mass, mid, contacts, wall_force, device_force, a, b, exclusion,
+                                  radius, p0, c0, u_linear, mu_coil,
                                   mu_catheter, v_reg, dt)
             sum_start = sum_start + to_fixed(d0)
             sum_end = sum_end + to_fixed(d1)

@@ -12,10 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from vtkmodules.util.numpy_support import numpy_to_vtk
-from vtkmodules.vtkCommonCore import vtkStringArray
-from vtkmodules.vtkCommonDataModel import vtkImageData
-from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
 
 from ..porous import PorousField
 from .atomic import atomic_path
@@ -33,8 +29,13 @@ def _nan_for_inf(values: np.ndarray) -> np.ndarray:
     return np.where(np.isinf(values), np.nan, values)
 
 
-def porous_image(field: PorousField) -> vtkImageData:
-    """The field as vtkImageData: voxels are cells, the origin is voxel (0, 0, 0)'s corner."""
+def porous_image(field: PorousField):
+    """The field as vtkImageData: voxels are cells, the origin is voxel (0, 0, 0)'s corner
+    (VTK imported here: only a run that writes porous.vti needs it)."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonCore import vtkStringArray
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+
     image = vtkImageData()
     image.SetDimensions(*(n + 1 for n in field.shape))
     image.SetOrigin(*field.origin_mm)
@@ -60,6 +61,8 @@ def porous_image(field: PorousField) -> vtkImageData:
 
 def write_porous_vti(path: Path, field: PorousField) -> None:
     """Write ``field`` to ``path`` (binary, zlib-compressed VTK XML ImageData), all or nothing."""
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
     with atomic_path(Path(path)) as tmp_path:
         writer = vtkXMLImageDataWriter()
         writer.SetFileName(str(tmp_path))
