@@ -342,6 +342,9 @@ def frictional_rest_cases() -> list[CaseResult]:
 
 def friction_cases() -> list[CaseResult]:
     """The reference (symplectic) step's cases, then the implicit step's: incline, capstan (with its
-    step convergence), energy, a deployment at rest."""
+    step convergence), energy, a deployment at rest; coil–coil friction (validation_coil_friction.py)."""
+    from .validation_coil_friction import coil_friction_cases
+
     return (incline_cases() + capstan_cases() + energy_cases() + incline_cases(implicit=True)
-            + capstan_cases(implicit=True) + energy_cases(implicit=True) + frictional_rest_cases())
+            + capstan_cases(implicit=True) + energy_cases(implicit=True) + frictional_rest_cases()
+            + coil_friction_cases())

@@ -25,11 +25,18 @@ metric) onto the contact's tangential relative motion: it never reverses a slip
 and conserves the pair's momentum.
 
 All contacts act at once (gather form) as v' = (I − Σ_p α_p φ_p P_p) v* with
-α_p = min(1, 2 / K), K the most contacts any node of p has. Since P_p only
-touches p's nodes, Σ_p α_p φ_p P_p ≤ max_node Σ_{p∋node} α_p · I ≤ 2 I, so the
-kinetic energy never rises — whatever the contact network — and, being implicit,
-friction sets no step limit. A node with at most two contacts (every validation
-case) gets each contact's exact law.
+α_p = min(1, 1 / Σ_max), Σ_max the largest over p's moving nodes of the sum of the slip
+fractions φ of that node's contacts (node_fraction_sums, from a first pass over the
+pairs). Since P_p only touches p's nodes, Σ_p α_p φ_p P_p ≤ max_node Σ_{p∋node} α_p φ_p · I
+≤ I, so the kinetic energy never rises and no slip is reversed — whatever the contact
+network — and, being implicit, friction sets no step limit. A node whose contacts' fractions
+sum to at most 1 gets each contact's exact law: a sliding contact's φ = dt μ N W / |w| is small
+against its slip, so a coil sliding over several others loses μN on each; a node stuck on
+several contacts (their fractions summing past 1) gets 1/Σφ of each, together what stops it.
+(Until the nineteenth session α = min(1, 2/K), K the contacts counted at the pair's nodes,
+scaled sliding too: a node sliding over a node of a crossing coil, K = 4, lost μN/2, parallel
+coils μN/3; docs/FORMULATION.md. A bound of 2 instead of 1 lets two stuck contacts reverse a
+node's slip each step: 40 %-packed frictional stress cases then never came to rest.)
 
 Normal guard: a contact's impulse is tangential to its own normal, but its
 neighbours' impulses on shared nodes (other coil pairs, the wall) are not, and
@@ -103,54 +110,70 @@ def node_contacts(contacts: wp.array(dtype=wp.int32), has_next: wp.array(dtype=w
 
 
 @wp.func
-def pair_weights(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
-                 inv_mass: wp.array(dtype=wp.float64), contacts: wp.array(dtype=wp.int32),
-                 wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
-                 s: wp.float64, t: wp.float64):
-    """Edge pair (a, b) at closest-point parameters (s, t): a's and b's inverse effective
-    masses there (1/g; b's 0 while both its nodes are in the catheter, which does not move)
-    and the most contacts K of the pair's moving nodes."""
-    w_b = F64_0
+def pair_contacts(free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32),
+                  contacts: wp.array(dtype=wp.int32), wall_force: wp.array(dtype=wp.vec3d),
+                  device_force: wp.array(dtype=wp.vec3d), a: int, b: int) -> int:
+    """The most contacts K of pair (a, b)'s moving nodes (b's when b is free)."""
     k = wp.max(node_contacts(contacts, has_next, wall_force, device_force, a),
                node_contacts(contacts, has_next, wall_force, device_force, a + 1))
     if free[b] != 0 or free[b + 1] != 0:
-        w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
         k = wp.max(k, wp.max(node_contacts(contacts, has_next, wall_force, device_force, b),
                              node_contacts(contacts, has_next, wall_force, device_force, b + 1)))
+    return k
+
+
+@wp.func
+def pair_weights(free: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64), a: int, b: int,
+                 s: wp.float64, t: wp.float64):
+    """Edge pair (a, b) at closest-point parameters (s, t): a's and b's inverse effective
+    masses there (1/g; b's 0 while both its nodes are in the catheter, which does not move)."""
+    w_b = F64_0
+    if free[b] != 0 or free[b + 1] != 0:
+        w_b = (F64_1 - t) * (F64_1 - t) * inv_mass[b] + t * t * inv_mass[b + 1]
     w_a = (F64_1 - s) * (F64_1 - s) * inv_mass[a] + s * s * inv_mass[a + 1]
-    return w_a, w_b, k
+    return w_a, w_b
 
 
 @wp.func
-def share(k: int) -> wp.float64:
-    """α = min(1, 2/K)."""
-    if k <= 2:
+def share(fraction_sum: wp.float64) -> wp.float64:
+    """α = min(1, 1 / Σφ), Σφ the sum of the slip fractions of a node's contacts."""
+    if fraction_sum <= F64_1:
         return F64_1
-    return wp.float64(2.0) / wp.float64(k)
+    return F64_1 / fraction_sum
 
 
 @wp.func
-def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
-                 coil_of: wp.array(dtype=wp.int32), free: wp.array(dtype=wp.int32),
-                 has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
-                 node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
-                 contact_samples: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64),
-                 mid: wp.array(dtype=wp.vec3d), contacts: wp.array(dtype=wp.int32),
-                 wall_force: wp.array(dtype=wp.vec3d), device_force: wp.array(dtype=wp.vec3d), a: int, b: int,
-                 exclusion: int, far: wp.float64, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
-                 mu_coil: wp.float64, mu_catheter: wp.float64, v_reg: wp.float64, dt: wp.float64):
-    """Friction of edge b on edge a: the velocity changes of a's start and end node
-    (mm/s). The normal n is the segment axes' closest-point direction (the force's
-    where the axes meet); the load N is the normal component of the net force that
-    the node–capsule terms of contact.pair_contact joining a and b put on a's nodes
-    (½-weighted, with the joint corrections and a same-coil pair's rest offset, so
-    turns that touch in the rest shape carry no load and get no friction); equal
-    and opposite from b's side. The slip is that of the segments' closest points,
-    less its part along n. (The force's own direction, up to ~40° off n in a deep
-    overlap, let friction brake the pair's separation.)"""
+def pair_share(fraction_sum: wp.array(dtype=wp.float64), free: wp.array(dtype=wp.int32), a: int, b: int) -> wp.float64:
+    """α of pair (a, b): the smallest of its moving nodes' (b's when b is free)."""
+    most = wp.max(fraction_sum[a], fraction_sum[a + 1])
+    if free[b] != 0 or free[b + 1] != 0:
+        most = wp.max(most, wp.max(fraction_sum[b], fraction_sum[b + 1]))
+    return share(most)
+
+
+@wp.func
+def pair_slip(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
+              coil_of: wp.array(dtype=wp.int32), free: wp.array(dtype=wp.int32),
+              has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+              node_radius: wp.array(dtype=wp.float64), contact_share: wp.array(dtype=wp.float64),
+              contact_samples: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.float64),
+              mid: wp.array(dtype=wp.vec3d), a: int, b: int, exclusion: int, far: wp.float64, p0: wp.float64,
+              c0: wp.float64, u_linear: wp.float64, mu_coil: wp.float64, mu_catheter: wp.float64,
+              v_reg: wp.float64, dt: wp.float64):
+    """The regularised Coulomb law of edge b on edge a: (φ, the slip at a's contact point (mm/s),
+    s, the pair's inverse effective mass 1/g); φ = 0 where none. The normal n is the segment
+    axes' closest-point direction (the force's where the axes meet); the load N is the normal
+    component of the net force that the node–capsule terms of contact.pair_contact joining a
+    and b put on a's nodes (½-weighted, with the joint corrections and a same-coil pair's rest
+    offset, so turns that touch in the rest shape carry no load and get no friction); equal and
+    opposite from b's side. The slip is that of the segments' closest points, less its part along
+    n. (The force's own direction, up to ~40° off n in a deep overlap, let friction brake the
+    pair's separation.)"""
     zero = wp.vec3d(F64_0, F64_0, F64_0)
-    dv_start = zero
-    dv_end = zero
+    phi = F64_0
+    slip = zero
+    s = F64_0
+    inv_m = F64_1
     if edge_is_obstacle(free, has_next, fixed, b):
         pa0 = x[a]
         pa1 = x[a + 1]
@@ -168,7 +191,7 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
             t = st[1]
             mu = mu_catheter
             vb = zero  # the catheter does not move
-            w_a, w_b, k = pair_weights(free, has_next, inv_mass, contacts, wall_force, device_force, a, b, s, t)
+            w_a, w_b = pair_weights(free, inv_mass, a, b, s, t)
             if free[b] != 0 or free[b + 1] != 0:
                 mu = mu_coil
                 vb = (F64_1 - t) * v[b] + t * v[b + 1]
@@ -177,11 +200,8 @@ def pair_impulse(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), 
             if mu > F64_0 and load > F64_0:
                 slip = tangential((F64_1 - s) * v[a] + s * v[a + 1] - vb, n)
                 inv_m = w_a + w_b
-                phi = share(k) * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
-                impulse = (-phi / inv_m) * slip  # on a's contact point, g·mm/s
-                dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
-                dv_end = (s * inv_mass[a + 1]) * impulse
-    return dv_start, dv_end
+                phi = slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)
+    return phi, slip, s, inv_m
 
 
 @wp.kernel(enable_backward=False)
@@ -200,8 +220,7 @@ def edge_friction(
     contact_samples: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
-    wall_force: wp.array(dtype=wp.vec3d),
-    device_force: wp.array(dtype=wp.vec3d),
+    fraction_sum: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
@@ -216,12 +235,15 @@ def edge_friction(
     mu_catheter: wp.float64,
     v_reg: wp.float64,
     dt: wp.float64,
+    apply: int,
     dv_start: wp.array(dtype=wp.vec3d),
     dv_end: wp.array(dtype=wp.vec3d),
 ):
-    """Friction velocity changes of edge a's nodes from its coil contacts, found as
-    contact.edge_contact finds them (positions ``x`` at the start of the step,
-    ``contacts`` its per-edge counts, velocities ``v`` predicted); fixed-point sums."""
+    """Edge a's coil contacts, found as contact.edge_contact finds them (positions ``x`` at the
+    start of the step, ``contacts`` its per-edge counts, velocities ``v`` predicted); fixed-point
+    sums. ``apply`` 0: the sum of their slip fractions φ into ``dv_start[a]``'s first component
+    (for :func:`node_fraction_sums`); 1: the friction velocity changes of a's nodes (mm/s), each
+    pair's φ times its share α (:func:`pair_share` of ``fraction_sum``)."""
     a = wp.tid()
     sum_start = vec3l()
     sum_end = vec3l()
@@ -234,14 +256,60 @@ def edge_friction(
         k = int(0)
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
-            d0, d1 = pair_impulse(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share,
-                                  contact_samples, inv_mass, mid, contacts, wall_force, device_force, a, b, exclusion,
-                                  radius, p0, c0, u_linear, mu_coil,
-                                  mu_catheter, v_reg, dt)
-            sum_start = sum_start + to_fixed(d0)
-            sum_end = sum_end + to_fixed(d1)
+            phi, slip, s, inv_m = pair_slip(x, rest_x, v, coil_of, free, has_next, fixed, node_radius, contact_share,
+                                            contact_samples, inv_mass, mid, a, b, exclusion, radius, p0, c0, u_linear,
+                                            mu_coil, mu_catheter, v_reg, dt)
+            if phi > F64_0:
+                if apply == 0:
+                    sum_start = sum_start + to_fixed(wp.vec3d(phi, F64_0, F64_0))
+                else:
+                    impulse = (-pair_share(fraction_sum, free, a, b) * phi / inv_m) * slip  # on a's contact point
+                    sum_start = sum_start + to_fixed(((F64_1 - s) * inv_mass[a]) * impulse)
+                    sum_end = sum_end + to_fixed((s * inv_mass[a + 1]) * impulse)
     dv_start[a] = from_fixed(sum_start)
     dv_end[a] = from_fixed(sum_end)
+
+
+@wp.func
+def obstacle_fraction(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64, inv_m: wp.float64,
+                      dt: wp.float64) -> wp.float64:
+    """φ of a fixed obstacle pushing with force f (its load and normal) on a node at velocity v."""
+    load = wp.length(f)
+    if load > F64_0 and mu > F64_0:
+        return slip_fraction(mu, load, wp.length(tangential(v, f / load)), inv_m, v_reg, dt)
+    return F64_0
+
+
+@wp.kernel
+def node_fraction_sums(
+    free_out: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    wall_force: wp.array(dtype=wp.vec3d),
+    device_force: wp.array(dtype=wp.vec3d),
+    mu_wall: wp.float64,
+    v_reg: wp.float64,
+    edge_sums: wp.array(dtype=wp.vec3d),
+    with_coil_terms: int,
+    dt: wp.float64,
+    v_out: wp.array(dtype=wp.vec3d),
+    fraction_sum: wp.array(dtype=wp.float64),
+):
+    """Σφ of node i's contacts: the wall's and a device's at its predicted velocity, and every
+    coil pair of edges i − 1 and i (their sums from edge_friction with ``apply`` 0)."""
+    i = wp.tid()
+    total = F64_0
+    if free_out[i] != 0:
+        v = v_out[i]
+        total = obstacle_fraction(wall_force[i], v, mu_wall, v_reg, inv_mass[i], dt) + \
+            obstacle_fraction(device_force[i], v, mu_wall, v_reg, inv_mass[i], dt)
+    if with_coil_terms != 0:
+        if has_next[i] != 0:
+            total += edge_sums[i][0]
+        if i >= 1:
+            if has_next[i - 1] != 0:
+                total += edge_sums[i - 1][0]
+    fraction_sum[i] = total
 
 
 @wp.func
@@ -262,7 +330,7 @@ def friction_change(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
-    contacts: wp.array(dtype=wp.int32),
+    fraction_sum: wp.array(dtype=wp.float64),
     wall_force: wp.array(dtype=wp.vec3d),
     device_force: wp.array(dtype=wp.vec3d),
     mu_wall: wp.float64,
@@ -275,13 +343,14 @@ def friction_change(
     change: wp.array(dtype=wp.vec3d),
 ):
     """Friction velocity change of node i (mm/s; 0 unless free and running): wall and
-    device with the wall's coefficient, coil pairs its shares of edges i and i − 1."""
+    device with the wall's coefficient and the node's share α (:func:`share` of its Σφ),
+    coil pairs its shares of edges i and i − 1."""
     i = wp.tid()
     dv = wp.vec3d(F64_0, F64_0, F64_0)
     if running[world_of[i]] != 0 and free_out[i] != 0:
         v = v_out[i]
         if mu_wall > F64_0:
-            alpha = share(node_contacts(contacts, has_next, wall_force, device_force, i))
+            alpha = share(fraction_sum[i])
             dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
                 obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
         if with_coil_terms != 0:
@@ -342,7 +411,8 @@ def pair_guard(x: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), fr
     n = contact_normal(x[a], x[a + 1], x[b], x[b + 1], s, t, zero)  # the axes are apart (guard_touching)
     rate = wp.dot((F64_1 - s) * change[a] + s * change[a + 1] - (F64_1 - t) * change[b] - t * change[b + 1], n)
     if rate < F64_0:
-        w_a, w_b, k = pair_weights(free, has_next, inv_mass, contacts, wall_force, device_force, a, b, s, t)
+        w_a, w_b = pair_weights(free, inv_mass, a, b, s, t)
+        k = pair_contacts(free, has_next, contacts, wall_force, device_force, a, b)
         impulse = (-rate / (wp.float64(wp.max(k, 1)) * (w_a + w_b))) * n  # on a's contact point, g·mm/s
         dv_start = ((F64_1 - s) * inv_mass[a]) * impulse
         dv_end = (s * inv_mass[a + 1]) * impulse
