@@ -410,11 +410,12 @@ def test_a_sweep_switches_only_members_that_choose_no_integrator(tmp_path):
     assert notes == [] and [s.simulation.integrator for s in scenes] == ["symplectic", "implicit", "implicit", "implicit"]
 
 
-@pytest.mark.parametrize("alignment", ["node over node", "node over edge", "parallel"])
+@pytest.mark.parametrize("alignment", ["node over node", "node over edge", "parallel", "over a stuck coil"])
 def test_a_coil_sliding_on_another_loses_mu_n_whatever_the_alignment(alignment):
     """A helper's find: each pair's friction was scaled by α = min(1, 2/K), K the contacts counted at
-    its nodes, so a coil sliding node over node (K = 4) lost μN/2 and parallel coils μN/3. The share now
-    follows the sum of the contacts' slip fractions: sliding contacts get the whole law."""
+    its nodes, so a coil sliding node over node (K = 4) lost μN/2 and parallel coils μN/3; a share by the
+    sum of the slip fractions at the pair's nodes still gave 0.246 μN over a coil stuck on a third. Each
+    node now caps its contacts' fractions where they would stop it: sliding contacts get the whole law."""
     from warpcoil.validation_coil_friction import sliding_friction_ratio
 
     assert sliding_friction_ratio(alignment) == pytest.approx(1.0, abs=1e-6)

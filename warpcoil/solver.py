@@ -354,7 +354,12 @@ class Solver:
         self.friction = self.coil_friction or (
             (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
         self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
-        self._fraction_sum = zeros(wp.float64)  # per node: its contacts' slip fractions summed (friction.share)
+        # per node: the scale and cap on its contacts' slip fractions (friction.node_fraction_caps); per edge: its
+        # coil pairs' slip fractions (up to FRICTION_PAIRS) and their count (−1: more)
+        self._fraction_scale, self._fraction_cap = zeros(wp.float64), zeros(wp.float64)
+        recorded = (n, friction.FRICTION_PAIRS) if self.coil_friction else (1, 1)
+        self._pair_phi = wp.zeros(recorded, dtype=wp.float64, device=dev)
+        self._pair_phi_count = wp.zeros(recorded[0], dtype=wp.int32, device=dev)
         self._guard_start, self._guard_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
         self._friction_change = zeros(wp.vec3d)  # per node, mm/s
         guarded = (n, friction.GUARD_PAIRS) if self.friction and coil_contact else (1, 1)  # the guard's pair record
@@ -654,31 +659,33 @@ class Solver:
     def _friction_law(self, state_in: State, state_out: State, running: wp.array, dt: float,
                       with_obstacles: bool = True) -> None:
         """Each node's friction velocity change (mm/s) by the law, into ``_friction_change``: a first
-        pass sums each node's contacts' slip fractions φ, a second applies each contact's φ times its
-        share α = min(1, 1/Σφ) (kernels/friction.py; without ``with_obstacles``: coil pairs alone, no
-        wall or device contact in the sums; ``_no_obstacle_force``, zeros, stands in for those forces)."""
+        pass records each edge's pairs' slip fractions φ, a second caps each node's (the largest t with
+        Σ min(φ, t) ≤ 1), a third applies each contact's φ within its nodes' caps (kernels/friction.py;
+        without ``with_obstacles``: coil pairs alone, no wall or device contact in the caps;
+        ``_no_obstacle_force``, zeros, stands in for those forces)."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
         wall_force, device_force = ((self.wall_force, self.device_force) if with_obstacles
                                     else (self._no_obstacle_force, self._no_obstacle_force))
         mu_wall = c.friction_wall if with_obstacles else 0.0
-        if self.coil_friction:  # each edge's sum of its pairs' slip fractions
+        caps = (self._fraction_scale, self._fraction_cap)
+        if self.coil_friction:  # each edge's pairs' slip fractions
             pairs = [
                 state_in.x, m.rest_x, state_out.v, state_in.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.contact_share, m.contact_samples, m.inv_mass, self.coil_contacts, self._fraction_sum,
+                m.node_radius, m.contact_share, m.contact_samples, m.inv_mass, self.coil_contacts, *caps,
                 self._grid.id, self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of,
                 self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil,
                 c.friction_catheter, c.friction_speed_mm_s, dt]
-            wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [0, self._friction_start,
-                                                                              self._friction_end])
-        wp.launch(friction.node_fraction_sums, n, device=dev, inputs=[
+            records = [self._pair_phi, self._pair_phi_count, self._friction_start, self._friction_end]
+            wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [0] + records)
+        wp.launch(friction.node_fraction_caps, n, device=dev, inputs=[
             state_out.free, m.has_next, m.inv_mass, wall_force, device_force, mu_wall, c.friction_speed_mm_s,
-            self._friction_start, int(self.coil_friction), dt, state_out.v, self._fraction_sum])
+            self._friction_start, self._pair_phi, self._pair_phi_count, int(self.coil_friction), dt, state_out.v,
+            *caps])
         if self.coil_friction:
-            wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [1, self._friction_start,
-                                                                              self._friction_end])
+            wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [1] + records)
         wp.launch(friction.friction_change, n, device=dev, inputs=[
-            state_out.free, m.has_next, m.world_of, running, m.inv_mass, self._fraction_sum, wall_force, device_force,
+            state_out.free, m.has_next, m.world_of, running, m.inv_mass, *caps, wall_force, device_force,
             mu_wall, c.friction_speed_mm_s, self._friction_start, self._friction_end, int(self.coil_friction), dt,
             state_out.v, self._friction_change])
 

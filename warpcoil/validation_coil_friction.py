@@ -18,15 +18,15 @@ MU_COIL = 0.4
 NODES = 21
 
 
-def _pair(lower: np.ndarray, upper: np.ndarray, mu: float, damping: float | None = None):
-    """Two straight coils of segment length d at ``lower`` and ``upper`` (node positions, mm) with
-    coil friction μ (and the default damping unless ``damping``, µN/mm)."""
+def _coils(positions: list[np.ndarray], mu: float, damping: float | None = None):
+    """Straight coils of segment length d at ``positions`` (node positions each, mm) with coil
+    friction μ (and the default damping unless ``damping``, µN/mm)."""
     d = REFERENCE_D_MM
-    spec = CoilSpec(wire_diameter_mm=d, length_mm=(len(lower) - 1) * d, segment_length_mm=d)
+    spec = CoilSpec(wire_diameter_mm=d, length_mm=(len(positions[0]) - 1) * d, segment_length_mm=d)
     settings = SimulationSettings() if damping is None else SimulationSettings(damping_uN_per_mm=damping)
     builder = ModelBuilder(settings=settings, contact=ContactSettings(P0_uN=P0_UN, friction_coil=mu))
-    builder.add_coil(spec, lower)
-    builder.add_coil(spec, upper)
+    for x in positions:
+        builder.add_coil(spec, x)
     return builder.finalize()
 
 
@@ -34,29 +34,33 @@ def sliding_friction_ratio(alignment: str, mu: float = MU_COIL, speed_mm_s: floa
     """One step of the friction law for a coil sliding at ``speed_mm_s`` over another, 0.01 mm
     into contact: the friction force on it over μ × its normal contact force. ``alignment``:
     "node over node" or "node over edge" (crossing at right angles, sliding diagonally), "parallel"
-    (along each other, nodes aligned)."""
+    (along each other, nodes aligned), "over a stuck coil" (node over node across a coil that rests,
+    stuck, on a third pressed under it: its nodes' other contacts would stop them)."""
     d, nodes, gap = REFERENCE_D_MM, 9, 0.01
+    lower = _straight(nodes, d)
+    others = []
     if alignment == "parallel":
-        lower = _straight(nodes, d)
         upper = _straight(nodes, d, centre=(0.0, 0.0, d + gap))
         slide = np.array([1.0, 0.0, 0.0])
     else:
-        lower = _straight(nodes, d)
         shift = 0.5 * d if alignment == "node over edge" else 0.0
         upper = _straight(nodes, d, axis=(0.0, 1.0, 0.0), centre=(shift, 0.0, d + gap))
         slide = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
-    model = _pair(lower, upper, mu)
-    x = np.concatenate([lower, upper])
+        if alignment == "over a stuck coil":
+            others = [_straight(nodes, d, centre=(0.0, 0.0, -d))]
+    model = _coils([lower, upper, *others], mu)
+    x = np.concatenate([lower, upper, *others])
     state, out = state_from_positions(model, x), state_from_positions(model, x)
     velocity = np.zeros_like(x)
-    velocity[nodes:] = speed_mm_s * slide
+    velocity[nodes:2 * nodes] = speed_mm_s * slide
     out.v.assign(velocity)
     solver = Solver(model)
     solver.compute_contacts(state)
     solver._friction_law(state, out, Control.create(model).running, solver.dt_s)
-    mass = 1.0 / model.inv_mass.numpy()[nodes:]
-    friction = (mass[:, None] * solver._friction_change.numpy()[nodes:]).sum(axis=0) / solver.dt_s
-    normal = np.linalg.norm(solver.contact_force.numpy()[nodes:].sum(axis=0))
+    moving = slice(nodes, 2 * nodes)
+    mass = 1.0 / model.inv_mass.numpy()[moving]
+    friction = (mass[:, None] * solver._friction_change.numpy()[moving]).sum(axis=0) / solver.dt_s
+    normal = np.linalg.norm(solver.contact_force.numpy()[moving].sum(axis=0))
     return float(-friction @ slide / (mu * normal))
 
 
@@ -72,7 +76,7 @@ def parallel_coils_motion(tan_ratio: float, implicit: bool = False, mu: float = 
     spec_mass = CoilSpec(wire_diameter_mm=d).rho * d  # an interior node's mass
     gap = _overlap_for(spec_mass * g_n_mm_s2, 0.1 * d)  # the pair's contact equilibrium
     upper = _straight(NODES, d, centre=(0.0, 0.0, d + gap))
-    model = _pair(lower, upper, mu, damping=0.0)
+    model = _coils([lower, upper], mu, damping=0.0)
     mass = 1.0 / model.inv_mass.numpy()
     load = np.zeros((2 * NODES, 3))
     load[NODES:] = mass[NODES:, None] * np.array([g_t, 0.0, -g_n_mm_s2])
@@ -95,11 +99,11 @@ def parallel_coils_motion(tan_ratio: float, implicit: bool = False, mu: float = 
 
 
 def coil_friction_cases() -> list[CaseResult]:
-    """Sliding friction μN at three alignments (one step of the law); two parallel coils stuck at
+    """Sliding friction μN at three alignments and over a stuck coil (one step of the law); two parallel coils stuck at
     0.8 μN of tangential load (creeping below v_reg: the law's v_reg F_t/(μN) for each of two coils
     pulled opposite ways, 2 × 0.8 v_reg relative at most) and sliding at 2 μN, on both steps."""
     rows = [_row(f"coil friction: sliding {alignment}: force / μN", 1.0, sliding_friction_ratio(alignment), 1e-6)
-            for alignment in ("node over node", "node over edge", "parallel")]
+            for alignment in ("node over node", "node over edge", "parallel", "over a stuck coil")]
     v_reg = ContactSettings().friction_speed_mm_s
     _, _, creep = parallel_coils_motion(0.8)
     rows.append(CaseResult("coil friction: parallel coils at 0.8 μN: stick, relative creep ≤ v_reg (mm/s)", v_reg,

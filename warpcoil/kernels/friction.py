@@ -24,19 +24,21 @@ damper μN/v_reg, so a tangential load F_t < μN creeps at v_reg F_t/(μN) < v_r
 metric) onto the contact's tangential relative motion: it never reverses a slip
 and conserves the pair's momentum.
 
-All contacts act at once (gather form) as v' = (I − Σ_p α_p φ_p P_p) v* with
-α_p = min(1, 1 / Σ_max), Σ_max the largest over p's moving nodes of the sum of the slip
-fractions φ of that node's contacts (node_fraction_sums, from a first pass over the
-pairs). Since P_p only touches p's nodes, Σ_p α_p φ_p P_p ≤ max_node Σ_{p∋node} α_p φ_p · I
-≤ I, so the kinetic energy never rises and no slip is reversed — whatever the contact
-network — and, being implicit, friction sets no step limit. A node whose contacts' fractions
-sum to at most 1 gets each contact's exact law: a sliding contact's φ = dt μ N W / |w| is small
-against its slip, so a coil sliding over several others loses μN on each; a node stuck on
-several contacts (their fractions summing past 1) gets 1/Σφ of each, together what stops it.
-(Until the nineteenth session α = min(1, 2/K), K the contacts counted at the pair's nodes,
-scaled sliding too: a node sliding over a node of a crossing coil, K = 4, lost μN/2, parallel
-coils μN/3; docs/FORMULATION.md. A bound of 2 instead of 1 lets two stuck contacts reverse a
-node's slip each step: 40 %-packed frictional stress cases then never came to rest.)
+All contacts act at once (gather form) as v' = (I − Σ_p ψ_p P_p) v*, ψ_p the slip fraction
+as applied: ψ_p = min(φ_p, t_i over p's moving nodes i), t_i the node's cap, the largest t with
+Σ_{p∋i} min(φ_p, t) ≤ 1 (none where the node's φ sum to at most 1; node_fraction_caps, from a
+first pass that records each edge's pairs' φ, and the wall's and a device's). Since P_p only
+touches p's nodes, Σ_p ψ_p P_p ≤ max_i Σ_{p∋i} ψ_p · I ≤ I, so the kinetic energy never rises
+and no slip is reversed — whatever the contact network — and, being implicit, friction sets no
+step limit. The cap takes from the contacts that would stop the node (large φ: stuck) and
+leaves a sliding one (φ = dt μ N W / |w|, small against its slip) its whole law: a coil sliding
+over others loses μN on each, also over a coil stuck on a third; the stuck contacts of a node
+share what stops it. (An edge with more than FRICTION_PAIRS pairs: the scale min(1, 1/Σφ) on
+its nodes' contacts instead. Until the nineteenth session α = min(1, 2/K), K the contacts
+counted at the pair's nodes, scaled sliding too: a node sliding over a node of a crossing coil,
+K = 4, lost μN/2, parallel coils μN/3; docs/FORMULATION.md. A bound of 2 instead of 1 lets two
+stuck contacts reverse a node's slip each step: 40 %-packed frictional stress cases then never
+came to rest.)
 
 Normal guard: a contact's impulse is tangential to its own normal, but its
 neighbours' impulses on shared nodes (other coil pairs, the wall) are not, and
@@ -134,6 +136,12 @@ def pair_weights(free: wp.array(dtype=wp.int32), inv_mass: wp.array(dtype=wp.flo
     return w_a, w_b
 
 
+FRICTION_PAIRS = 16  # coil pairs with friction an edge records its slip fractions of (more: the node's fallback)
+NO_CAP = wp.constant(wp.float64(1.0e30))  # a node whose contacts' slip fractions sum to at most 1: exact law
+FRACTION_UNITS = wp.constant(wp.float64(67108864.0))  # fixed-point units of a slip fraction (2^26)
+CAP_BISECTIONS = 60
+
+
 @wp.func
 def share(fraction_sum: wp.float64) -> wp.float64:
     """α = min(1, 1 / Σφ), Σφ the sum of the slip fractions of a node's contacts."""
@@ -143,12 +151,27 @@ def share(fraction_sum: wp.float64) -> wp.float64:
 
 
 @wp.func
-def pair_share(fraction_sum: wp.array(dtype=wp.float64), free: wp.array(dtype=wp.int32), a: int, b: int) -> wp.float64:
-    """α of pair (a, b): the smallest of its moving nodes' (b's when b is free)."""
-    most = wp.max(fraction_sum[a], fraction_sum[a + 1])
+def fraction_up(phi: wp.float64) -> wp.int64:
+    """A slip fraction in fixed-point units, rounded up (sums of them bound the true sum from above)."""
+    return wp.int64(wp.ceil(phi * FRACTION_UNITS))
+
+
+@wp.func
+def capped(phi: wp.float64, scale: wp.array(dtype=wp.float64), cap: wp.array(dtype=wp.float64), i: int,
+           j: int) -> wp.float64:
+    """φ of a contact of nodes i and j (i = j for an obstacle) as applied: min(φ·scale, cap) over both."""
+    return wp.min(phi * wp.min(scale[i], scale[j]), wp.min(cap[i], cap[j]))
+
+
+@wp.func
+def pair_applied(phi: wp.float64, scale: wp.array(dtype=wp.float64), cap: wp.array(dtype=wp.float64),
+                 free: wp.array(dtype=wp.int32), a: int, b: int) -> wp.float64:
+    """Pair (a, b)'s applied slip fraction: its φ capped by each moving node's cap and scale (b's
+    nodes when b is free; :func:`node_fraction_caps`)."""
+    applied = capped(phi, scale, cap, a, a + 1)
     if free[b] != 0 or free[b + 1] != 0:
-        most = wp.max(most, wp.max(fraction_sum[b], fraction_sum[b + 1]))
-    return share(most)
+        applied = wp.min(applied, capped(phi, scale, cap, b, b + 1))
+    return applied
 
 
 @wp.func
@@ -220,7 +243,8 @@ def edge_friction(
     contact_samples: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     contacts: wp.array(dtype=wp.int32),
-    fraction_sum: wp.array(dtype=wp.float64),
+    fraction_scale: wp.array(dtype=wp.float64),
+    fraction_cap: wp.array(dtype=wp.float64),
     grid: wp.uint64,
     neighbours: wp.array2d(dtype=wp.int32),
     neighbour_count: wp.array(dtype=wp.int32),
@@ -236,17 +260,21 @@ def edge_friction(
     v_reg: wp.float64,
     dt: wp.float64,
     apply: int,
+    pair_phi: wp.array2d(dtype=wp.float64),
+    pair_phi_count: wp.array(dtype=wp.int32),
     dv_start: wp.array(dtype=wp.vec3d),
     dv_end: wp.array(dtype=wp.vec3d),
 ):
     """Edge a's coil contacts, found as contact.edge_contact finds them (positions ``x`` at the
     start of the step, ``contacts`` its per-edge counts, velocities ``v`` predicted); fixed-point
-    sums. ``apply`` 0: the sum of their slip fractions φ into ``dv_start[a]``'s first component
-    (for :func:`node_fraction_sums`); 1: the friction velocity changes of a's nodes (mm/s), each
-    pair's φ times its share α (:func:`pair_share` of ``fraction_sum``)."""
+    sums. ``apply`` 0: their slip fractions φ, recorded (``pair_phi``, ``pair_phi_count``: up to
+    FRICTION_PAIRS, −1 past that) and summed, rounded up, into ``dv_start[a]``'s first component
+    (for :func:`node_fraction_caps`); 1: the friction velocity changes of a's nodes (mm/s), each
+    pair's φ as applied (:func:`pair_applied`)."""
     a = wp.tid()
     sum_start = vec3l()
     sum_end = vec3l()
+    recorded = int(0)
     w = world_of[a]
     radius = query_radius[w]
     if edge_in_contact_pass(free, has_next, a) and running[w] != 0 and contacts[a] > 0:
@@ -261,13 +289,23 @@ def edge_friction(
                                             mu_coil, mu_catheter, v_reg, dt)
             if phi > F64_0:
                 if apply == 0:
-                    sum_start = sum_start + to_fixed(wp.vec3d(phi, F64_0, F64_0))
+                    sum_start[0] = sum_start[0] + fraction_up(phi)
+                    if recorded >= 0 and recorded < pair_phi.shape[1]:
+                        pair_phi[a, recorded] = phi
+                        recorded += 1
+                    else:
+                        recorded = -1
                 else:
-                    impulse = (-pair_share(fraction_sum, free, a, b) * phi / inv_m) * slip  # on a's contact point
-                    sum_start = sum_start + to_fixed(((F64_1 - s) * inv_mass[a]) * impulse)
+                    impulse = (-pair_applied(phi, fraction_scale, fraction_cap, free, a, b) / inv_m) * slip
+                    sum_start = sum_start + to_fixed(((F64_1 - s) * inv_mass[a]) * impulse)  # on a's contact point
                     sum_end = sum_end + to_fixed((s * inv_mass[a + 1]) * impulse)
-    dv_start[a] = from_fixed(sum_start)
-    dv_end[a] = from_fixed(sum_end)
+    if apply == 0:
+        pair_phi_count[a] = recorded
+        dv_start[a] = wp.vec3d(wp.float64(sum_start[0]) / FRACTION_UNITS, F64_0, F64_0)
+        dv_end[a] = wp.vec3d(F64_0, F64_0, F64_0)
+    else:
+        dv_start[a] = from_fixed(sum_start)
+        dv_end[a] = from_fixed(sum_end)
 
 
 @wp.func
@@ -280,8 +318,19 @@ def obstacle_fraction(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float6
     return F64_0
 
 
+@wp.func
+def capped_sum(t: wp.float64, wall_phi: wp.float64, device_phi: wp.float64, pair_phi: wp.array2d(dtype=wp.float64),
+               edges: wp.vec2i, counts: wp.vec2i) -> wp.int64:
+    """Σ min(φ, t) over a node's contacts, in fixed-point units rounded up (order-independent)."""
+    total = fraction_up(wp.min(wall_phi, t)) + fraction_up(wp.min(device_phi, t))
+    for side in range(2):
+        for k in range(counts[side]):
+            total += fraction_up(wp.min(pair_phi[edges[side], k], t))
+    return total
+
+
 @wp.kernel
-def node_fraction_sums(
+def node_fraction_caps(
     free_out: wp.array(dtype=wp.int32),
     has_next: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
@@ -290,36 +339,71 @@ def node_fraction_sums(
     mu_wall: wp.float64,
     v_reg: wp.float64,
     edge_sums: wp.array(dtype=wp.vec3d),
+    pair_phi: wp.array2d(dtype=wp.float64),
+    pair_phi_count: wp.array(dtype=wp.int32),
     with_coil_terms: int,
     dt: wp.float64,
     v_out: wp.array(dtype=wp.vec3d),
-    fraction_sum: wp.array(dtype=wp.float64),
+    fraction_scale: wp.array(dtype=wp.float64),
+    fraction_cap: wp.array(dtype=wp.float64),
 ):
-    """Σφ of node i's contacts: the wall's and a device's at its predicted velocity, and every
-    coil pair of edges i − 1 and i (their sums from edge_friction with ``apply`` 0)."""
+    """Node i's cap t on its contacts' slip fractions (the wall's and a device's at its predicted
+    velocity, every coil pair of edges i − 1 and i from edge_friction with ``apply`` 0): the largest
+    t with Σ min(φ, t) ≤ 1 (NO_CAP when Σφ ≤ 1), found by bisection on fixed-point sums: sliding
+    contacts (small φ) keep their whole law, the stuck ones share what stops the node. Where an
+    edge's record overflowed, the scale min(1, 1/Σφ) on all of them instead (no cap)."""
     i = wp.tid()
-    total = F64_0
+    wall_phi = F64_0
+    device_phi = F64_0
     if free_out[i] != 0:
         v = v_out[i]
-        total = obstacle_fraction(wall_force[i], v, mu_wall, v_reg, inv_mass[i], dt) + \
-            obstacle_fraction(device_force[i], v, mu_wall, v_reg, inv_mass[i], dt)
+        wall_phi = obstacle_fraction(wall_force[i], v, mu_wall, v_reg, inv_mass[i], dt)
+        device_phi = obstacle_fraction(device_force[i], v, mu_wall, v_reg, inv_mass[i], dt)
+    edges = wp.vec2i(i, i - 1)
+    counts = wp.vec2i(0, 0)
+    total = wall_phi + device_phi
+    overflow = False
     if with_coil_terms != 0:
-        if has_next[i] != 0:
-            total += edge_sums[i][0]
-        if i >= 1:
-            if has_next[i - 1] != 0:
-                total += edge_sums[i - 1][0]
-    fraction_sum[i] = total
+        for side in range(2):
+            e = edges[side]
+            if e >= 0:
+                if has_next[e] != 0:
+                    total += edge_sums[e][0]
+                    if pair_phi_count[e] < 0:
+                        overflow = True
+                    else:
+                        counts[side] = pair_phi_count[e]
+    scale = F64_1
+    cap = NO_CAP
+    if overflow:
+        scale = share(total)
+    elif capped_sum(NO_CAP, wall_phi, device_phi, pair_phi, edges, counts) > wp.int64(FRACTION_UNITS):
+        low = F64_0
+        high = wp.max(wall_phi, device_phi)
+        for side in range(2):
+            for k in range(counts[side]):
+                high = wp.max(high, pair_phi[edges[side], k])
+        for _ in range(CAP_BISECTIONS):
+            middle = wp.float64(0.5) * (low + high)
+            if capped_sum(middle, wall_phi, device_phi, pair_phi, edges, counts) <= wp.int64(FRACTION_UNITS):
+                low = middle
+            else:
+                high = middle
+        cap = low
+    fraction_scale[i] = scale
+    fraction_cap[i] = cap
 
 
 @wp.func
 def obstacle_change(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64, inv_m: wp.float64,
-                    alpha: wp.float64, dt: wp.float64) -> wp.vec3d:
-    """Velocity change from a fixed obstacle pushing with force f (its load and normal)."""
+                    scale: wp.array(dtype=wp.float64), cap: wp.array(dtype=wp.float64), i: int,
+                    dt: wp.float64) -> wp.vec3d:
+    """Velocity change of node i from a fixed obstacle pushing with force f (its load and normal),
+    its slip fraction as applied (:func:`capped`)."""
     load = wp.length(f)
     if load > F64_0:
         slip = tangential(v, f / load)
-        return -(alpha * slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt)) * slip
+        return -capped(slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt), scale, cap, i, i) * slip
     return wp.vec3d(F64_0, F64_0, F64_0)
 
 
@@ -330,7 +414,8 @@ def friction_change(
     world_of: wp.array(dtype=wp.int32),
     running: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
-    fraction_sum: wp.array(dtype=wp.float64),
+    fraction_scale: wp.array(dtype=wp.float64),
+    fraction_cap: wp.array(dtype=wp.float64),
     wall_force: wp.array(dtype=wp.vec3d),
     device_force: wp.array(dtype=wp.vec3d),
     mu_wall: wp.float64,
@@ -343,16 +428,15 @@ def friction_change(
     change: wp.array(dtype=wp.vec3d),
 ):
     """Friction velocity change of node i (mm/s; 0 unless free and running): wall and
-    device with the wall's coefficient and the node's share α (:func:`share` of its Σφ),
+    device with the wall's coefficient, their slip fractions as applied (:func:`node_fraction_caps`),
     coil pairs its shares of edges i and i − 1."""
     i = wp.tid()
     dv = wp.vec3d(F64_0, F64_0, F64_0)
     if running[world_of[i]] != 0 and free_out[i] != 0:
         v = v_out[i]
         if mu_wall > F64_0:
-            alpha = share(fraction_sum[i])
-            dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt) + \
-                obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], alpha, dt)
+            dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], fraction_scale, fraction_cap, i, dt) + \
+                obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], fraction_scale, fraction_cap, i, dt)
         if with_coil_terms != 0:
             dv = add_edge_shares(dv, dv_start, dv_end, has_next, i)
     change[i] = dv
