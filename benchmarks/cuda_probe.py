@@ -64,7 +64,8 @@ for p_, g_, o_ in ((pa, ga, oa), (pb, gb, ob)):
     graphs.append(cap.graph)
 wp.capture_launch(graphs[0])  # A replayed after B was captured
 wp.synchronize_device(dev)
-print("2 grid A replayed after grid B's capture:", "OK" if np.array_equal(oa.numpy(), expected(pa)) else "WRONG (cross-talk)")
+print("2 grid A replayed after grid B's capture:",
+      "OK" if np.array_equal(oa.numpy(), expected(pa)) else "WRONG (cross-talk)")
 
 # 3. validation_push._law_uN as written (arrays on the default device, launch on cpu)
 try:

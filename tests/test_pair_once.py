@@ -15,7 +15,8 @@ from warpcoil.validation import _helix_spec
 def both_sides(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), coil_of: wp.array(dtype=wp.int32),
                free: wp.array(dtype=wp.int32), has_next: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
                node_radius: wp.array(dtype=wp.float64), share: wp.array(dtype=wp.float64),
-               samples: wp.array(dtype=wp.int32), mid: wp.array(dtype=wp.vec3d), exclusion: int, p0: wp.float64, c0: wp.float64, u_linear: wp.float64,
+               samples: wp.array(dtype=wp.int32), mid: wp.array(dtype=wp.vec3d), exclusion: int, p0: wp.float64,
+               c0: wp.float64, u_linear: wp.float64,
                far: wp.float64, force_start: wp.array(dtype=wp.vec3d), force_end: wp.array(dtype=wp.vec3d),
                contacts: wp.array(dtype=wp.int32)):
     """Edge a against every other edge (brute force), evaluated from a's side only."""
@@ -28,8 +29,8 @@ def both_sides(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
         for b in range(x.shape[0]):
             if has_next[b] != 0 and not contact.bonded(coil_of, exclusion, a, b):
                 s, e, gap, hit, bad = contact.pair_contact(x, rest_x, coil_of, free, has_next, fixed, node_radius,
-                                                           share, samples, mid, a, b, exclusion, reach_a, p0, c0, u_linear,
-                                                           far)
+                                                           share, samples, mid, a, b, exclusion, reach_a, p0, c0,
+                                                           u_linear, far)
                 total_start = total_start + s
                 total_end = total_end + e
                 touching += hit
@@ -41,8 +42,8 @@ def both_sides(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), co
 @pytest.mark.parametrize("segments_d, samples, touching", [(None, 1, 500), (1.9, 2, 200), (3.4, 4, 100)])
 def test_pairs_evaluated_once_equal_both_sides_bit_for_bit(segments_d, samples, touching):
     """Two interleaved close-wound helices (every turn touching its neighbours and the
-    other coil), jittered by 2 µm: over 250 touching pairs (fewer, longer edges above 1.5 d); with segments above 1.5 d,
-    their contact samples between the nodes too."""
+    other coil), jittered by 2 µm: over 250 touching pairs (fewer, longer edges above 1.5 d); with
+    segments above 1.5 d, their contact samples between the nodes too."""
     helix = dict(length_mm=20.0, loop_diameter_mm=3.0, pitch_mm=0.2921 + 0.005)
     segment_mm = None if segments_d is None else segments_d * 0.2921
     builder = wc.ModelBuilder()

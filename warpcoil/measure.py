@@ -215,8 +215,8 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     regions = regional_densities(model, member, x, free)
     coil_gap = finite([f.min_coil_gap_mm for f in frames])
     return RunResult(
-        status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs)), steps=member.steps, dt_s=solver.dt_s,
-        step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
+        status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs)), steps=member.steps,
+        dt_s=solver.dt_s, step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
         simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
         deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
         packing_density=coil_volume / sac_volume if sac_volume else None,

@@ -36,9 +36,9 @@ from .settings import CatheterSpec, ContactSettings, SimulationSettings
 EDGE_STRETCH_MARGIN = 1.1  # the coil–coil search holds for edges stretched up to 10 % past the longest rest edge
 # coil–coil contact at the nodes alone holds two segments crossing at their middles apart up to l0 = 1.5 d (each
 # node, l0/2 from the other's axis, inside the other's wire; tests/test_contact.py); a coarser coil adds contact
-# samples between its nodes, K − 1 evenly spaced per edge with K = ⌈l0 / d⌉: samples a diameter apart hold crossing
-# segments of 2–4.5 d apart at 500 mm/s with their centre lines ≥ 0.66 d apart, where 1.5 d spacing let them come to
-# 0.41 d (each sample weighs 1/K; docs/FORMULATION.md "Segments longer than 1.5 d")
+# samples between its nodes, K − 1 evenly spaced per edge with K = ⌈l0 / d⌉: samples a diameter apart hold
+# crossing segments of 2–4.5 d apart at 500 mm/s with their centre lines ≥ 0.66 d apart, where 1.5 d spacing let
+# them come to 0.41 d (each sample weighs 1/K; docs/FORMULATION.md "Segments longer than 1.5 d")
 NODE_CONTACT_MAX_SEGMENT_D = 1.5
 CONTACT_SAMPLE_SPACING_D = 1.0
 CONTACT_DESIGN_OVERLAP_U = 3.0  # u = 1 − h/c0 at which the step bound takes the contact stiffness (h = −2 c0)

@@ -211,7 +211,8 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed
     case ~300 against ~100 µs, as a scene written for the reference when it was the default
     would give), segments below d/2 (outside its validated range: a released coil gains energy)
-    or above 2d (its accuracy not measured there), and wall friction (its push force is the reference's only at tiny steps)."""
+    or above 2d (its accuracy not measured there), and wall friction (its push force is the
+    reference's only at tiny steps)."""
     sim = scene.simulation
     if sim.integrator != "implicit":
         return []

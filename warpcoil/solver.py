@@ -355,8 +355,8 @@ class Solver:
             (self.has_wall or self.has_balloon or self.has_stent) and c.friction_wall > 0.0)
         self._friction_start, self._friction_end = zeros(wp.vec3d), zeros(wp.vec3d)  # per edge, mm/s
         # per node: the scale and cap on its contacts' slip fractions (friction.node_fraction_caps); per edge: its
-        # coil pairs' slip fractions (up to FRICTION_PAIRS) and their count (−1: more)
-        self._fraction_scale, self._fraction_cap = zeros(wp.float64), zeros(wp.float64)
+        # coil pairs' slip fractions (up to FRICTION_PAIRS), their count (−1: more) and their sum
+        self._fraction_scale, self._fraction_cap, self._phi_sum = (zeros(wp.float64) for _ in range(3))
         recorded = (n, friction.FRICTION_PAIRS) if self.coil_friction else (1, 1)
         self._pair_phi = wp.zeros(recorded, dtype=wp.float64, device=dev)
         self._pair_phi_count = wp.zeros(recorded[0], dtype=wp.int32, device=dev)
@@ -465,9 +465,9 @@ class Solver:
                 self._touch_count, self._chord_count])
             pass_args = [
                 state.x, m.rest_x, state.free, m.has_next, m.coil_of, m.world_of, running, m.fixed,
-                m.node_radius, m.contact_share, m.contact_samples, self._grid.id, self._neighbours, self._neighbour_count,
-                self._midpoints,
-                m.query_radius_of, self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear,
+                m.node_radius, m.contact_share, m.contact_samples, self._grid.id, self._neighbours,
+                self._neighbour_count, self._midpoints, m.query_radius_of, self._grid_radius, c.exclusion_edges,
+                c.p0_uN, c.c0_mm, self.contact_u_linear,
                 *sums, self.coil_gap, self.coil_contacts, self._edge_bad, int(self.record_touching),
                 self._touch_count, self._touch_b,
                 # the implicit step's chord candidates too, while its predicted end is known
@@ -676,12 +676,11 @@ class Solver:
                 self._grid.id, self._neighbours, self._neighbour_count, self._midpoints, m.query_radius_of,
                 self._grid_radius, c.exclusion_edges, c.p0_uN, c.c0_mm, self.contact_u_linear, c.friction_coil,
                 c.friction_catheter, c.friction_speed_mm_s, dt]
-            records = [self._pair_phi, self._pair_phi_count, self._friction_start, self._friction_end]
+            records = [self._pair_phi, self._pair_phi_count, self._phi_sum, self._friction_start, self._friction_end]
             wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [0] + records)
         wp.launch(friction.node_fraction_caps, n, device=dev, inputs=[
             state_out.free, m.has_next, m.inv_mass, wall_force, device_force, mu_wall, c.friction_speed_mm_s,
-            self._friction_start, self._pair_phi, self._pair_phi_count, int(self.coil_friction), dt, state_out.v,
-            *caps])
+            self._phi_sum, self._pair_phi, self._pair_phi_count, int(self.coil_friction), dt, state_out.v, *caps])
         if self.coil_friction:
             wp.launch(friction.edge_friction, n, device=dev, inputs=pairs + [1] + records)
         wp.launch(friction.friction_change, n, device=dev, inputs=[

@@ -7,27 +7,14 @@ from __future__ import annotations
 import numpy as np
 
 from .coil import CoilSpec
-from .model import ModelBuilder
-from .settings import ContactSettings, SimulationSettings
+from .settings import ContactSettings
 from .solver import Control, Solver, Stepper
 from .state import state_from_positions
 from .validation import REFERENCE_D_MM, CaseResult, _row
-from .validation_friction import P0_UN, _chunk, _label, _overlap_for, _solver, _straight
+from .validation_friction import _chunk, _label, _overlap_for, _solver, _straight, straight_coils
 
 MU_COIL = 0.4
 NODES = 21
-
-
-def _coils(positions: list[np.ndarray], mu: float, damping: float | None = None):
-    """Straight coils of segment length d at ``positions`` (node positions each, mm) with coil
-    friction μ (and the default damping unless ``damping``, µN/mm)."""
-    d = REFERENCE_D_MM
-    spec = CoilSpec(wire_diameter_mm=d, length_mm=(len(positions[0]) - 1) * d, segment_length_mm=d)
-    settings = SimulationSettings() if damping is None else SimulationSettings(damping_uN_per_mm=damping)
-    builder = ModelBuilder(settings=settings, contact=ContactSettings(P0_uN=P0_UN, friction_coil=mu))
-    for x in positions:
-        builder.add_coil(spec, x)
-    return builder.finalize()
 
 
 def sliding_friction_ratio(alignment: str, mu: float = MU_COIL, speed_mm_s: float = 200.0) -> float:
@@ -48,7 +35,7 @@ def sliding_friction_ratio(alignment: str, mu: float = MU_COIL, speed_mm_s: floa
         slide = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
         if alignment == "over a stuck coil":
             others = [_straight(nodes, d, centre=(0.0, 0.0, -d))]
-    model = _coils([lower, upper, *others], mu)
+    model = straight_coils([lower, upper, *others], mu_coil=mu)
     x = np.concatenate([lower, upper, *others])
     state, out = state_from_positions(model, x), state_from_positions(model, x)
     velocity = np.zeros_like(x)
@@ -76,7 +63,7 @@ def parallel_coils_motion(tan_ratio: float, implicit: bool = False, mu: float = 
     spec_mass = CoilSpec(wire_diameter_mm=d).rho * d  # an interior node's mass
     gap = _overlap_for(spec_mass * g_n_mm_s2, 0.1 * d)  # the pair's contact equilibrium
     upper = _straight(NODES, d, centre=(0.0, 0.0, d + gap))
-    model = _coils([lower, upper], mu, damping=0.0)
+    model = straight_coils([lower, upper], mu_coil=mu, damping=0.0)
     mass = 1.0 / model.inv_mass.numpy()
     load = np.zeros((2 * NODES, 3))
     load[NODES:] = mass[NODES:, None] * np.array([g_t, 0.0, -g_n_mm_s2])

@@ -9,11 +9,11 @@ import numpy as np
 
 from .coil import CoilSpec
 from .model import ModelBuilder
-from .settings import ContactSettings, SimulationSettings
+from .settings import ContactSettings
 from .solver import Control, Solver, Stepper
 from .state import state_from_positions
 from .validation import REFERENCE_D_MM, CaseResult, _row
-from .validation_friction import P0_UN, _floor, _law_uN, _overlap_for, _straight
+from .validation_friction import P0_UN, _floor, _law_uN, _overlap_for, _straight, straight_coils
 
 FLOOR_G_MM_S2 = 2.0e5  # weight per node ~37 µN at l0 = d: u ≈ 0.25 into the law
 
@@ -64,21 +64,15 @@ def _chains_force(l0_mm: float, across_mm: float, spacing_mm: float, samples: in
     """Coil–coil contact force (µN) on coil A (along x at height ``spacing_mm`` over coil B's
     axis, its nodes ``offset_mm`` off the crossing) from coil B of segment length ``l0_mm``:
     along y when ``across_mm`` is None (crossing at right angles), else parallel to A at
-    ``across_mm`` sideways. ``samples``: force the contact
-    samples per edge K (None: the model's). Returns (A's total force along z, µN; c0, mm;
+    ``across_mm`` sideways. ``samples``: force the contact samples per edge K (None: the model's). Returns (A's total force along z, µN; c0, mm;
     the solver's linear onset u)."""
-    d = REFERENCE_D_MM
     s = (np.arange(nodes) - nodes // 2) * l0_mm
     a = np.stack([s + offset_mm, np.zeros(nodes), np.full(nodes, spacing_mm)], axis=1)
     if across_mm is None:
         b = np.stack([np.zeros(nodes), s + offset_mm, np.zeros(nodes)], axis=1)
     else:
         b = np.stack([s + offset_mm, np.full(nodes, across_mm), np.zeros(nodes)], axis=1)
-    spec = CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * l0_mm, segment_length_mm=l0_mm)
-    builder = ModelBuilder(contact=ContactSettings(P0_uN=P0_UN))
-    builder.add_coil(spec, a)
-    builder.add_coil(spec, b)
-    model = builder.finalize()
+    model = straight_coils([a, b], segment_mm=l0_mm)
     if samples is not None:
         model.contact_samples.fill_(samples)
     solver = Solver(model)

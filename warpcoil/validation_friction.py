@@ -70,6 +70,20 @@ def _straight(nodes: int, d: float, axis=(1.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)
     return np.asarray(centre) + s[:, None] * np.asarray(axis)
 
 
+def straight_coils(positions: list[np.ndarray], segment_mm: float = REFERENCE_D_MM, mu_coil: float = 0.0,
+                   damping: float | None = None):
+    """A Model of coils of wire diameter REFERENCE_D_MM and segment length ``segment_mm`` through
+    ``positions`` (node positions each, mm), contact P0_UN, coil friction ``mu_coil``, the default
+    damping unless ``damping`` (µN/mm)."""
+    spec = CoilSpec(wire_diameter_mm=REFERENCE_D_MM, length_mm=(len(positions[0]) - 1) * segment_mm,
+                    segment_length_mm=segment_mm)
+    settings = SimulationSettings() if damping is None else SimulationSettings(damping_uN_per_mm=damping)
+    builder = ModelBuilder(settings=settings, contact=ContactSettings(P0_uN=P0_UN, friction_coil=mu_coil))
+    for x in positions:
+        builder.add_coil(spec, x)
+    return builder.finalize()
+
+
 # --- inclined plane ---------------------------------------------------------------
 def rod_on_floor(mu: float, g_mm_s2: np.ndarray, nodes: int = 11,
                  v_reg_mm_s: float = ContactSettings.friction_speed_mm_s):

@@ -987,6 +987,9 @@ def pair_forces(x: wp.array(dtype=wp.vec3d), rest_x: wp.array(dtype=wp.vec3d), c
     node's half patch). Every term is C¹ in the positions (the capsule–capsule
     closest points jump between segment ends when two segments turn parallel; a
     node's closest point on a segment does not), so the forces have no jumps.
+    A coil whose edges are longer than 1.5 d (``contact_samples`` K > 1) adds K − 1
+    contact samples per edge between its nodes, each in the same sum with weight 1/K
+    (its nodes' weights s_j / K; :func:`edge_samples`).
     Evaluated when the midpoints are within ``far`` (the world's query radius:
     the same cutoff whichever way b was found) and the bounding spheres meet; a
     pair whose segments are farther apart than c0 (+ TOUCH_MARGIN_MM) has no term
@@ -1386,8 +1389,8 @@ def edge_contact(
         b = int(0)
         while next_partner(query, k, b, a, neighbours, listed, coil_of, exclusion):
             raw, st, handled, b_runs = visit_pair(x, rest_x, coil_of, free, has_next, fixed, node_radius,
-                                                  contact_share, contact_samples, mid, a, b, exclusion, reach_a, p0, c0, u_linear,
-                                                  radius, sum_start, sum_end, min_gap, contacts, bad, record,
+                                                  contact_share, contact_samples, mid, a, b, exclusion, reach_a, p0, c0,
+                                                  u_linear, radius, sum_start, sum_end, min_gap, contacts, bad, record,
                                                   touch_count, touch_b)
             if note_chord == 0:
                 continue

@@ -262,15 +262,16 @@ def edge_friction(
     apply: int,
     pair_phi: wp.array2d(dtype=wp.float64),
     pair_phi_count: wp.array(dtype=wp.int32),
+    phi_sum: wp.array(dtype=wp.float64),
     dv_start: wp.array(dtype=wp.vec3d),
     dv_end: wp.array(dtype=wp.vec3d),
 ):
     """Edge a's coil contacts, found as contact.edge_contact finds them (positions ``x`` at the
     start of the step, ``contacts`` its per-edge counts, velocities ``v`` predicted); fixed-point
     sums. ``apply`` 0: their slip fractions φ, recorded (``pair_phi``, ``pair_phi_count``: up to
-    FRICTION_PAIRS, −1 past that) and summed, rounded up, into ``dv_start[a]``'s first component
-    (for :func:`node_fraction_caps`); 1: the friction velocity changes of a's nodes (mm/s), each
-    pair's φ as applied (:func:`pair_applied`)."""
+    FRICTION_PAIRS, −1 past that) and summed, rounded up, into ``phi_sum`` (for
+    :func:`node_fraction_caps`); 1: the friction velocity changes of a's nodes (mm/s) into ``dv_start``
+    and ``dv_end``, each pair's φ as applied (:func:`pair_applied`)."""
     a = wp.tid()
     sum_start = vec3l()
     sum_end = vec3l()
@@ -301,8 +302,7 @@ def edge_friction(
                     sum_end = sum_end + to_fixed((s * inv_mass[a + 1]) * impulse)
     if apply == 0:
         pair_phi_count[a] = recorded
-        dv_start[a] = wp.vec3d(wp.float64(sum_start[0]) / FRACTION_UNITS, F64_0, F64_0)
-        dv_end[a] = wp.vec3d(F64_0, F64_0, F64_0)
+        phi_sum[a] = wp.float64(sum_start[0]) / FRACTION_UNITS
     else:
         dv_start[a] = from_fixed(sum_start)
         dv_end[a] = from_fixed(sum_end)
@@ -338,7 +338,7 @@ def node_fraction_caps(
     device_force: wp.array(dtype=wp.vec3d),
     mu_wall: wp.float64,
     v_reg: wp.float64,
-    edge_sums: wp.array(dtype=wp.vec3d),
+    phi_sum: wp.array(dtype=wp.float64),
     pair_phi: wp.array2d(dtype=wp.float64),
     pair_phi_count: wp.array(dtype=wp.int32),
     with_coil_terms: int,
@@ -368,7 +368,7 @@ def node_fraction_caps(
             e = edges[side]
             if e >= 0:
                 if has_next[e] != 0:
-                    total += edge_sums[e][0]
+                    total += phi_sum[e]
                     if pair_phi_count[e] < 0:
                         overflow = True
                     else:
@@ -399,11 +399,11 @@ def obstacle_change(f: wp.vec3d, v: wp.vec3d, mu: wp.float64, v_reg: wp.float64,
                     scale: wp.array(dtype=wp.float64), cap: wp.array(dtype=wp.float64), i: int,
                     dt: wp.float64) -> wp.vec3d:
     """Velocity change of node i from a fixed obstacle pushing with force f (its load and normal),
-    its slip fraction as applied (:func:`capped`)."""
+    its slip fraction (:func:`obstacle_fraction`) as applied (:func:`capped`)."""
     load = wp.length(f)
     if load > F64_0:
-        slip = tangential(v, f / load)
-        return -capped(slip_fraction(mu, load, wp.length(slip), inv_m, v_reg, dt), scale, cap, i, i) * slip
+        phi = obstacle_fraction(f, v, mu, v_reg, inv_m, dt)
+        return -capped(phi, scale, cap, i, i) * tangential(v, f / load)
     return wp.vec3d(F64_0, F64_0, F64_0)
 
 
@@ -435,7 +435,8 @@ def friction_change(
     if running[world_of[i]] != 0 and free_out[i] != 0:
         v = v_out[i]
         if mu_wall > F64_0:
-            dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], fraction_scale, fraction_cap, i, dt) + \
+            dv = obstacle_change(wall_force[i], v, mu_wall, v_reg, inv_mass[i], fraction_scale, fraction_cap, i,
+                                 dt) + \
                 obstacle_change(device_force[i], v, mu_wall, v_reg, inv_mass[i], fraction_scale, fraction_cap, i, dt)
         if with_coil_terms != 0:
             dv = add_edge_shares(dv, dv_start, dv_end, has_next, i)
