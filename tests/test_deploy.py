@@ -127,3 +127,21 @@ def test_a_frame_that_goes_unstable_is_redone_with_half_the_step(monkeypatch):
     assert result.status == COMPLETED, result.reason
     assert len(result.step_reductions) == 1 and "step halved" in result.step_reductions[0]
     assert result.dt_s == pytest.approx(dt / 2)
+
+
+def test_a_coils_nodes_stand_for_its_length_so_herniated_never_exceeds_it():
+    """Each node counts half of each edge it ends (an end node half an edge): a coil wholly outside
+    the sac is reported herniated by its own length, not one segment more (the helper's 99.49 mm
+    of a 99.31 mm coil)."""
+    from warpcoil.deploy import node_lengths
+
+    assert node_lengths(np.array([0.3, 0.3, 0.3])) == pytest.approx([0.15, 0.3, 0.3, 0.15])
+    scene = wc.Scene(coils=(wc.CoilSpec(shape="helix", length_mm=6.0, loop_diameter_mm=2.5, pitch_mm=0.6),
+                            wc.CoilSpec(shape="helix", length_mm=4.0, loop_diameter_mm=2.0, pitch_mm=0.5)),
+                     wall=wc.WallSpec(sphere_diameter_mm=6.0))
+    deployment = Deployment(scene)
+    model, member = deployment.model, deployment.members[0]
+    rest = model.rest_length.numpy()
+    for c in range(model.coil_count):
+        first, last = int(model.coil_first[c]), int(model.coil_last[c])
+        assert member.segment[first:last + 1].sum() == pytest.approx(rest[first:last].sum(), rel=1e-12)

@@ -15,10 +15,10 @@ from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
 from warpcoil.deploy import Frame
 from warpcoil.recorder import figures, tube
 from warpcoil.recorder.figures import packing_percent, write_summary_png
-from warpcoil.recorder.tube import coil_tube_mesh, coils_tube_mesh, write_tube_stl, write_tube_vtp
+from warpcoil.recorder.tube import (coil_tube_mesh, coils_tube_mesh, equal_area_radius_mm, write_tube_stl,
+                                   write_tube_vtp)
 
 SIDES = 12
-POLYGON_FACTOR = SIDES * math.sin(2 * math.pi / SIDES) / (2 * math.pi)  # polygon / circle area
 
 
 def helix_mm(
@@ -43,13 +43,15 @@ def test_straight_tube_volume_and_closure():
     mesh = coil_tube_mesh(line, diameter_mm, SIDES)
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume > 0.0  # outward winding
-    expected = math.pi * (diameter_mm / 2) ** 2 * length_mm * POLYGON_FACTOR
+    expected = math.pi * (diameter_mm / 2) ** 2 * length_mm  # the wire's volume: the polygon has its area
     assert mesh.volume == pytest.approx(expected, rel=1e-9)
 
 
 def test_helix_tube_wall_at_wire_radius():
-    centerline, radius_mm = helix_mm(), 0.15
-    mesh = coil_tube_mesh(centerline, 2 * radius_mm, SIDES)
+    centerline, wire_mm = helix_mm(), 0.15
+    radius_mm = equal_area_radius_mm(wire_mm, SIDES)  # the corners of the polygon of the wire's area
+    assert 0.5 * SIDES * math.sin(2 * math.pi / SIDES) * radius_mm**2 == pytest.approx(math.pi * wire_mm**2)
+    mesh = coil_tube_mesh(centerline, 2 * wire_mm, SIDES)
     assert mesh.is_watertight and mesh.volume > 0.0
     assert len(mesh.vertices) == len(centerline) * SIDES
     tangents = np.diff(centerline, axis=0)
@@ -73,7 +75,7 @@ def test_sharp_bend_is_clamped_and_still_closed():
     mesh = coil_tube_mesh(corner, 0.2, SIDES)
     assert mesh.is_watertight and mesh.is_winding_consistent
     corner_ring_mm = np.linalg.norm(mesh.vertices[SIDES : 2 * SIDES] - corner[1], axis=1)
-    assert corner_ring_mm.max() == pytest.approx(tube.MAX_MITRE_SCALE * 0.1, rel=1e-6)  # unclamped: ~11x
+    assert corner_ring_mm.max() == pytest.approx(tube.MAX_MITRE_SCALE * equal_area_radius_mm(0.1, SIDES), rel=1e-6)  # unclamped: ~11x
 
 
 def test_two_coils_two_closed_bodies():

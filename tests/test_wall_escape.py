@@ -38,7 +38,7 @@ def coarsest_settling(monkeypatch):
 
     def coarsest(self, *args, **kwargs):
         real(self, *args, **kwargs)
-        self.settle_rule = lambda _speed, _c0, _frame_s: 1
+        self.settle_rule = lambda _speed, _c0, _frame_s, _scale: 1
         speed = self.scenes[0].simulation.push_speed_mm_s
         self.push_time_s -= max(0.0, DETACH_WHIP_S - COIL_GAP_MM / speed)
 

@@ -27,7 +27,7 @@ from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
-                       settle_step_s)
+                       settle_step_s, settle_step_scale)
 from .preflight import SetupError, preflight
 from .preshape import PreshapeError
 from .scene import check_built_scene
@@ -39,6 +39,16 @@ COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeou
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
+
+
+def node_lengths(edge_lengths_mm: np.ndarray) -> np.ndarray:
+    """The length of coil each node stands for (mm): half of each edge it ends, so a coil's nodes
+    sum to its length (an end node half an edge)."""
+    half = 0.5 * np.asarray(edge_lengths_mm, dtype=np.float64)
+    lengths = np.zeros(len(half) + 1)
+    lengths[:-1] += half
+    lengths[1:] += half
+    return lengths
 
 
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
@@ -90,9 +100,8 @@ class Member:
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
         self.radius = host["node_radius"][self.nodes]
-        self.segment = np.repeat([host["rest_length"][model.coil_first[c]] for c in self.coils],
-                                 model.coil_last[self.coils.start:self.coils.stop]
-                                 - model.coil_first[self.coils.start:self.coils.stop] + 1)
+        self.segment = np.concatenate([node_lengths(host["rest_length"][model.coil_first[c]:model.coil_last[c]])
+                                       for c in range(self.coils.start, self.coils.stop)])
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
@@ -108,6 +117,7 @@ class Member:
         self.steps = 0
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
+        self.settle_scale = settle_step_scale(scene.coils)  # on its settling steps' bounds (segments below d)
         self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
         self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
@@ -179,7 +189,7 @@ class Ensemble:
         self._settling = False  # every member steps at its own settling step (_settle_chunk)
         self._push_over = False  # every coil is out: the solver settles at θ IMPLICIT_SETTLE_THETA (_settle_scheme)
         self._levels: dict[int, Stepper] = {}  # settling: steps per half frame → its stepper
-        self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s) → steps per half frame
+        self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s, scale) → steps per half frame
         self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
         self.detach_rule = detach_level  # (push speed mm/s, push step s, c0 mm) → steps per push step
         contact = self.scenes[0].contact
@@ -295,8 +305,8 @@ class Ensemble:
                     and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
                 m.settle_refine += 1
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
-            m.settle_level = (settle_finest_level(frame_s) * 2 ** (m.settle_refine - 1) if m.settle_refine
-                              else self.settle_rule(speed, c0, frame_s))
+            m.settle_level = (settle_finest_level(frame_s, m.settle_scale) * 2 ** (m.settle_refine - 1)
+                              if m.settle_refine else self.settle_rule(speed, c0, frame_s, m.settle_scale))
         start = state.time_s
 
         def run_level(k: int) -> None:
@@ -698,7 +708,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
             onset_dt = explicit_dt
             if sim.dt_s is None:
-                settle_dt = settle_step_s(dt, sim.frame_interval_s)
+                settle_dt = settle_step_s(dt, sim.frame_interval_s, settle_step_scale(scene.coils))
             coils = model.world_coils(w)
             push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
                               ) / sim.push_speed_mm_s

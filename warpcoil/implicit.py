@@ -82,6 +82,13 @@ SETTLE_ADVANCE_PER_C0 = 1.0
 # (speed and edge spin ×1.6 a step, no contact near: the position/spin split amplifies it) that
 # lengthens the settling 1.5–2×; none at 2.5 ms (docs/FORMULATION.md "Implicit step: the settling step")
 IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
+# ... both for segments of l0 ≥ d. Below, the oscillation sets in at shorter steps: a coil with l0 < d settles
+# at both × (l0/d)^SETTLE_FINE_EXPONENT (settle_step_scale). Unscaled, a 40 mm loop of d 0.3 mm at l0 = d/2 in a
+# wide sac gained bending and twist energy after its release (kinetic + elastic 69 → 1 577 nJ) and timed out
+# unsettled; in an 8 mm sphere it still gained 301 nJ (on 3 012) at (l0/d)³ of the bounds, none at (l0/d)⁴, where
+# it comes to rest as the reference does (0.61 against 0.62 s) (docs/FORMULATION.md "Implicit step: the settling
+# step of fine segments")
+SETTLE_FINE_EXPONENT = 4
 # ... but not for a member whose kinetic energy stops falling: a 6 mm framing coil in C0001 ran a
 # steady oscillation at 2.5 ms (kinetic 0.031 nJ from 2.8 s to the 6 s timeout) and came to rest
 # at ≤ 2 ms. A member whose frame kinetic energy fell by less than SETTLE_STALL_DROP over the last
@@ -203,16 +210,22 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
     return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
 
 
-def settle_step_s(push_dt_s: float, frame_interval_s: float) -> float:
+def settle_step_scale(coils) -> float:
+    """Factor (≤ 1) on the settling steps' bounds for these coils (CoilParams): (l0/d)² of the
+    finest relative to its wire below l0 = d, to the power SETTLE_FINE_EXPONENT, else 1."""
+    return min([1.0] + [(c.l0 / c.d) ** SETTLE_FINE_EXPONENT for c in coils if c.l0 < c.d * (1.0 - 1e-9)])
+
+
+def settle_step_s(push_dt_s: float, frame_interval_s: float, scale: float = 1.0) -> float:
     """Finest default implicit step (s) after the push: the largest frame / (2 k) (k whole:
-    every settling step splits a frame evenly) up to IMPLICIT_SETTLE_DT_S, never below
-    the push's step."""
-    return max(frame_interval_s / (2 * settle_finest_level(frame_interval_s)), push_dt_s)
+    every settling step splits a frame evenly) up to ``scale`` × IMPLICIT_SETTLE_DT_S
+    (settle_step_scale), never below the push's step."""
+    return max(frame_interval_s / (2 * settle_finest_level(frame_interval_s, scale)), push_dt_s)
 
 
-def settle_finest_level(frame_interval_s: float) -> int:
-    """Steps per half frame at the finest settling step (≤ IMPLICIT_SETTLE_DT_S)."""
-    return max(1, math.ceil(frame_interval_s / (2.0 * IMPLICIT_SETTLE_DT_S) - 1e-9))
+def settle_finest_level(frame_interval_s: float, scale: float = 1.0) -> int:
+    """Steps per half frame at the finest settling step (≤ ``scale`` × IMPLICIT_SETTLE_DT_S)."""
+    return max(1, math.ceil(frame_interval_s / (2.0 * scale * IMPLICIT_SETTLE_DT_S) - 1e-9))
 
 
 def settle_stalled(kinetic_nJ: list[float], frame_interval_s: float) -> bool:
@@ -225,13 +238,13 @@ def settle_stalled(kinetic_nJ: list[float], frame_interval_s: float) -> bool:
     return kinetic_nJ[-1] > (1.0 - SETTLE_STALL_DROP) * kinetic_nJ[-1 - frames]
 
 
-def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float) -> int:
+def settle_level(speed_mm_s: float, c0_mm: float, frame_interval_s: float, scale: float = 1.0) -> int:
     """Steps per half frame of the settling step for a world whose fastest free node moves
     at ``speed_mm_s`` (mm/s): the fewest (the longest step frame / (2 k)) that move it at
     most SETTLE_ADVANCE_PER_C0 · c0 (mm), from the coarsest level (a step up to
-    IMPLICIT_SETTLE_DT_MAX_S) to the finest."""
-    finest = settle_finest_level(frame_interval_s)
-    coarsest = min(max(1, math.ceil(frame_interval_s / (2.0 * IMPLICIT_SETTLE_DT_MAX_S) - 1e-9)), finest)
+    ``scale`` × IMPLICIT_SETTLE_DT_MAX_S: settle_step_scale) to the finest."""
+    finest = settle_finest_level(frame_interval_s, scale)
+    coarsest = min(max(1, math.ceil(frame_interval_s / (2.0 * scale * IMPLICIT_SETTLE_DT_MAX_S) - 1e-9)), finest)
     if not math.isfinite(speed_mm_s):
         return finest
     wanted = math.ceil(frame_interval_s * speed_mm_s / (2.0 * SETTLE_ADVANCE_PER_C0 * c0_mm) - 1e-9)

@@ -39,7 +39,7 @@ def settled(scene, finest: bool):
 
     deployment = Deployment(scene)
     if finest:
-        deployment.settle_rule = lambda _speed, _c0, frame_s: settle_finest_level(frame_s)
+        deployment.settle_rule = lambda _speed, _c0, frame_s, scale: settle_finest_level(frame_s, scale)
     return deployment.run(), deployment
 
 

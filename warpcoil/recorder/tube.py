@@ -1,8 +1,9 @@
 """Closed triangle tubes around coil centerlines: the coil surface for CFD meshing.
 
 Each coil becomes a watertight, outward-wound tube of its outer wire diameter:
-a ring of ``sides`` vertices per centerline node (a regular polygon whose
-corners lie on the wire surface), oriented by rotation-minimising
+a ring of ``sides`` vertices per centerline node (a regular polygon of the wire's
+cross-section area, so the tubes hold the coils' volume: its corners lie 2.3 %
+outside the wire surface at 12 sides, its edges' midpoints 1.2 % inside), oriented by rotation-minimising
 (parallel-transport) frames so the tube does not twist, mitred at every
 interior node (the ring lies in the bisector plane of its two segments, so the
 wall keeps its thickness through the bend) and closed by flat end caps.
@@ -98,11 +99,16 @@ def _tube_faces(nodes: int, sides: int) -> np.ndarray:
     return np.vstack([wall, start, end])
 
 
+def equal_area_radius_mm(radius_mm: float, sides: int) -> float:
+    """Corner radius (mm) of the regular ``sides``-gon whose area is a circle's of ``radius_mm``."""
+    return radius_mm * float(np.sqrt(2.0 * np.pi / (sides * np.sin(2.0 * np.pi / sides))))
+
+
 def coil_tube_mesh(centerline_mm: np.ndarray, diameter_mm: float, sides: int = 12) -> trimesh.Trimesh:
     """Closed, outward-wound tube of outer diameter ``diameter_mm`` around an (N,3) polyline (mm).
 
-    The polygon corners lie on the wire surface, so the tube's cross-section area
-    is ``sides/2 * sin(2 pi/sides) * r**2``. Repeated nodes are dropped.
+    The polygon's area is the wire's, pi r**2 (its corners at :func:`equal_area_radius_mm`).
+    Repeated nodes are dropped.
     """
     points = np.asarray(centerline_mm, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
@@ -113,7 +119,7 @@ def coil_tube_mesh(centerline_mm: np.ndarray, diameter_mm: float, sides: int = 1
     points = points[keep]
     if len(points) < 2:
         raise ValueError("centerline needs at least two distinct nodes")
-    vertices = _ring_vertices_mm(points, 0.5 * diameter_mm, sides).reshape(-1, 3)
+    vertices = _ring_vertices_mm(points, equal_area_radius_mm(0.5 * diameter_mm, sides), sides).reshape(-1, 3)
     return trimesh.Trimesh(vertices, _tube_faces(len(points), sides), process=False)
 
 
