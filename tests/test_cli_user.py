@@ -146,7 +146,7 @@ def test_run_reports_repairs_push_forces_and_plays_in_real_time(first_run):
     codes = stage.GetPrimAtPath("/World/Coils/Coil_0").GetAttribute("points").GetTimeSamples()
     times = [float(r["time_s"]) for r in rows]
     assert len(codes) == len(times)
-    assert all(abs(c / per_second - t) <= 0.5 / per_second for c, t in zip(codes, times))
+    assert all(abs(c / per_second - t) <= 1e-6 / per_second for c, t in zip(codes, times))
     # 13: an animated GIF of the frames
     from PIL import Image
 

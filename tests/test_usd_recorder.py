@@ -111,18 +111,22 @@ def test_usda_output_is_text(tmp_path: Path) -> None:
     assert not stage.GetPrimAtPath("/World/Wall")
 
 
-def test_frames_on_same_time_code_keep_the_later(tmp_path: Path) -> None:
+def test_each_frame_keeps_its_own_time_a_repeated_time_the_later(tmp_path: Path) -> None:
+    """Frames 2 ms apart at 100 codes/s get codes 1.0 and 1.2 (rounding put both on 1, losing one);
+    a frame at the same time again replaces it."""
     path = tmp_path / "deployment.usdc"
     with UsdRecorder(path, NODE_COUNTS, WIDTHS_MM) as rec:
         rec.add_frame(0.010, coil_positions_mm(0))
         rec.add_frame(0.012, coil_positions_mm(1))
-        assert rec.time_codes == [1]
+        rec.add_frame(0.012, coil_positions_mm(2))
+        assert rec.time_codes == [1.0, 1.2]
         with pytest.raises(ValueError, match="precedes"):
-            rec.add_frame(0.0, coil_positions_mm(2))
+            rec.add_frame(0.0, coil_positions_mm(3))
     stage = Usd.Stage.Open(str(path))  # keep a reference: prims die with their stage
     points = UsdGeom.BasisCurves.Get(stage, "/World/Coils/Coil_0").GetPointsAttr()
-    assert points.GetTimeSamples() == [1]
-    np.testing.assert_allclose(np.array(points.Get(1)), coil_positions_mm(1)[0], atol=1e-6)
+    assert points.GetTimeSamples() == [1.0, 1.2]
+    np.testing.assert_allclose(np.array(points.Get(1.0)), coil_positions_mm(0)[0], atol=1e-6)
+    np.testing.assert_allclose(np.array(points.Get(1.2)), coil_positions_mm(2)[0], atol=1e-6)
 
 
 def test_wrong_shape_is_rejected(tmp_path: Path) -> None:

@@ -50,15 +50,16 @@ class UsdRecorder:
         wall_vertices_mm: (V, 3) wall vertex positions in mm, or None for no wall.
         wall_faces: (F, 3) triangle vertex indices, required with the vertices.
         time_codes_per_second: USD time codes per simulated second; a frame at
-            ``time_s`` is stored at code ``round(time_s * time_codes_per_second)``.
+            ``time_s`` is stored at code ``time_s * time_codes_per_second`` (:func:`time_code`:
+            fractional where a frame is not a whole number of codes long, which viewers
+            interpolate at their integer frames).
         frames_per_second: the playback rate viewers use (codes per wall-clock
             second); equal to ``time_codes_per_second`` (the default) plays in
             real time, a smaller value in slow motion.
         up_axis: stage up axis, "Y" or "Z".
 
-    Frames whose time codes round to the same code collapse onto one sample:
-    the later frame overwrites the earlier one. A frame whose code is lower
-    than the previous frame's raises ``ValueError``.
+    A frame at the same time as the previous one overwrites it; a frame whose code is
+    lower than the previous frame's raises ``ValueError``.
     """
 
     def __init__(
@@ -87,7 +88,7 @@ class UsdRecorder:
         self.coil_node_counts = [int(n) for n in coil_node_counts]
         self.coil_widths_mm = [float(d) for d in coil_widths_mm]
         self.time_codes_per_second = float(time_codes_per_second)
-        self._time_codes: list[int] = []
+        self._time_codes: list[float] = []
         self._closed = False
 
         self._stage = Usd.Stage.CreateInMemory()
@@ -171,7 +172,7 @@ class UsdRecorder:
         """Time sample of the balloon's widths: diameter × inflation (0–1)."""
         curve, diameters = self._balloon
         widths = np.maximum(diameters * float(inflation), 1e-3).astype(np.float32)
-        curve.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(widths), round(time_s * self.time_codes_per_second))
+        curve.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(widths), self.time_code(time_s))
 
     def add_frame(self, time_s: float, positions_mm: list[np.ndarray]) -> None:
         """Write one time sample of every coil's (n_nodes_k, 3) node positions in mm."""
@@ -179,7 +180,7 @@ class UsdRecorder:
             raise RuntimeError("UsdRecorder is closed")
         if len(positions_mm) != len(self._coils):
             raise ValueError(f"expected {len(self._coils)} coils, got {len(positions_mm)}")
-        code = round(time_s * self.time_codes_per_second)
+        code = self.time_code(time_s)
         if self._time_codes and code < self._time_codes[-1]:
             raise ValueError(f"time {time_s} s (code {code}) precedes the previous frame")
 
@@ -199,8 +200,16 @@ class UsdRecorder:
         if not self._time_codes or code != self._time_codes[-1]:
             self._time_codes.append(code)
 
+    def time_code(self, time_s: float) -> float:
+        """The code of simulated time ``time_s`` (s): time × codes per second, to 1e-6 of a code (so a
+        frame of whole codes gets a whole code; distinct frames, at least a step apart, never share one).
+        Not rounded to whole codes: frames last whole steps, not whole codes (a 10 ms frame of 22 steps of
+        0.467 ms lasts 1.028 codes), and rounding put two frames on one code now and then, the later
+        overwriting the earlier (C0091: 206 samples for 207 frames)."""
+        return round(time_s * self.time_codes_per_second, 6)
+
     @property
-    def time_codes(self) -> list[int]:
+    def time_codes(self) -> list[float]:
         """The distinct time codes written so far, increasing."""
         return list(self._time_codes)
 
