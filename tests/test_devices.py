@@ -146,6 +146,31 @@ def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
     assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
 
 
+def test_cli_refuses_a_catheter_tip_inside_the_inflated_balloon(tmp_path):
+    """A balloon whose round end cap holds the tip (a helper's scene: its axis along the catheter's path,
+    ending 0.7 mm below the tip) squeezed the coil out at −305 mN and reported it completed; refused,
+    exit 2, naming the keys and the fix, no output folder; the tip is measured against the capsule chain."""
+    from warpcoil.preflight import balloon_gap_mm
+
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nsphere_diameter_mm = 8.0\n[catheter]\ntip = [0.0, 0.0, 0.0]\n'
+                     'direction = [0.0, 0.0, 1.0]\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
+                     'length_mm = 5\n[balloon]\naxis = [[0.0, 0.0, -3.0], [0.0, 0.0, -0.7]]\ndiameter_mm = 2.0\n')
+    log = tmp_path / "log.txt"
+    with log.open("w") as out:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(tmp_path / "o")],
+                             stdout=out, stderr=subprocess.STDOUT)
+    text = log.read_text()
+    assert rc == 2 and "balloon.axis" in text and "catheter.tip" in text and "fix:" in text, text
+    assert "0.45 mm within its surface" in text  # 1.0 − 0.7 − 0.15: cap radius − distance + d/2
+    assert not (tmp_path / "o").exists()
+
+    class Anatomy:
+        balloon = (np.array([[0.0, 0.0, -3.0], [0.0, 0.0, -1.0]]), np.array([1.0, 1.0]))
+    assert balloon_gap_mm(Anatomy, np.array([0.0, 0.0, 0.5]), 0.15) == pytest.approx(0.35)  # cap at −1 + 1 = 0
+    assert balloon_gap_mm(Anatomy, np.array([2.0, 0.0, -2.0]), 0.15) == pytest.approx(0.85)  # beside the tube
+
+
 def test_cli_runs_the_implicit_step_with_a_device(tmp_path):
     """The implicit step carries the device contact stiffness (tests/test_implicit_devices.py):
     a stented run completes from the command line at several times the explicit bound."""
