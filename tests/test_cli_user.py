@@ -354,6 +354,28 @@ def test_ctrl_c_while_the_command_starts_is_one_line_not_a_traceback(tmp_path, s
     assert not (tmp_path / "started").exists() or leftovers(tmp_path / "started") == []
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stopped_sweep_ends_interrupted_and_resumes(tmp_path, stop):
+    """A sweep stopped once its first member is written: exit 130 with one line, no traceback and no
+    lock left in its folder (SIGTERM killed it with 143, no word and the lock left: Python's default
+    action); `--resume` then completes it."""
+    path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 20.0", "push_speed_mm_s = 100.0":
+                              "push_speed_mm_s = 20.0"})
+    args = ("sweep", str(path), "--vary", "coil.length_mm=20,21,22,23,24,25", "--workers", "1", "-o", "sw")
+    process, out, err = cli(tmp_path, *args, wait=False)
+    deadline = time.monotonic() + 300
+    while not (tmp_path / "sw" / "member_000" / "result.json").exists() and time.monotonic() < deadline:
+        assert process.poll() is None, err.read_text()
+        time.sleep(0.2)
+    process.send_signal(stop)
+    assert process.wait(timeout=120) == 130
+    assert "Traceback" not in err.read_text() and "warpcoil sweep: interrupted" in err.read_text()
+    assert not list((tmp_path / "sw").glob(".*lock*"))
+    code, _, err_text = cli(tmp_path, *args, "--resume", log="resumed")
+    assert code == 0, err_text
+    assert len(list((tmp_path / "sw").glob("member_*/result.json"))) == 6
+
+
 def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
     """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
     outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite

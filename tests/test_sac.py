@@ -292,3 +292,44 @@ def test_a_flat_part_far_from_the_neck_in_the_same_plane_does_not_refuse_it(sphe
     alone = neck_from_plane([0.0, 0.0, -3.0], UP, sphere).contour_mm
     beside = neck_from_plane([0.0, 0.0, -3.0], UP, wall_of(both)).contour_mm
     assert np.allclose(np.sort(alone, axis=0), np.sort(beside, axis=0))
+
+
+def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_or_warned(tmp_path):
+    """A sphere sac on a rounded duct (no flat vessel cap) cut in its neck: the duct is the larger
+    piece, which rule 3 took as the sac with no word (a helper's tube: everything "herniated", 0 %
+    packing). An explicit tip in the smaller piece is refused (exit 2, naming neck.sac_point_mm, no
+    output); a tip placed at the neck gets a warning; neck.sac_point_mm settles it."""
+    import subprocess
+    import sys
+
+    from test_devices import sac_on_duct
+
+    from warpcoil.anatomy import resolve_anatomy
+    from warpcoil.preflight import preflight
+    from warpcoil.scene import load_scene
+
+    sac_on_duct(tmp_path / "duct.stl")
+    base = ('[wall]\nmesh = "duct.stl"\n[neck]\nplane_point_mm = [0.0, 0.0, 2.0]\nplane_normal = [0.0, 0.0, 1.0]\n'
+            '{point}[catheter]\n{catheter}\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\nlength_mm = 5\n')
+    explicit = 'tip = [0.0, 0.0, 4.0]\ndirection = [0.0, 0.0, 1.0]'
+    scene = tmp_path / "tip.toml"
+    scene.write_text(base.format(point="", catheter=explicit))
+    log = tmp_path / "log.txt"
+    with log.open("w") as out:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(tmp_path / "o")],
+                             stdout=out, stderr=subprocess.STDOUT)
+    text = log.read_text()
+    assert rc == 2 and "neck.sac_point_mm" in text and "catheter.tip" in text and "fix:" in text, text
+    assert not (tmp_path / "o").exists()
+
+    sphere = 4.0 / 3.0 * math.pi * 3.0**3
+    (tmp_path / "neck.toml").write_text(base.format(point="", catheter='placement = "neck"'))
+    neck_scene = load_scene(tmp_path / "neck.toml")
+    anatomy = resolve_anatomy(neck_scene)
+    assert anatomy.sac_volume_mm3 > 1.3 * sphere  # the duct, taken by size
+    assert any("no flat vessel cap" in w and "neck.sac_point_mm" in w for w in preflight(neck_scene, anatomy))
+    (tmp_path / "point.toml").write_text(base.format(point="sac_point_mm = [0.0, 0.0, 5.0]\n", catheter=explicit))
+    point_scene = load_scene(tmp_path / "point.toml")
+    anatomy = resolve_anatomy(point_scene)
+    assert anatomy.sac_volume_mm3 == pytest.approx(sphere, rel=0.1)  # the sphere (and the neck's upper part)
+    assert not any("no flat vessel cap" in w for w in preflight(point_scene, anatomy))

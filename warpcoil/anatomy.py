@@ -11,7 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .sac import NeckError, Sac, catheter_from_neck, neck_from_contour, neck_from_plane, sac_from_neck
+from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour, neck_from_plane,
+                  sac_from_neck)
 from .settings import CatheterSpec, Scene
 from .scene import SceneError
 from .wall import WallMesh, load_wall
@@ -52,6 +53,13 @@ def resolve_anatomy(scene: Scene) -> Anatomy:
             raise SceneError(f"{scene.where}: {'neck.sac_point_mm' if error.sac_point else key}: "
                              f"{error}") from None
     catheter = scene.catheter
+    if sac is not None and sac.neck.other_volume_mm3 is not None and catheter.placement != "neck" and \
+            in_other_piece(sac, wall, np.asarray(catheter.tip_mm, dtype=np.float64)):
+        raise SceneError(
+            f"{scene.where}: neck.sac_point_mm: the neck cuts the lumen into two pieces and the wall has no flat "
+            f"vessel cap to tell which is the sac, so the larger ({sac.volume_mm3:.4g} mm³) would be taken; "
+            f"catheter.tip {list(map(float, catheter.tip_mm))} mm lies in the other ({sac.neck.other_volume_mm3:.4g} "
+            f"mm³); fix: give neck.sac_point_mm, a point inside the sac (e.g. the tip, if it is in the sac)")
     if catheter.placement == "neck":
         tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
         catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))

@@ -379,6 +379,11 @@ def main(argv: list[str] | None = None) -> int:
 
             with stop_at_once():
                 return args.func(args)
+        if args.command in ("sweep", "plan"):  # runs on Dask: SIGTERM as Ctrl-C
+            from .deploy import interrupt_on_stop
+
+            with interrupt_on_stop():
+                return args.func(args)
         return args.func(args)
     except KeyboardInterrupt:  # a second Ctrl-C, or one outside the stepping (a run's first ends it cleanly)
         print(f"warpcoil {args.command}: interrupted", file=sys.stderr)

@@ -641,12 +641,21 @@ def _raise_at_once(_number, _frame) -> None:
 
 
 @contextmanager
+def interrupt_on_stop() -> Iterator[None]:
+    """Within it, SIGTERM (a batch scheduler's stop) interrupts as Ctrl-C does (KeyboardInterrupt): for
+    `sweep` and `plan`, which then end with exit 130 and release their folder (Python's default SIGTERM
+    killed them with 143, no word and the folder's lock left)."""
+    with _stop_handler(_raise_at_once):
+        yield
+
+
+@contextmanager
 def stop_at_once() -> Iterator[None]:
     """Within it, Ctrl-C or SIGTERM stop at once (KeyboardInterrupt) instead of ending the current run
     cleanly with status interrupted, and SceneWarnings are not shown: for the commands of many runs of
     the project's own scenes (`validate`, `bench`), where ending one run let the next begin. Everything
     is as before after it."""
-    with _stop_handler(_raise_at_once), warnings.catch_warnings():
+    with interrupt_on_stop(), warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)  # their scenes are set up as they are on purpose
         yield
 

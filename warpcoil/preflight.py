@@ -24,6 +24,7 @@ from .settings import Scene, coarse_segment_coils, fine_segment_coils
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
 MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
 CENTERLINE_SAMPLE_MM = 0.1  # spacing of the checked points along a catheter centerline
+AMBIGUOUS_PIECE = 0.25  # the neck's other piece, over the sac's volume, above which the sac's side told by size is warned about
 MAX_LENGTH_SHORTFALL = 0.01  # a coil's chords this much shorter than its length_mm is warned about
 
 
@@ -155,6 +156,18 @@ def check_balloon(scene: Scene, anatomy) -> None:
             f"its radius) or move the tip out of it ({key})")
 
 
+def check_sac_side(scene: Scene, anatomy) -> list[str]:
+    """Warn when only the pieces' sizes told the sac's side of the neck (no flat vessel cap, no
+    neck.sac_point_mm) and the other piece is not small: a parent vessel larger than the sac is
+    then taken as the sac (a helper's curved tube: everything herniated, 0 % packing, no word)."""
+    sac = anatomy.sac
+    if sac is None or sac.neck.other_volume_mm3 is None or sac.neck.other_volume_mm3 < AMBIGUOUS_PIECE * sac.volume_mm3:
+        return []
+    return [f"{scene.where}: neck: the wall has no flat vessel cap to tell the sac's side of the neck, so the larger "
+            f"piece ({sac.volume_mm3:.4g} mm³) is taken as the sac, the other being {sac.neck.other_volume_mm3:.4g} "
+            "mm³; if the sac is the other, give neck.sac_point_mm (a point inside the sac)"]
+
+
 def _sac_centre_mm(anatomy) -> np.ndarray:
     import trimesh
 
@@ -278,5 +291,6 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     check_balloon(scene, anatomy)
     notes = [f"{scene.where}: {note}" for note in scene.notes]
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
-    return (notes + check_catheter(scene, anatomy, device) + check_capacity(scene, anatomy.sac_volume_mm3)
+    return (notes + check_sac_side(scene, anatomy) + check_catheter(scene, anatomy, device)
+            + check_capacity(scene, anatomy.sac_volume_mm3)
             + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))

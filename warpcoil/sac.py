@@ -82,6 +82,8 @@ class Neck:
     centroid_mm: np.ndarray  # (3,) arc-length-weighted centroid of the contour, the hub of the ostium fan
     normal: np.ndarray  # (3,) unit normal of the contour's best-fit plane, pointing into the sac
     area_mm2: float  # area of the ostium surface: the fan from the centroid to the contour
+    # the other piece's volume (mm³) where only rule 3 (the larger piece) told the sac's side; else None
+    other_volume_mm3: float | None = None
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,13 @@ def sac_from_neck(wall: WallMesh, neck: Neck) -> Sac:
         raise _error(wall.source, "the sac cut off by the neck is not a closed positive volume",
                      "check that the neck contour lies on this wall and goes once around the ostium")
     return Sac(neck=neck, closed_surface=surface, volume_mm3=volume)
+
+
+def in_other_piece(sac: Sac, wall: WallMesh, point_mm: np.ndarray) -> bool:
+    """Whether ``point_mm`` lies in the lumen on the neck's other side (not in the sac)."""
+    point = _points(np.asarray(point_mm, dtype=np.float64).reshape(1, 3))
+    return bool(inside_points(surface_bvh(wall, wall.vertices_mm, wall.faces), point)[0]
+                and not inside_sac(sac, point)[0])
 
 
 def inside_sac(sac: Sac, points_mm: np.ndarray) -> np.ndarray:
@@ -296,13 +305,14 @@ def _make_neck(
     side = _wall_sides(wall, loop, source)
     centroid = _loop_centroid(loop)
     pieces = {s: _close_piece(wall, side == s, loop, centroid) for s in (1, -1)}
-    sac_side = _sac_side(wall, side, pieces, loop, centroid, hint, source)
+    sac_side, by_volume = _sac_side(wall, side, pieces, loop, centroid, hint, source)
     if plane_normal is None:
         plane_normal = np.linalg.svd(loop - centroid, full_matrices=False)[2][2]
     normal = plane_normal / np.linalg.norm(plane_normal)
     if _mean_height(wall, side == sac_side, centroid, normal) < 0.0:
         normal = -normal
-    return Neck(contour_mm=loop, centroid_mm=centroid, normal=normal, area_mm2=_fan_area(loop, centroid))
+    return Neck(contour_mm=loop, centroid_mm=centroid, normal=normal, area_mm2=_fan_area(loop, centroid),
+                other_volume_mm3=float(pieces[-sac_side].volume) if by_volume else None)
 
 
 def _clean_loop(points: np.ndarray, source: Path | None) -> np.ndarray:
@@ -493,8 +503,9 @@ def _mean_height(wall: WallMesh, mask: np.ndarray, centroid: np.ndarray, normal:
 def _sac_side(
     wall: WallMesh, side: np.ndarray, pieces: dict[int, trimesh.Trimesh], loop: np.ndarray, centroid: np.ndarray,
     hint: np.ndarray | None, source: Path | None,
-) -> int:
-    """+1 or -1: the sac's side of the contour, by the rule in the module docstring."""
+) -> tuple[int, bool]:
+    """(+1 or -1: the sac's side of the contour, by the rule in the module docstring; whether rule 3,
+    the larger piece, told it)."""
     if hint is not None:
         point = np.asarray(hint, dtype=np.float64).reshape(1, 3)
         holding = [s for s, piece in pieces.items() if inside_points(SurfaceBVH(piece.vertices, piece.faces), point)[0]]
@@ -502,7 +513,7 @@ def _sac_side(
             raise NeckError(str(_error(source, f"the sac-side point {point[0]} lies in "
                                           f"{'neither' if not holding else 'both'} of the two lumen pieces cut off "
                                           "by the neck", "give a point inside the sac lumen")), sac_point=True)
-        return holding[0]
+        return holding[0], False
     ostium_diameter = 2.0 * np.sqrt(_fan_area(loop, centroid) / np.pi)
     cap_of_face, cap_area = _caps(wall, CAP_MIN_FRACTION * ostium_diameter)
     capped = cap_of_face >= 0
@@ -510,8 +521,8 @@ def _sac_side(
         largest = int(np.argmax(cap_area))
         vessel_side = np.sign(side[cap_of_face == largest].sum())
         if vessel_side != 0:
-            return int(-vessel_side)
-    return 1 if pieces[1].volume >= pieces[-1].volume else -1
+            return int(-vessel_side), False
+    return (1 if pieces[1].volume >= pieces[-1].volume else -1), True
 
 
 def _caps(wall: WallMesh, min_diameter_mm: float) -> tuple[np.ndarray, np.ndarray]:
