@@ -47,7 +47,7 @@ push_speed_mm_s = 100.0
 frame_interval_s = 0.005
 """
 # timing and what a sweep adds: all else must equal the single run's
-UNCOMPARED_KEYS = ("wall_time_s", "scene", "varied", "warnings", "files")
+UNCOMPARED_KEYS = ("wall_time_s", "scene", "varied", "scene_sha256", "warnings", "files")
 
 
 def _scene(folder: Path) -> Path:
@@ -161,6 +161,18 @@ def test_two_local_workers_equal_single_runs_and_resume(tmp_path, single_runs):
     other = _sweep_cli([str(scene), "--vary", "simulation.push_speed_mm_s=120,150", "-o", str(out), "--resume"],
                        tmp_path / "stdout.txt")
     assert other.returncode == 2 and "another sweep's member" in other.stderr
+
+    # the same scene file edited (a value no member varies), or its wall mesh changed: refused, nothing touched
+    (out / "member_001" / "centerline.csv").unlink()
+    original = scene.read_text()
+    scene.write_text(original.replace("frame_interval_s = 0.005", "frame_interval_s = 0.004"))
+    edited = _sweep_cli([str(scene), *vary, "--resume"], tmp_path / "stdout.txt")
+    assert edited.returncode == 2 and "another version of s.toml" in edited.stderr, edited.stderr
+    scene.write_text(original)
+    trimesh.creation.icosphere(subdivisions=3, radius=1.8).export(tmp_path / "walls" / "sphere.stl")
+    moved = _sweep_cli([str(scene), *vary, "--resume"], tmp_path / "stdout.txt")
+    assert moved.returncode == 2 and "another version of s.toml" in moved.stderr, moved.stderr
+    assert (out / "member_000" / "result.json").stat().st_mtime_ns == kept.st_mtime_ns
 
 
 def test_a_killed_workers_task_is_retried(tmp_path, single_runs, monkeypatch):

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
+import hashlib
 import io
 import itertools
 import json
@@ -134,13 +136,37 @@ def complete_result(folder: Path) -> dict | None:
     return result
 
 
-def member_files(output: MemberOutput, member: Member, scene_path: Path, warnings: list[str]) -> dict[str, bytes]:
+def _file_paths(value) -> Iterator[Path]:
+    """The file paths a scene names (its wall mesh, neck contour, pre-shape and centerline files), not its source."""
+    if isinstance(value, Path):
+        yield value
+    elif dataclasses.is_dataclass(value):
+        for field in dataclasses.fields(value):
+            if field.name != "source":
+                yield from _file_paths(getattr(value, field.name))
+    elif isinstance(value, (tuple, list)):
+        for item in value:
+            yield from _file_paths(item)
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """SHA-256 of a member's scene as it runs: every value (its repr) and the bytes of every file it
+    names, so --resume tells a member of an edited scene (or of a changed mesh) from one of this scene."""
+    digest = hashlib.sha256(repr(scene).encode())
+    for path in _file_paths(scene):
+        digest.update(str(path).encode())
+        digest.update(path.read_bytes() if path.is_file() else b"(missing)")
+    return digest.hexdigest()
+
+
+def member_files(output: MemberOutput, member: Member, scene_path: Path, warnings: list[str],
+                 fingerprint: str) -> dict[str, bytes]:
     """A member folder's files: the run's outputs and result.json, which adds the
-    scene, the varied values, the member's warnings (as `warpcoil run` keeps them) and
-    the list of files (for --resume)."""
+    scene, the varied values, the scene's fingerprint (:func:`scene_fingerprint`), the member's
+    warnings (as `warpcoil run` keeps them) and the list of files (for --resume)."""
     listed = {name: len(data) for name, data in output.files.items()}
     result = {**output.result, "scene": str(Path(scene_path).resolve()), "varied": member.values,
-              "warnings": warnings, "files": listed}
+              "scene_sha256": fingerprint, "warnings": warnings, "files": listed}
     return {**output.files, RESULT_JSON: (json.dumps(result, indent=2) + "\n").encode()}
 
 
@@ -330,6 +356,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
     scenes, unified = one_integrator(scene_path, todo, scenes)
     folders = [out / m.name for m in todo]
+    fingerprints = [scene_fingerprint(scene) for scene in scenes]
     if resume:
         for member, folder in zip(todo, folders):
             found = complete_result(folder)
@@ -340,6 +367,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             if made_from is not None and made_from.is_absolute() and made_from != Path(scene_path).resolve():
                 raise SweepError(f"--resume: {folder} was made from {made_from}, not {Path(scene_path).resolve()}: "
                                  f"another sweep's member; {REPLACE_HINT}")
+            if found is not None and found.get("scene_sha256", fingerprints[member.index]) != fingerprints[member.index]:
+                raise SweepError(f"--resume: {folder} was made from another version of {Path(scene_path).name} (its "
+                                 "values or the files it names changed since): its results would mix with this "
+                                 "version's; rerun the sweep with --overwrite instead of --resume, or give another -o")
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
             member.result, member.resumed = found, found is not None
@@ -391,7 +422,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                     continue
                 for output in future.result():
                     member = todo[output.index]
-                    files = member_files(output, member, scene_path, member_warnings[output.index])
+                    files = member_files(output, member, scene_path, member_warnings[output.index],
+                                         fingerprints[output.index])
                     write_folder_atomic(folders[output.index], files)
                     member.result = json.loads((folders[output.index] / RESULT_JSON).read_text())
                     if progress:
