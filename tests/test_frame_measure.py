@@ -13,6 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import warpcoil as wc
 from warpcoil.deploy import Anatomy, Deployment, Ensemble
@@ -185,3 +186,58 @@ def test_a_node_thrown_past_the_wall_between_step_passes_is_measured_outside():
         pass
     assert found["full"] < -0.4  # the node is well past the wall
     assert found["exact"] == 1 and found["measured"] == found["full"]
+
+
+def test_a_coarse_segment_across_a_wall_ridge_is_measured_at_its_points_between_the_nodes(tmp_path):
+    """Segments longer than 1.5 d feel the wall at their nodes only, so one can straddle a ridge (a
+    helper's coils threaded a 0.2 mm septum at 2d with every node inside). The frame's measurement
+    samples them where coil–coil contact does (K − 1 points between the nodes): an edge laid across
+    the sharp rim where a neck meets a duct's roof, both nodes in the lumen, is measured at those
+    points as an independent signed distance (VTK) gives them, its centre line past the wall."""
+    from test_devices import sac_on_duct
+    from vtkmodules.vtkFiltersCore import vtkImplicitPolyDataDistance
+    from vtkmodules.vtkIOGeometry import vtkSTLReader
+
+    sac_on_duct(tmp_path / "duct.stl", h_mm=0.05)
+    scene = tmp_path / "s.toml"
+    scene.write_text('[wall]\nmesh = "duct.stl"\n[catheter]\ntip = [0.0, 0.0, 4.0]\ndirection = [0.0, 0.0, 1.0]\n'
+                     '[[coil]]\nshape = "helix"\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3.0\nlength_mm = 12.0\n'
+                     'segment_length_mm = 0.8\n[output]\nusd = false\n')
+    run = Deployment(load_scene(scene))
+    solver, model = run.solver, run.model
+    assert int(model.contact_samples.numpy().max()) == 3  # l0 = 2.67 d: three points per edge
+    a, b = np.array([2.1, 0.0, 1.3]), np.array([1.45, 0.0, 2.1])  # in the duct under its roof, in the neck
+    reader = vtkSTLReader()
+    reader.SetFileName(str(tmp_path / "duct.stl"))
+    reader.Update()
+    distance = vtkImplicitPolyDataDistance()  # an independent signed distance (< 0 inside, outward normals)
+    distance.SetInput(reader.GetOutput())
+    found = {}
+
+    class Done(Exception):
+        pass
+
+    def on_frame(member, frame, state):
+        free = state.free.numpy()
+        edges = np.flatnonzero((free[:-1] == 1) & (free[1:] == 1) & (model.has_next.numpy()[:-1] == 1))
+        if len(edges) < 3:
+            return
+        e = int(edges[1])
+        x = state.x.numpy()
+        x[e], x[e + 1] = a, b  # (a host view: moves the nodes themselves)
+        solver.measure_contacts(state, run.control.running)
+        found["measured"] = float(solver.sample_wall_gap.numpy()[e])
+        found["others"] = np.delete(solver.sample_wall_gap.numpy(), e)
+        raise Done
+
+    try:
+        Ensemble.run(run, on_frame)
+    except Done:
+        pass
+    points = np.array([a + s * (b - a) for s in (1 / 3, 2 / 3)])
+    signed = np.array([-distance.EvaluateFunction(*p) for p in points])  # > 0 in the lumen
+    assert min(-distance.EvaluateFunction(*p) for p in (a, b)) > 0.15  # both nodes in the lumen
+    expected = float((signed - 0.15).min())
+    assert expected < -0.15  # a point of the centre line past the wall
+    assert found["measured"] == pytest.approx(expected, abs=2e-4)  # (the mesh's own float32 and rounding)
+    assert (found["others"] > -0.15).all()  # the coil elsewhere: no such crossing

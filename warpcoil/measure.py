@@ -17,7 +17,7 @@ import warp as wp
 
 from .anatomy import Anatomy
 from .devices import device_report
-from .model import Model
+from .model import NODE_CONTACT_MAX_SEGMENT_D, Model
 from .occlusion import occlusion_of_regions
 from .sac import inside_sac, regional_density
 from .settings import Scene
@@ -126,7 +126,9 @@ class Snapshot:
     ``wall_distance``: each node's signed centre distance (mm, > 0 in the lumen), exact
     where the node is within its contact range or past the wall and for each world's
     smallest gap; elsewhere a certified lower bound above the contact range
-    (Solver.measure_contacts)."""
+    (Solver.measure_contacts). ``sample_wall_gap``: per edge with contact samples (segments
+    longer than 1.5 d), the smallest wall gap of its points between the nodes (mm; FAR_MM where
+    none is measured: wall_measure.sample_wall_gaps)."""
 
     time_s: float
     x: np.ndarray
@@ -136,13 +138,15 @@ class Snapshot:
     wall_force: np.ndarray
     coil_gap: np.ndarray
     coil_contacts: np.ndarray
+    sample_wall_gap: np.ndarray
 
 
 def take_snapshot(solver: Solver, state: State, running: wp.array) -> Snapshot:
     """Host copies of what a frame's measurement reads (all worlds)."""
     s = solver
     s.measure_contacts(state, running)
-    arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts)
+    arrays = (state.x, state.free, state.advance, s.wall_distance, s.wall_force, s.coil_gap, s.coil_contacts,
+              s.sample_wall_gap)
     return Snapshot(state.time_s, *(s.host(a).copy() for a in arrays))
 
 def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot, energies: dict,
@@ -160,7 +164,7 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
     if m.world_walls[w] is not None and any_free:
         centre = snap.wall_distance[sl][free]
         gaps = centre - member.radius[free]
-        wall_gap = float(gaps.min())
+        wall_gap = min(float(gaps.min()), float(snap.sample_wall_gap[sl].min()))  # and along coarse segments
         wall_contacts = int(np.count_nonzero(gaps < c0))
         max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
         if member.anatomy.sac is None:
@@ -215,7 +219,8 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     regions = regional_densities(model, member, x, free)
     coil_gap = finite([f.min_coil_gap_mm for f in frames])
     return RunResult(
-        status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs)), steps=member.steps,
+        status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs))
+        + wall_crossing_note(finite([f.min_wall_gap_mm for f in frames]), coil_specs), steps=member.steps,
         dt_s=solver.dt_s, step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
         simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
         deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
@@ -254,6 +259,21 @@ def crossing_note(min_coil_gap_mm: float, d_mm: float) -> str:
     return (f"; but coil segments came within half a wire diameter of each other's centre lines (smallest coil gap "
             f"{min_coil_gap_mm:.3g} mm, thinnest wire d = {d_mm:g} mm): coils may have passed through each other, and "
             "the geometry is not to be trusted there")
+
+
+def wall_crossing_note(min_wall_gap_mm: float, coils) -> str:
+    """What a run's reason adds where its smallest wall gap (mm; nodes, and the points between the nodes of
+    segments longer than 1.5 d) went below −d/2 of the thinnest wire (CoilSpecs): a node that deep fails the
+    frame's check (a centre past the wall), so it was a point between two nodes, where the wall does not act;
+    empty otherwise."""
+    d_mm = min(c.d for c in coils)
+    coarse = max(c.l0 / c.d for c in coils)
+    if not (min_wall_gap_mm < -0.5 * d_mm and coarse > NODE_CONTACT_MAX_SEGMENT_D * (1.0 + 1e-9)):
+        return ""
+    return (f"; but a coil segment's centre line crossed the wall between its nodes (smallest wall gap "
+            f"{min_wall_gap_mm:.3g} mm, thinnest wire d = {d_mm:g} mm): the wall acts at the nodes, and segments of "
+            f"up to {coarse:.2g} d can straddle a wall feature thinner than themselves (a septum, a sharp ridge); "
+            "fix: segment_length_mm ≤ 1.5 d")
 
 
 def _field_report(field) -> dict | None:

@@ -19,6 +19,7 @@ import math
 import numpy as np
 import warp as wp
 
+from .model import NODE_CONTACT_MAX_SEGMENT_D
 from .settings import Scene, coarse_segment_coils, fine_segment_coils
 
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
@@ -228,6 +229,20 @@ def check_coil_lengths(scene: Scene) -> list[str]:
     return warnings
 
 
+def check_wall_segments(scene: Scene) -> list[str]:
+    """Warn of a coil whose segments are longer than 1.5 d in a scene with a wall: the wall acts at the
+    nodes (coil–coil contact also between them), so such a segment can straddle a wall feature thinner
+    than itself (a helper's 0.2 mm septum: 6 segments of 2d threaded through it, on either integrator)."""
+    coarse = [k for k, c in enumerate(scene.coils) if c.l0 > NODE_CONTACT_MAX_SEGMENT_D * c.d * (1.0 + 1e-9)]
+    if scene.wall is None or not coarse:
+        return []
+    coil = scene.coils[coarse[0]]
+    return [f"{scene.where}: coil[{coarse[0]}].segment_length_mm = {coil.l0:g} mm is above 1.5 d = "
+            f"{NODE_CONTACT_MAX_SEGMENT_D * coil.d:g} mm: the wall acts at the nodes only, so a segment can straddle a "
+            "wall feature thinner than itself (a septum, a sharp ridge); the run reports where a centre line crossed "
+            f"the wall; fix: segment_length_mm ≤ {NODE_CONTACT_MAX_SEGMENT_D * coil.d:g}"]
+
+
 def check_porous(scene: Scene, anatomy) -> None:
     """Raise SetupError when ``[output] porous`` asks for more than MAX_POROUS_VOXELS voxels
     (the field is computed after the run: refused before it, not after)."""
@@ -293,4 +308,4 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_sac_side(scene, anatomy) + check_catheter(scene, anatomy, device)
             + check_capacity(scene, anatomy.sac_volume_mm3)
-            + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))
+            + check_coil_lengths(scene) + check_wall_segments(scene) + check_integrator(scene, step_bound_s))

@@ -321,6 +321,10 @@ class Solver:
         # mm, per world: the smallest exact wall gap and the smallest bound of the others (measure_contacts)
         self._smallest_wall_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
         self._smallest_bound_gap = wp.zeros(model.world_count, dtype=wp.float64, device=dev)
+        # mm, per edge with contact samples: the smallest wall gap of its samples (wall_measure.sample_wall_gaps)
+        self.sample_wall_gap = zeros(wp.float64)
+        self.sample_wall_gap.fill_(float(contact.FAR_MM))
+        self._samples_measured = int(model.host("contact_samples").max()) > 1
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -529,6 +533,11 @@ class Solver:
         measure(wall_measure.SEED)  # a world with bounds only: its smallest bound's node, exactly
         reduce()
         measure(wall_measure.FIX_UP)
+        if self._samples_measured:  # segments longer than 1.5 d: their points between the nodes too
+            wp.launch(wall_measure.sample_wall_gaps, n, device=dev, inputs=[
+                state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,
+                m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, self.wall_distance,
+                self._smallest_wall_gap, self.sample_wall_gap])
 
     def measure_contacts(self, state: State, running: wp.array) -> None:
         """:meth:`compute_contacts` as a frame's measurement (replayed, :meth:`_replayed`):

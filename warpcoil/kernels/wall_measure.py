@@ -21,8 +21,8 @@ wall_contact notes it; a bounded node is re-anchored at its bound.
 
 import warp as wp
 
-from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, field_sample, wall_feature_sum,
-                      wall_search)
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, field_sample, wall_feature_sum,
+                      wall_query, wall_search)
 
 FIRST = wp.constant(0)  # measure_wall's stages
 SEED = wp.constant(1)
@@ -210,3 +210,48 @@ def smallest_gaps(free: wp.array(dtype=wp.int32), world_of: wp.array(dtype=wp.in
             wp.atomic_min(smallest_gap, world_of[i], centre_distance[i] - node_radius[i])
         else:
             wp.atomic_min(smallest_bound, world_of[i], centre_distance[i] - node_radius[i])
+
+
+@wp.kernel
+def sample_wall_gaps(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_samples: wp.array(dtype=wp.int32),
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    centre_distance: wp.array(dtype=wp.float64),
+    smallest_gap: wp.array(dtype=wp.float64),
+    gap: wp.array(dtype=wp.float64),
+):
+    """Per edge of a coil with contact samples (segments longer than 1.5 d: K − 1 points between its
+    nodes, model.contact_samples_per_edge) whose nodes are both out of the catheter: the smallest wall
+    gap (mm: signed centre distance less the interpolated radius, < −radius where the centre line
+    crossed the wall) over those points; FAR_MM elsewhere. The wall acts at the nodes only, so a
+    segment can straddle a wall feature thinner than itself; this reports it. A point is searched only
+    where the nodes' distances (``centre_distance``, exact or a lower bound, each 1-Lipschitz) do not
+    already put it above its world's smallest node gap (``smallest_gap``)."""
+    e = wp.tid()
+    w = world_of[e]
+    mesh = meshes[w]
+    smallest = FAR_MM
+    samples = contact_samples[e]
+    if samples > 1 and has_next[e] != 0 and free[e] != 0 and free[e + 1] != 0 and running[w] != 0 and \
+            mesh != wp.uint64(0):
+        length = wp.length(x[e + 1] - x[e])
+        for m in range(1, samples):
+            s = wp.float64(m) / wp.float64(samples)
+            radius = (wp.float64(1.0) - s) * node_radius[e] + s * node_radius[e + 1]
+            bound = wp.max(centre_distance[e] - s * length, centre_distance[e + 1] - (wp.float64(1.0) - s) * length)
+            if bound - radius < smallest_gap[w]:
+                p = x[e] + s * (x[e + 1] - x[e])
+                face, signed, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], p, FAR_MM)
+                if face != NO_FACE:
+                    smallest = wp.min(smallest, signed - radius)
+    gap[e] = smallest
