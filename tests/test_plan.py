@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from warpcoil.plan import PlanError, perturbed_keys, read_plan, tilted
+from warpcoil.sweep import SweepError
 from warpcoil.plan_rank import CRITERIA, Stats, rank, raymond_roy_number
 from warpcoil.settings import CatheterSpec
 
@@ -233,7 +234,7 @@ def test_plan_errors_name_the_option_and_key(tmp_path):
     scene.write_text(SCENE.replace('catheter.depth_mm = 1.0', 'catheter.depth_mm = 1.0\nplan.perturbations = 4'))
     with pytest.raises(PlanError, match=r"plan\.option\[0\].*plan\.perturbations: is a setting of the plan"):
         read_plan(scene)
-    scene.write_text(SCENE)
+    scene.write_text(SCENE.split("[[plan.option]]")[0])  # (--vary gives the options)
     with pytest.raises(PlanError, match=r"plan\.perturbations: is a setting of the plan"):
         read_plan(scene, [("plan.perturbations", [2, 3])])
 
@@ -256,7 +257,13 @@ def test_the_shipped_c0001_plan_compares_six_options_with_a_balloon():
 
 def test_vary_gives_the_product_of_options_devices_included(tmp_path):
     scene = tmp_path / "plan.toml"
-    scene.write_text(SCENE + "\n[plan.balloon]\naxis = [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]]\ndiameter_mm = 1.0\n")
+    balloon = "\n[plan.balloon]\naxis = [[0.0, -1.0, -1.5], [0.0, 1.0, -1.5]]\ndiameter_mm = 1.0\n"
+    scene.write_text(SCENE + balloon)
+    with pytest.raises(PlanError, match=r"plan.option: given beside --vary, which would replace these options"):
+        read_plan(scene, [("catheter.depth_mm", [0.5, 1.0])])  # the scene's options were dropped unseen
+    scene.write_text(SCENE.split("[[plan.option]]")[0] + balloon)
+    with pytest.raises(SweepError, match=r"--vary device: the value 'none' is given twice"):
+        read_plan(scene, [("device", ["none", "balloon", "none"])])
     plan = read_plan(scene, [("catheter.depth_mm", [0.5, 1.0]), ("device", ["none", "balloon"])])
     assert [o.name for o in plan.options] == ["catheter.depth_mm=0.5, device=none", "catheter.depth_mm=0.5, "
                                               "device=balloon", "catheter.depth_mm=1, device=none",

@@ -115,6 +115,25 @@ def test_a_product_of_values_beyond_a_sweeps_members_is_refused():
         members([("a", list(range(100))), ("b", list(range(201)))])
 
 
+def test_a_key_varied_twice_or_a_value_given_twice_is_refused():
+    """`--vary k=30 --vary k=40` ran only k=40 (the last won) and `--vary k=30,30` two identical
+    members, unseen: both refused, naming the key and the fix."""
+    from warpcoil.sweep import members
+
+    with pytest.raises(SweepError, match=r"--vary coil.length_mm: given 2 times; fix: one --vary per key"):
+        members([("coil.length_mm", [30.0]), ("catheter.angle_deg", [0.0]), ("coil.length_mm", [40.0])])
+    with pytest.raises(SweepError, match=r"--vary coil.length_mm: the value 30.0 is given twice"):
+        members([("coil.length_mm", [30.0, 40.0, 30.0])])
+    assert len(members([("coil.length_mm", [30.0, 40.0]), ("catheter.angle_deg", [0.0, 30.0])])) == 4
+
+
+def test_resume_and_overwrite_together_are_refused(tmp_path):
+    run = _sweep_cli([str(_scene(tmp_path)), "--vary", "simulation.push_speed_mm_s=100,150", "-o",
+                      str(tmp_path / "out"), "--resume", "--overwrite"], tmp_path / "stdout.txt")
+    assert run.returncode == 2 and "--resume and --overwrite" in run.stderr and "fix:" in run.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_task_carries_its_files(tmp_path, single_runs):
     """No shared filesystem: the task runs with the scene's files gone from their paths."""
     scene = load_scene(_scene(tmp_path), {"simulation.push_speed_mm_s": SPEEDS[0]})

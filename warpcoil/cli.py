@@ -167,7 +167,7 @@ def _sweep(args: argparse.Namespace) -> int:
         if args.workers is not None and (args.workers < 1 or args.scheduler):
             raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler "
                              "(a cluster's size is set where its workers start)")
-        _check_retries(args)
+        _check_options(args)
         check_output_path(out)
         if not args.scheduler:  # a cluster's workers may have devices this machine lacks
             _device(args.device)
@@ -201,11 +201,16 @@ def _add_retries(parser: argparse.ArgumentParser) -> None:
                         help="rerun a task that raised or whose worker died up to N times (default 2)")
 
 
-def _check_retries(args: argparse.Namespace) -> None:
+def _check_options(args: argparse.Namespace) -> None:
+    """The options of sweep and plan that no value or pair of them allows: --retries below 0, and
+    --resume with --overwrite (keep the complete members, or replace them all: --resume won, unseen)."""
     from .sweep import SweepError
 
     if args.retries < 0:
         raise SweepError(f"--retries {args.retries}: give 0 or more")
+    if args.resume and args.overwrite:
+        raise SweepError("--resume and --overwrite: --resume keeps the complete members, --overwrite replaces "
+                         "them all; fix: give one of them")
 
 
 def _plan(args: argparse.Namespace) -> int:
@@ -225,7 +230,7 @@ def _plan(args: argparse.Namespace) -> int:
     try:
         if args.workers is not None and (args.workers < 1 or args.scheduler):
             raise SweepError(f"--workers {args.workers}: give 1 or more local worker processes, and no --scheduler")
-        _check_retries(args)
+        _check_options(args)
         check_output_path(out)
         if not args.scheduler:
             _device(args.device)

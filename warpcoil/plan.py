@@ -28,7 +28,7 @@ from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder.atomic import write_text_atomic
 from .sac import neck_frame
 from .scene import SceneError, load_scene
-from .sweep import MAX_MEMBERS, Member, run_members
+from .sweep import MAX_MEMBERS, Member, check_varies, run_members
 
 DEVICES = ("none", "balloon", "stent")
 PLAN_KEYS = ("perturbations", "perturbation_deg", "top", "balloon", "stent", "option")
@@ -106,6 +106,10 @@ def read_plan(scene_path: Path, varies: list[tuple[str, list]] | None = None) ->
         if geometry is not None and not isinstance(geometry, dict):
             raise _error(source, f"plan.{name}", f"must be a table of [{name}] keys, got {geometry!r}",
                          f"write [plan.{name}] with axis = [[x, y, z], …] and diameter_mm (docs/SCENES.md)")
+    check_varies(varies or [])
+    if varies and table.get("option") is not None:
+        raise _error(source, "plan.option", "given beside --vary, which would replace these options unseen",
+                     "give the options one way: remove --vary, or the [[plan.option]] tables")
     if varies:
         raw = [dict(zip([k for k, _ in varies], combo)) for combo in itertools.product(*(v for _, v in varies))]
         where = ["--vary " + " ".join(f"{k}={v}" for k, v in r.items()) for r in raw]

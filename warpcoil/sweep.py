@@ -105,13 +105,29 @@ class Member:
         return f"member_{self.index:03d}"
 
 
+def check_varies(varies: list[tuple[str, list]]) -> None:
+    """SweepError for a key varied twice (the last --vary of it won, unseen) or a value given twice for
+    one key (two identical members)."""
+    keys = [k for k, _ in varies]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        raise SweepError(f"--vary {twice[0]}: given {keys.count(twice[0])} times; fix: one --vary per key, its values "
+                         "in one list (key=a,b,c)")
+    for key, values in varies:
+        seen = [v for k, v in enumerate(values) if v in values[:k]]
+        if seen:
+            raise SweepError(f"--vary {key}: the value {seen[0]!r} is given twice (two identical members); fix: "
+                             "give each value once")
+
+
 def members(varies: list[tuple[str, list]]) -> list[Member]:
-    """The Cartesian product of ``varies``, at most MAX_MEMBERS (else SweepError)."""
+    """The Cartesian product of ``varies`` (:func:`check_varies`), at most MAX_MEMBERS (else SweepError)."""
+    check_varies(varies)
+    keys = [k for k, _ in varies]
     count = math.prod(len(v) for _, v in varies)
     if count > MAX_MEMBERS:
-        raise SweepError(f"--vary {' '.join(k for k, _ in varies)}: {count:,} members, more than a sweep's "
+        raise SweepError(f"--vary {' '.join(keys)}: {count:,} members, more than a sweep's "
                          f"{MAX_MEMBERS:,}; fix: coarser steps or fewer values (or run them as several sweeps)")
-    keys = [k for k, _ in varies]
     return [Member(i, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*(v for _, v in varies)))]
 
 
