@@ -376,6 +376,24 @@ def test_a_stopped_sweep_ends_interrupted_and_resumes(tmp_path, stop):
     assert len(list((tmp_path / "sw").glob("member_*/result.json"))) == 6
 
 
+def test_a_folder_of_the_other_kind_is_refused(tmp_path):
+    """`run -o` into a sweep's folder wrote a run beside its member folders and summary; `sweep --resume -o`
+    into a run's folder mixed a sweep into it. Both refused (exit 2, one line naming the fix), nothing touched."""
+    sweep_folder = tmp_path / "swept"
+    (sweep_folder / "member_000").mkdir(parents=True)
+    (sweep_folder / "member_000" / "result.json").write_text("{}")
+    (sweep_folder / "summary.csv").write_text("member\n")
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "swept", "--no-usd")
+    assert code == 2 and "member_000" in one_line(err) and "fix:" in err
+    assert sorted(p.name for p in sweep_folder.iterdir()) == ["member_000", "summary.csv"]
+    run_folder = tmp_path / "ran"
+    run_folder.mkdir()
+    (run_folder / "result.json").write_text("{}")
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "coil.length_mm=4,5", "--resume", "-o", "ran")
+    assert code == 2 and "holds a single run's outputs" in one_line(err)
+    assert [p.name for p in run_folder.iterdir()] == ["result.json"]
+
+
 def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
     """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
     outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite

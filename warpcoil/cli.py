@@ -16,7 +16,6 @@ from pathlib import Path
 
 EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
-SWEEP_OUTPUTS = ("summary.csv", "summary.md")
 
 
 def _positive_seconds(text: str) -> float:
@@ -61,7 +60,7 @@ def _run(args: argparse.Namespace) -> int:
     from .preflight import SetupError, preflight
     from .preshape import PreshapeError
     from .recorder import outputs
-    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
     from .scene import SceneError, load_scene
     from .solver import UnstableStepError
     from .wall import WallError
@@ -87,7 +86,8 @@ def _run(args: argparse.Namespace) -> int:
     for warning in warnings:
         print(f"warpcoil run: warning: {warning}", file=sys.stderr)
     try:
-        with claimed_folder(out, outputs.RUN_OUTPUTS, args.overwrite):
+        with claimed_folder(out, outputs.RUN_OUTPUTS + outputs.SWEEP_OUTPUTS + outputs.PLAN_OUTPUTS, args.overwrite,
+                            folder_pattern=outputs.MEMBER_FOLDERS):  # (a sweep's or plan's folder is no run's)
             return _deploy_into(out, scene, deployment, args, warnings)
     except OutputFolderError as error:
         print(f"warpcoil run: {error}", file=sys.stderr)
@@ -152,7 +152,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from .preflight import SetupError
     from .preshape import PreshapeError
     from .recorder import outputs
-    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
     from .scene import SceneError
     from .solver import UnstableStepError
     from .sweep import SweepError, SweepIncomplete, SweepProgress, members, parse_vary, run_sweep
@@ -174,10 +174,10 @@ def _sweep(args: argparse.Namespace) -> int:
         varies = [parse_vary(v) for v in args.vary]
         progress.start(len(members(varies)))
         if args.resume:  # keeps the member folders (the complete ones are not rerun) and, until the resumed
-            claim = claimed_folder(out, (), overwrite=True)  # sweep is checked, the summary (sweep.run_members)
+            claim = resumed_folder(out)  # sweep is checked, the summary (sweep.run_members)
         else:
-            claim = claimed_folder(out, SWEEP_OUTPUTS + outputs.RUN_OUTPUTS, args.overwrite,
-                                   folder_pattern=r"member_\d+")
+            claim = claimed_folder(out, outputs.SWEEP_OUTPUTS + outputs.RUN_OUTPUTS, args.overwrite,
+                                   folder_pattern=outputs.MEMBER_FOLDERS)
         with claim:
             todo = run_sweep(Path(args.scene), varies, out, args.device, progress, args.scheduler, args.workers,
                              args.usd, args.resume, args.retries)
@@ -215,11 +215,11 @@ def _check_options(args: argparse.Namespace) -> None:
 
 def _plan(args: argparse.Namespace) -> int:
     from .model import EnsembleError
-    from .plan import PLAN_OUTPUTS, PlanError, read_plan, run_plan
+    from .plan import PlanError, read_plan, run_plan
     from .preflight import SetupError
     from .preshape import PreshapeError
     from .recorder import outputs
-    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
     from .scene import SceneError
     from .solver import UnstableStepError
     from .sweep import SweepError, SweepIncomplete, SweepProgress, parse_vary
@@ -236,9 +236,9 @@ def _plan(args: argparse.Namespace) -> int:
             _device(args.device)
         plan = read_plan(Path(args.scene), [parse_vary(v) for v in args.vary or []])
         progress.start(len(plan.options) * plan.perturbations)
-        names = PLAN_OUTPUTS + SWEEP_OUTPUTS
-        claim = claimed_folder(out, (), overwrite=True) if args.resume else \
-            claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=r"member_\d+")
+        names = outputs.PLAN_OUTPUTS + outputs.SWEEP_OUTPUTS
+        claim = resumed_folder(out) if args.resume else \
+            claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=outputs.MEMBER_FOLDERS)
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
                               args.resume, args.retries)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
+from .recorder import outputs
 from .recorder.atomic import write_text_atomic
 from .sac import neck_frame
 from .scene import SceneError, load_scene
@@ -32,7 +33,6 @@ from .sweep import MAX_MEMBERS, Member, check_varies, run_members
 
 DEVICES = ("none", "balloon", "stent")
 PLAN_KEYS = ("perturbations", "perturbation_deg", "top", "balloon", "stent", "option")
-PLAN_OUTPUTS = ("plan.md", "plan.csv", "plan.png")
 USABLE = ("completed", "jammed", "timeout")  # a failed (numerically unstable) run says nothing about the option
 
 
@@ -240,7 +240,7 @@ def run_plan(scene_path: Path, plan: Plan, out: Path, device: str | None = None,
     started = time.perf_counter()
     todo, owner = plan_members(scene_path, plan)
     run_members(scene_path, todo, out, device, progress, scheduler, workers, resume=resume, retries=retries,
-                title="Plan", stale_names=PLAN_OUTPUTS)
+                title="Plan", stale_names=outputs.PLAN_OUTPUTS)
     stats, usable = [], []
     for k in range(len(plan.options)):
         results = [m.result for m, o in zip(todo, owner) if o == k and m.result["status"] in USABLE]

@@ -135,6 +135,18 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
             path.rmdir()
 
 
+def resumed_folder(path: Path, option: str = "-o"):
+    """:func:`claimed_folder` for a resumed sweep or plan: its member folders and summary stay (the sweep
+    checks them); a folder holding a single run's outputs (a result.json of its own) is refused."""
+    from .outputs import RESULT_JSON
+
+    if (Path(path) / RESULT_JSON).is_file():
+        raise OutputFolderError(f"{option} {path}: holds a single run's outputs ({RESULT_JSON}, …), not a sweep's "
+                                "or plan's member folders, so --resume has nothing of it to keep; fix: choose "
+                                "another output folder")
+    return claimed_folder(path, (), overwrite=True, option=option)
+
+
 @contextmanager
 def staged_outputs(folder: Path, last: str) -> Iterator[Path]:
     """A hidden folder inside ``folder`` (a temporary name, :data:`TEMPORARY`) for a run to

@@ -32,6 +32,9 @@ TUBE_STL, TUBE_VTP = "coils.stl", "coils.vtp"
 ANIMATION_GIF = "deployment.gif"
 RUN_OUTPUTS = (RESULT_JSON, CENTERLINE_CSV, TIMESERIES_CSV, DEPLOYMENT_USD, SUMMARY_PNG, TUBE_STL, TUBE_VTP,
                ANIMATION_GIF, POROUS_VTI)  # every file a run may write (recorder.folder clears exactly these)
+SWEEP_OUTPUTS = ("summary.csv", "summary.md")  # a sweep's (and a plan's) beside its member_NNN folders
+PLAN_OUTPUTS = ("plan.md", "plan.csv", "plan.png")  # and a plan's
+MEMBER_FOLDERS = r"member_\d+"
 
 
 def _json_ready(value):
