@@ -194,6 +194,20 @@ def test_two_local_workers_equal_single_runs_and_resume(tmp_path, single_runs):
     assert (out / "member_000" / "result.json").stat().st_mtime_ns == kept.st_mtime_ns
 
 
+def test_resume_with_usd_reruns_members_made_without_it(tmp_path):
+    """Members kept by `--resume --usd` had no deployment.usdc when the first sweep ran without --usd (no word):
+    a member made without the USD the resumed sweep asks for runs again, with it."""
+    scene = _scene(tmp_path)
+    out = tmp_path / "out"
+    vary = ["--vary", "simulation.push_speed_mm_s=100,150", "-o", str(out), "--workers", "1"]
+    assert _sweep_cli([str(scene), *vary], tmp_path / "stdout.txt").returncode == 0
+    assert not list(out.glob("member_*/deployment.usdc"))
+    run = _sweep_cli([str(scene), *vary, "--resume", "--usd"], tmp_path / "stdout.txt")
+    assert run.returncode == 0, run.stderr
+    assert "2 members (0 resumed)" in (tmp_path / "stdout.txt").read_text()
+    assert len(list(out.glob("member_*/deployment.usdc"))) == 2
+
+
 def test_a_killed_workers_task_is_retried(tmp_path, single_runs, monkeypatch):
     marker = tmp_path / "killed"
     monkeypatch.setenv("WARPCOIL_TEST_KILL_MARKER", str(marker))

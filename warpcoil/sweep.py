@@ -37,7 +37,7 @@ from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_m
 from .preflight import preflight
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
-from .recorder.outputs import RESULT_JSON
+from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
 from .sweep_task import MemberOutput, make_task, run_task
@@ -389,6 +389,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                                  "version's; rerun the sweep with --overwrite instead of --resume, or give another -o")
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
+            if found is not None and usd and DEPLOYMENT_USD not in found.get("files", {}):
+                found = None  # made without the USD this sweep asks for (--usd): run again, with it
             member.result, member.resumed = found, found is not None
         ours = {folder.name for folder in folders}
         foreign = sorted(f.name for f in out.glob("member_*") if f.is_dir() and f.name not in ours
