@@ -15,7 +15,7 @@ from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_
                   sac_from_neck)
 from .settings import CatheterSpec, Scene
 from .scene import SceneError
-from .wall import WallMesh, load_wall
+from .wall import WallError, WallMesh, load_wall
 
 
 @dataclass
@@ -37,7 +37,10 @@ class Anatomy:
 
 def resolve_anatomy(scene: Scene) -> Anatomy:
     """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
-    wall = load_wall(scene.wall) if scene.wall is not None else None
+    try:
+        wall = load_wall(scene.wall) if scene.wall is not None else None
+    except WallError as error:  # the mesh's own problem, said with the scene file and key that name it
+        raise WallError(f"{scene.where}: wall.mesh: {error}") from None
     sac = None
     if scene.neck is not None:
         hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
