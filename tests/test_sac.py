@@ -304,9 +304,9 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
 
     from test_devices import sac_on_duct
 
-    from warpcoil.anatomy import resolve_anatomy
+    from warpcoil.anatomy import resolve_anatomies, resolve_anatomy
     from warpcoil.preflight import preflight
-    from warpcoil.scene import load_scene
+    from warpcoil.scene import SceneError, load_scene
 
     sac_on_duct(tmp_path / "duct.stl")
     base = ('[wall]\nmesh = "duct.stl"\n[neck]\nplane_point_mm = [0.0, 0.0, 2.0]\nplane_normal = [0.0, 0.0, 1.0]\n'
@@ -325,7 +325,7 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
     sphere = 4.0 / 3.0 * math.pi * 3.0**3
     (tmp_path / "neck.toml").write_text(base.format(point="", catheter='placement = "neck"'))
     neck_scene = load_scene(tmp_path / "neck.toml")
-    anatomy = resolve_anatomy(neck_scene)
+    anatomy = resolve_anatomies([neck_scene])[0]  # (as a run resolves it: the placed tip, not a stand-in)
     assert anatomy.sac_volume_mm3 > 1.3 * sphere  # the duct, taken by size
     assert any("no flat vessel cap" in w and "neck.sac_point_mm" in w for w in preflight(neck_scene, anatomy))
     (tmp_path / "point.toml").write_text(base.format(point="sac_point_mm = [0.0, 0.0, 5.0]\n", catheter=explicit))
@@ -333,3 +333,12 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
     anatomy = resolve_anatomy(point_scene)
     assert anatomy.sac_volume_mm3 == pytest.approx(sphere, rel=0.1)  # the sphere (and the neck's upper part)
     assert not any("no flat vessel cap" in w for w in preflight(point_scene, anatomy))
+    # every member of a sweep checks its own tip; a tip in a small other piece (a sac-only wall's neck stub) is no doubt
+    (tmp_path / "in_sac.toml").write_text(base.format(point="", catheter=explicit.replace("4.0]", "-0.5]")))
+    with pytest.raises(SceneError, match="neck.sac_point_mm"):
+        resolve_anatomies([load_scene(tmp_path / "in_sac.toml"), load_scene(tmp_path / "tip.toml")])
+    (tmp_path / "stub.toml").write_text('[wall]\nsphere_diameter_mm = 8.0\n[neck]\nplane_point_mm = [0.0, 0.0, -3.0]\n'
+                                        'plane_normal = [0.0, 0.0, 1.0]\n[catheter]\ntip = [0.0, 0.0, -3.3]\n'
+                                        'direction = [0.0, 0.0, 1.0]\n[[coil]]\nwire_diameter_mm = 0.3\n'
+                                        'loop_diameter_mm = 3\nlength_mm = 5\n')
+    assert resolve_anatomies([load_scene(tmp_path / "stub.toml")])[0].sac_volume_mm3 > 200.0

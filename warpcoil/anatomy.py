@@ -11,8 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour, neck_from_plane,
-                  sac_from_neck)
+from .sac import (AMBIGUOUS_PIECE, NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour,
+                  neck_from_plane, sac_from_neck)
 from .settings import CatheterSpec, Scene
 from .scene import SceneError
 from .wall import WallError, WallMesh, load_wall
@@ -37,37 +37,49 @@ class Anatomy:
 
 def resolve_anatomy(scene: Scene) -> Anatomy:
     """Read the wall, cut the sac at the neck, and place the catheter (MODEL.md, Deployment)."""
+    wall, sac = _wall_and_sac(scene)
+    balloon, stent = _devices(scene, wall)
+    return Anatomy(wall=wall, sac=sac, catheter=_placed_catheter(scene, wall, sac), balloon=balloon, stent=stent)
+
+
+def _wall_and_sac(scene: Scene) -> tuple[WallMesh | None, Sac | None]:
+    """The scene's wall mesh and the sac its neck cuts off (None without them); errors name the scene's keys."""
     try:
         wall = load_wall(scene.wall) if scene.wall is not None else None
     except WallError as error:  # the mesh's own problem, said with the scene file and key that name it
         raise WallError(f"{scene.where}: wall.mesh: {error}") from None
-    sac = None
-    if scene.neck is not None:
-        hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
-        key = "neck.contour" if scene.neck.contour is not None else "neck.plane_point_mm / plane_normal"
-        try:
-            if scene.neck.contour is not None:
-                neck = neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
-            else:
-                neck = neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
-                                       wall, sac_side_point_mm=hint)
-            sac = sac_from_neck(wall, neck)
-        except NeckError as error:  # one line naming the scene and its key (exit 2), not a traceback
-            raise SceneError(f"{scene.where}: {'neck.sac_point_mm' if error.sac_point else key}: "
-                             f"{error}") from None
+    if scene.neck is None:
+        return wall, None
+    hint = None if scene.neck.sac_point_mm is None else np.asarray(scene.neck.sac_point_mm)
+    key = "neck.contour" if scene.neck.contour is not None else "neck.plane_point_mm / plane_normal"
+    try:
+        if scene.neck.contour is not None:
+            neck = neck_from_contour(scene.neck.contour, wall, sac_side_point_mm=hint)
+        else:
+            neck = neck_from_plane(np.asarray(scene.neck.plane_point_mm), np.asarray(scene.neck.plane_normal),
+                                   wall, sac_side_point_mm=hint)
+        return wall, sac_from_neck(wall, neck)
+    except NeckError as error:  # one line naming the scene and its key (exit 2), not a traceback
+        raise SceneError(f"{scene.where}: {'neck.sac_point_mm' if error.sac_point else key}: {error}") from None
+
+
+def _placed_catheter(scene: Scene, wall: WallMesh | None, sac: Sac | None) -> CatheterSpec:
+    """The scene's catheter with its tip and direction (placed at the neck, or as given). An explicit tip in
+    the piece of the lumen the neck did not take as the sac, where only the pieces' sizes told the sac's side
+    and the other piece is not small (sac.AMBIGUOUS_PIECE), is a SceneError naming neck.sac_point_mm."""
     catheter = scene.catheter
-    if sac is not None and sac.neck.other_volume_mm3 is not None and catheter.placement != "neck" and \
+    if catheter.placement == "neck":
+        tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+        return replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
+    other = sac.neck.other_volume_mm3 if sac is not None else None
+    if other is not None and other >= AMBIGUOUS_PIECE * sac.volume_mm3 and \
             in_other_piece(sac, wall, np.asarray(catheter.tip_mm, dtype=np.float64)):
         raise SceneError(
             f"{scene.where}: neck.sac_point_mm: the neck cuts the lumen into two pieces and the wall has no flat "
             f"vessel cap to tell which is the sac, so the larger ({sac.volume_mm3:.4g} mm³) would be taken; "
-            f"catheter.tip {list(map(float, catheter.tip_mm))} mm lies in the other ({sac.neck.other_volume_mm3:.4g} "
-            f"mm³); fix: give neck.sac_point_mm, a point inside the sac (e.g. the tip, if it is in the sac)")
-    if catheter.placement == "neck":
-        tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-        catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    balloon, stent = _devices(scene, wall)
-    return Anatomy(wall=wall, sac=sac, catheter=catheter, balloon=balloon, stent=stent)
+            f"catheter.tip {list(map(float, catheter.tip_mm))} mm lies in the other ({other:.4g} mm³); fix: give "
+            "neck.sac_point_mm, a point inside the sac (e.g. the tip, if it is in the sac)")
+    return catheter
 
 
 def _devices(scene: Scene, wall: WallMesh | None) -> tuple[tuple | None, tuple | None]:
@@ -84,19 +96,15 @@ def _devices(scene: Scene, wall: WallMesh | None) -> tuple[tuple | None, tuple |
 def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
     """:func:`resolve_anatomy` for each scene; scenes with the same wall, neck and
     device share one wall mesh, sac and device (read, cut and fitted once, one BVH
-    on the device)."""
-    shared: dict[tuple, Anatomy] = {}
+    on the device); each places its own catheter."""
+    shared: dict[tuple, tuple] = {}
     anatomies = []
     for scene in scenes:
         key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon), repr(scene.stent))
         if key not in shared:
-            shared[key] = resolve_anatomy(replace(scene, catheter=replace(scene.catheter, placement="explicit")))
-        base = shared[key]
-        catheter = scene.catheter
-        if catheter.placement == "neck":
-            tip, direction = catheter_from_neck(base.sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
-            catheter = replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-        anatomies.append(Anatomy(wall=base.wall, sac=base.sac, catheter=catheter, balloon=base.balloon,
-                                 stent=base.stent))
+            wall, sac = _wall_and_sac(scene)
+            shared[key] = (wall, sac, *_devices(scene, wall))
+        wall, sac, balloon, stent = shared[key]
+        anatomies.append(Anatomy(wall=wall, sac=sac, catheter=_placed_catheter(scene, wall, sac), balloon=balloon,
+                                 stent=stent))
     return anatomies
-

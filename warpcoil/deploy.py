@@ -23,7 +23,7 @@ import warp as wp
 
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
-from .measure import Frame, RunResult, Snapshot, measure_frame, run_result, take_snapshot
+from .measure import Frame, RunResult, Snapshot, measure_frame, note_samples, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
@@ -118,6 +118,7 @@ class Member:
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
         self.settle_scale = settle_step_scale(scene.coils)  # on its settling steps' bounds (segments below d)
+        self.sample_centre_mm = math.inf  # its contact samples' smallest wall centre distance (measure.note_samples)
         self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
         self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
@@ -554,6 +555,7 @@ class Ensemble:
         energies, _ = self.solver.world_health(state)
         snap = take_snapshot(self.solver, state, self.control.running)
         for member in self.members:
+            note_samples(member, snap)
             self._record(member, measure_frame(self.model, self.solver, member, snap, energies, (0.0, 0.0, 0.0)), on_frame)
             if state.time_s >= member.max_time_s:
                 self._finish(member, TIMEOUT, f"simulated time reached max_time_s = {member.max_time_s:g} s",
@@ -599,6 +601,7 @@ class Ensemble:
                 if not settling:  # the frame's steps beyond the push step's (kept only for a healthy frame)
                     member.detach_steps += (member.detach_level - 1) * self.stepper.chunk
                 member.detach_level = 1
+                note_samples(member, snap)
                 frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)

@@ -211,8 +211,8 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
 
 
 def settle_step_scale(coils) -> float:
-    """Factor (≤ 1) on the settling steps' bounds for these coils (CoilParams): (l0/d)² of the
-    finest relative to its wire below l0 = d, to the power SETTLE_FINE_EXPONENT, else 1."""
+    """Factor (≤ 1) on the settling steps' bounds for these coils (CoilParams): (l0/d)^SETTLE_FINE_EXPONENT of
+    the coil whose segments are finest relative to its wire, where that is below l0 = d; else 1."""
     return min([1.0] + [(c.l0 / c.d) ** SETTLE_FINE_EXPONENT for c in coils if c.l0 < c.d * (1.0 - 1e-9)])
 
 

@@ -17,7 +17,7 @@ import warp as wp
 
 from .anatomy import Anatomy
 from .devices import device_report
-from .model import NODE_CONTACT_MAX_SEGMENT_D, Model
+from .model import Model
 from .occlusion import occlusion_of_regions
 from .sac import inside_sac, regional_density
 from .settings import Scene
@@ -43,6 +43,7 @@ class Measured(Protocol):
     frames: list
     inflation: float | None  # the balloon's, None without one
     deflate_from_s: float | None  # when the balloon started to deflate
+    sample_centre_mm: float  # the smallest signed centre distance of its contact samples so far (note_samples)
 
 
 @dataclass
@@ -220,7 +221,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     coil_gap = finite([f.min_coil_gap_mm for f in frames])
     return RunResult(
         status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs))
-        + wall_crossing_note(finite([f.min_wall_gap_mm for f in frames]), coil_specs), steps=member.steps,
+        + wall_crossing_note(member.sample_centre_mm, coil_specs), steps=member.steps,
         dt_s=solver.dt_s, step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
         simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
         deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
@@ -261,19 +262,23 @@ def crossing_note(min_coil_gap_mm: float, d_mm: float) -> str:
             "the geometry is not to be trusted there")
 
 
-def wall_crossing_note(min_wall_gap_mm: float, coils) -> str:
-    """What a run's reason adds where its smallest wall gap (mm; nodes, and the points between the nodes of
-    segments longer than 1.5 d) went below −d/2 of the thinnest wire (CoilSpecs): a node that deep fails the
-    frame's check (a centre past the wall), so it was a point between two nodes, where the wall does not act;
-    empty otherwise."""
-    d_mm = min(c.d for c in coils)
-    coarse = max(c.l0 / c.d for c in coils)
-    if not (min_wall_gap_mm < -0.5 * d_mm and coarse > NODE_CONTACT_MAX_SEGMENT_D * (1.0 + 1e-9)):
+def note_samples(member: Measured, snap: Snapshot) -> None:
+    """Keep in ``member.sample_centre_mm`` the smallest signed centre distance (mm, > 0 in the lumen) of its
+    contact samples (the points between the nodes of segments longer than 1.5 d) up to ``snap``."""
+    centre = snap.sample_wall_gap[member.nodes] + member.radius  # (FAR_MM where none is measured)
+    member.sample_centre_mm = min(member.sample_centre_mm, float(centre.min()))
+
+
+def wall_crossing_note(sample_centre_mm: float, coils) -> str:
+    """What a run's reason adds where a contact sample's centre went past the wall (``sample_centre_mm`` < 0,
+    :func:`note_samples`): the wall acts at the nodes, so a segment longer than 1.5 d (CoilSpecs ``coils``)
+    can straddle a wall feature thinner than itself; empty otherwise."""
+    if not sample_centre_mm < 0.0:
         return ""
-    return (f"; but a coil segment's centre line crossed the wall between its nodes (smallest wall gap "
-            f"{min_wall_gap_mm:.3g} mm, thinnest wire d = {d_mm:g} mm): the wall acts at the nodes, and segments of "
-            f"up to {coarse:.2g} d can straddle a wall feature thinner than themselves (a septum, a sharp ridge); "
-            "fix: segment_length_mm ≤ 1.5 d")
+    coarse = max(c.l0 / c.d for c in coils)
+    return (f"; but a coil segment's centre line crossed the wall between its nodes ({-sample_centre_mm:.3g} mm past "
+            f"it): the wall acts at the nodes, and segments of up to {coarse:.2g} d can straddle a wall feature "
+            "thinner than themselves (a septum, a sharp ridge); fix: segment_length_mm ≤ 1.5 d")
 
 
 def _field_report(field) -> dict | None:

@@ -19,13 +19,13 @@ import math
 import numpy as np
 import warp as wp
 
-from .model import NODE_CONTACT_MAX_SEGMENT_D
+from .model import NODE_CONTACT_MAX_SEGMENT_D, contact_samples_per_edge
+from .sac import AMBIGUOUS_PIECE
 from .settings import Scene, coarse_segment_coils, fine_segment_coils
 
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
 MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
 CENTERLINE_SAMPLE_MM = 0.1  # spacing of the checked points along a catheter centerline
-AMBIGUOUS_PIECE = 0.25  # the neck's other piece, over the sac's volume, above which the sac's side told by size is warned about
 MAX_LENGTH_SHORTFALL = 0.01  # a coil's chords this much shorter than its length_mm is warned about
 
 
@@ -230,17 +230,23 @@ def check_coil_lengths(scene: Scene) -> list[str]:
 
 
 def check_wall_segments(scene: Scene) -> list[str]:
-    """Warn of a coil whose segments are longer than 1.5 d in a scene with a wall: the wall acts at the
-    nodes (coil–coil contact also between them), so such a segment can straddle a wall feature thinner
-    than itself (a helper's 0.2 mm septum: 6 segments of 2d threaded through it, on either integrator)."""
-    coarse = [k for k, c in enumerate(scene.coils) if c.l0 > NODE_CONTACT_MAX_SEGMENT_D * c.d * (1.0 + 1e-9)]
-    if scene.wall is None or not coarse:
+    """Warn of a coil with contact samples (its pre-shape's mean chord, the model's segment, longer than 1.5 d:
+    model.contact_samples_per_edge) in a scene with a wall: the wall acts at the nodes (coil–coil contact also
+    between them), so such a segment can straddle a wall feature thinner than itself (a helper's 0.2 mm
+    septum: 6 segments of 2d threaded through it, on either integrator)."""
+    from .preshape import rest_centerline
+
+    if scene.wall is None:
         return []
-    coil = scene.coils[coarse[0]]
-    return [f"{scene.where}: coil[{coarse[0]}].segment_length_mm = {coil.l0:g} mm is above 1.5 d = "
-            f"{NODE_CONTACT_MAX_SEGMENT_D * coil.d:g} mm: the wall acts at the nodes only, so a segment can straddle a "
-            "wall feature thinner than itself (a septum, a sharp ridge); the run reports where a centre line crossed "
-            f"the wall; fix: segment_length_mm ≤ {NODE_CONTACT_MAX_SEGMENT_D * coil.d:g}"]
+    for k, coil in enumerate(scene.coils):
+        segment_mm = float(np.linalg.norm(np.diff(rest_centerline(coil), axis=0), axis=1).mean())
+        if contact_samples_per_edge(np.array([segment_mm]), np.array([coil.d]))[0] > 1:
+            return [f"{scene.where}: coil[{k}].segment_length_mm = {coil.l0:g} mm gives segments of {segment_mm:.3g} "
+                    f"mm, above 1.5 d = {NODE_CONTACT_MAX_SEGMENT_D * coil.d:g} mm: the wall acts at the nodes only, "
+                    "so a segment can straddle a wall feature thinner than itself (a septum, a sharp ridge); the run "
+                    f"reports where a centre line crossed the wall; fix: segment_length_mm ≤ "
+                    f"{NODE_CONTACT_MAX_SEGMENT_D * coil.d:g}"]
+    return []
 
 
 def check_porous(scene: Scene, anatomy) -> None:

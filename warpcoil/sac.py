@@ -74,6 +74,11 @@ def _error(source: Path | str | None, problem: str, fix: str) -> NeckError:
     return NeckError(f"{source if source is not None else 'neck'}: {problem}; fix: {fix}")
 
 
+# the neck's other piece, over the sac's volume, from which a sac side told only by the pieces' sizes is in
+# doubt (anatomy refuses an explicit tip in that piece, preflight warns)
+AMBIGUOUS_PIECE = 0.25
+
+
 @dataclass(frozen=True)
 class Neck:
     """Ostium of the sac."""

@@ -165,13 +165,17 @@ def _file_paths(value) -> Iterator[Path]:
             yield from _file_paths(item)
 
 
-def scene_fingerprint(scene: Scene) -> str:
-    """SHA-256 of a member's scene as it runs: every value (its repr) and the bytes of every file it
-    names, so --resume tells a member of an edited scene (or of a changed mesh) from one of this scene."""
+def scene_fingerprint(scene: Scene, files: dict[Path, bytes] | None = None) -> str:
+    """SHA-256 of a member's scene as the scene file and its values give it: every value (its repr) and
+    the bytes of every file it names (``files``: a cache of those bytes by path), so --resume tells a
+    member of an edited scene (or of a changed mesh) from one of this scene."""
+    files = {} if files is None else files
     digest = hashlib.sha256(repr(scene).encode())
     for path in _file_paths(scene):
+        if path not in files:
+            files[path] = path.read_bytes() if path.is_file() else b"(missing)"
         digest.update(str(path).encode())
-        digest.update(path.read_bytes() if path.is_file() else b"(missing)")
+        digest.update(files[path])
     return digest.hexdigest()
 
 
@@ -370,9 +374,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     SweepIncomplete (after writing every member that finished) when a task still
     fails."""
     scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
-    scenes, unified = one_integrator(scene_path, todo, scenes)
+    named_files: dict[Path, bytes] = {}  # (each file the scenes name read once)
+    fingerprints = [scene_fingerprint(scene, named_files) for scene in scenes]  # as the scene gives it (before the
+    scenes, unified = one_integrator(scene_path, todo, scenes)  # integrator the sweep's members share)
     folders = [out / m.name for m in todo]
-    fingerprints = [scene_fingerprint(scene) for scene in scenes]
     if resume:
         for member, folder in zip(todo, folders):
             found = complete_result(folder)

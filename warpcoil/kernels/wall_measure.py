@@ -242,8 +242,10 @@ def sample_wall_gaps(
     mesh = meshes[w]
     smallest = FAR_MM
     samples = contact_samples[e]
-    if samples > 1 and has_next[e] != 0 and free[e] != 0 and free[e + 1] != 0 and running[w] != 0 and \
-            mesh != wp.uint64(0):
+    out = samples > 1 and has_next[e] != 0  # an edge (e + 1 a node of its coil) with points between its nodes
+    if out:
+        out = free[e] != 0 and free[e + 1] != 0 and running[w] != 0 and mesh != wp.uint64(0)
+    if out:
         length = wp.length(x[e + 1] - x[e])
         for m in range(1, samples):
             s = wp.float64(m) / wp.float64(samples)
