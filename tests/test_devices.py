@@ -146,6 +146,14 @@ def test_cli_refuses_a_balloon_outside_the_vessel(tmp_path):
     assert "balloon.axis" in log.read_text() and "fix:" in log.read_text()
 
 
+def warpcoil_run(scene, out, log) -> tuple[int, str]:
+    """`warpcoil run SCENE -o OUT` as a user runs it, stdout and stderr into ``log``: (exit code, log text)."""
+    with log.open("w") as stream:
+        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(out)],
+                             stdout=stream, stderr=subprocess.STDOUT)
+    return rc, log.read_text()
+
+
 def test_cli_refuses_a_catheter_tip_inside_the_inflated_balloon(tmp_path):
     """A balloon whose round end cap holds the tip (a helper's scene: its axis along the catheter's path,
     ending 0.7 mm below the tip) squeezed the coil out at −305 mN and reported it completed; refused,
@@ -156,11 +164,7 @@ def test_cli_refuses_a_catheter_tip_inside_the_inflated_balloon(tmp_path):
     scene.write_text('[wall]\nsphere_diameter_mm = 8.0\n[catheter]\ntip = [0.0, 0.0, 0.0]\n'
                      'direction = [0.0, 0.0, 1.0]\n[[coil]]\nwire_diameter_mm = 0.3\nloop_diameter_mm = 3\n'
                      'length_mm = 5\n[balloon]\naxis = [[0.0, 0.0, -3.0], [0.0, 0.0, -0.7]]\ndiameter_mm = 2.0\n')
-    log = tmp_path / "log.txt"
-    with log.open("w") as out:
-        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(tmp_path / "o")],
-                             stdout=out, stderr=subprocess.STDOUT)
-    text = log.read_text()
+    rc, text = warpcoil_run(scene, tmp_path / "o", tmp_path / "log.txt")
     assert rc == 2 and "balloon.axis" in text and "catheter.tip" in text and "fix:" in text, text
     assert "0.45 mm within its surface" in text  # 1.0 − 0.7 − 0.15: cap radius − distance + d/2
     assert not (tmp_path / "o").exists()

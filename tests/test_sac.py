@@ -299,10 +299,7 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
     piece, which rule 3 took as the sac with no word (a helper's tube: everything "herniated", 0 %
     packing). An explicit tip in the smaller piece is refused (exit 2, naming neck.sac_point_mm, no
     output); a tip placed at the neck gets a warning; neck.sac_point_mm settles it."""
-    import subprocess
-    import sys
-
-    from test_devices import sac_on_duct
+    from test_devices import sac_on_duct, warpcoil_run
 
     from warpcoil.anatomy import resolve_anatomies, resolve_anatomy
     from warpcoil.preflight import preflight
@@ -314,11 +311,7 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
     explicit = 'tip = [0.0, 0.0, 4.0]\ndirection = [0.0, 0.0, 1.0]'
     scene = tmp_path / "tip.toml"
     scene.write_text(base.format(point="", catheter=explicit))
-    log = tmp_path / "log.txt"
-    with log.open("w") as out:
-        rc = subprocess.call([sys.executable, "-m", "warpcoil.cli", "run", str(scene), "-o", str(tmp_path / "o")],
-                             stdout=out, stderr=subprocess.STDOUT)
-    text = log.read_text()
+    rc, text = warpcoil_run(scene, tmp_path / "o", tmp_path / "log.txt")
     assert rc == 2 and "neck.sac_point_mm" in text and "catheter.tip" in text and "fix:" in text, text
     assert not (tmp_path / "o").exists()
 
