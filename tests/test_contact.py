@@ -261,3 +261,33 @@ def test_contact_samples_keep_the_pressure_per_length_and_converge_on_a_crossing
     assert len(rows) == 6 and all(row.passed for row in rows), [(r.case, r.error) for r in rows if not r.passed]
     crossing = [row.error for row in rows if "coils crossing" in row.case]
     assert crossing[1] > crossing[2] > crossing[3]
+
+
+def test_the_wall_acts_at_the_contact_samples_of_coarse_segments():
+    """An edge of 3d across a ridge, both nodes out of the contact range and its middle in it (a helper's
+    coils of 2d threaded a 0.2 mm septum this way, every node inside): pushed as nodes at its samples
+    would be, not at all with the samples off; a coil of 3d segments on a floor keeps the law per length
+    (it sinks to the gap of one of d segments: its nodes weigh 1/K of the law); the implicit step's matrix
+    takes the samples' stiffness on their nodes."""
+    from warpcoil.implicit import ImplicitSolver
+    from warpcoil.kernels import contact as kernels
+    from warpcoil.validation_contact import ridge_edge_forces, wall_sample_cases
+
+    for row in wall_sample_cases():
+        assert row.passed, row
+    result, reference, node_gap, sample_gap = ridge_edge_forces()
+    assert node_gap > 0.0292 > 0.0 > sample_gap and result[:, 2].sum() > 1000.0  # µN, up, out of the ridge
+    # the implicit step: each node's wall block its own over K plus its shares of the samples' (PSD, upward)
+    from warpcoil.validation_contact import ridge_wall
+    d, l0 = 0.2921, 3 * 0.2921
+    nodes = np.array([[-0.5 * l0, 0.0, 1.101], [0.5 * l0, 0.0, 1.101], [1.5 * l0, 0.0, 1.101]])
+    builder = wc.ModelBuilder(contact=wc.ContactSettings(P0_uN=1000.0), wall=ridge_wall())
+    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=2 * l0, segment_length_mm=l0), nodes)
+    model = builder.finalize()
+    solver = ImplicitSolver(model, dt_s=1e-4)
+    state = wc.state_from_positions(model, nodes)
+    solver.compute_contacts(state, wall_search_mm=float(kernels.FAR_MM))  # every node's side and distance known
+    solver.compute_contacts(state)  # as a step takes it (its stiffness)
+    blocks = solver.wall_stiffness.numpy()
+    assert blocks[0][2, 2] > 0.0 and blocks[1][2, 2] > 0.0 and np.all(np.linalg.eigvalsh(blocks[:2]) > -1e-9)
+    assert np.allclose(blocks[2], 0.0)  # the second edge's samples are out of range

@@ -271,14 +271,14 @@ def note_samples(member: Measured, snap: Snapshot) -> None:
 
 def wall_crossing_note(sample_centre_mm: float, coils) -> str:
     """What a run's reason adds where a contact sample's centre went past the wall (``sample_centre_mm`` < 0,
-    :func:`note_samples`): the wall acts at the nodes, so a segment longer than 1.5 d (CoilSpecs ``coils``)
-    can straddle a wall feature thinner than itself; empty otherwise."""
+    :func:`note_samples`): the wall acts at the nodes and at the samples between them of segments longer than
+    1.5 d (CoilSpecs ``coils``), so only a push harder than the law holds can carry one through; empty otherwise."""
     if not sample_centre_mm < 0.0:
         return ""
     coarse = max(c.l0 / c.d for c in coils)
     return (f"; but a coil segment's centre line crossed the wall between its nodes ({-sample_centre_mm:.3g} mm past "
-            f"it): the wall acts at the nodes, and segments of up to {coarse:.2g} d can straddle a wall feature "
-            "thinner than themselves (a septum, a sharp ridge); fix: segment_length_mm ≤ 1.5 d")
+            f"it, segments of up to {coarse:.2g} d): the geometry is not to be trusted there; fix: "
+            "segment_length_mm ≤ 1.5 d")
 
 
 def _field_report(field) -> dict | None:

@@ -19,7 +19,6 @@ import math
 import numpy as np
 import warp as wp
 
-from .model import NODE_CONTACT_MAX_SEGMENT_D, contact_samples_per_edge
 from .sac import AMBIGUOUS_PIECE
 from .settings import Scene, coarse_segment_coils, fine_segment_coils
 
@@ -229,26 +228,6 @@ def check_coil_lengths(scene: Scene) -> list[str]:
     return warnings
 
 
-def check_wall_segments(scene: Scene) -> list[str]:
-    """Warn of a coil with contact samples (its pre-shape's mean chord, the model's segment, longer than 1.5 d:
-    model.contact_samples_per_edge) in a scene with a wall: the wall acts at the nodes (coil–coil contact also
-    between them), so such a segment can straddle a wall feature thinner than itself (a helper's 0.2 mm
-    septum: 6 segments of 2d threaded through it, on either integrator)."""
-    from .preshape import rest_centerline
-
-    if scene.wall is None:
-        return []
-    for k, coil in enumerate(scene.coils):
-        segment_mm = float(np.linalg.norm(np.diff(rest_centerline(coil), axis=0), axis=1).mean())
-        if contact_samples_per_edge(np.array([segment_mm]), np.array([coil.d]))[0] > 1:
-            return [f"{scene.where}: coil[{k}].segment_length_mm = {coil.l0:g} mm gives segments of {segment_mm:.3g} "
-                    f"mm, above 1.5 d = {NODE_CONTACT_MAX_SEGMENT_D * coil.d:g} mm: the wall acts at the nodes only, "
-                    "so a segment can straddle a wall feature thinner than itself (a septum, a sharp ridge); the run "
-                    f"reports where a centre line crossed the wall; fix: segment_length_mm ≤ "
-                    f"{NODE_CONTACT_MAX_SEGMENT_D * coil.d:g}"]
-    return []
-
-
 def check_porous(scene: Scene, anatomy) -> None:
     """Raise SetupError when ``[output] porous`` asks for more than MAX_POROUS_VOXELS voxels
     (the field is computed after the run: refused before it, not after)."""
@@ -314,4 +293,4 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_sac_side(scene, anatomy) + check_catheter(scene, anatomy, device)
             + check_capacity(scene, anatomy.sac_volume_mm3)
-            + check_coil_lengths(scene) + check_wall_segments(scene) + check_integrator(scene, step_bound_s))
+            + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))

@@ -325,6 +325,10 @@ class Solver:
         self.sample_wall_gap = zeros(wp.float64)
         self.sample_wall_gap.fill_(float(contact.FAR_MM))
         self._samples_measured = int(model.host("contact_samples").max()) > 1
+        # the wall's weight on each node (µN per law): its contact share, over its coil's contact samples per edge
+        # where they share the law (kernels/contact.wall_sample_contact); the share itself where none has any
+        self._wall_share = (model.array(model.host("contact_share") / model.host("contact_samples"), wp.float64)
+                            if self._samples_measured else model.contact_share)
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -448,7 +452,7 @@ class Solver:
             self._launch_wall_measure(state, running)
         elif self.has_wall:
             wp.launch(contact.wall_contact, n, device=dev, inputs=[
-                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh, m.wall_face_first,
+                state.x, state.free, m.world_of, running, m.node_radius, self._wall_share, m.wall_mesh, m.wall_face_first,
                 m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm, self.contact_u_linear,
                 self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                 self.wall_guard_steps if wall_search_mm is None else 0,  # exact distances: search every node
@@ -457,6 +461,15 @@ class Solver:
                 self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance, self.wall_searches,
                 int(self.wall_stiffness is not None and wall_search_mm is None),
                 self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
+            if self._samples_measured:  # segments longer than 1.5 d: the wall at their points between the nodes too
+                wp.launch(contact.wall_sample_contact, n, device=dev, inputs=[
+                    state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,
+                    m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
+                    self.contact_u_linear, self.wall_search_mm if wall_search_mm is None else wall_search_mm,
+                    self._field_ids if wall_search_mm is None else self._no_fields, GRAD_TOLERANCE, self._anchor_margin,
+                    self.wall_distance, self.wall_force,
+                    int(self.wall_stiffness is not None and wall_search_mm is None),
+                    self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:

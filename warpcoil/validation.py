@@ -598,9 +598,10 @@ def contact_share() -> list[CaseResult]:
 
 def contact_samples() -> list[CaseResult]:
     """Contact samples between the nodes of segments above 1.5 d: pressure per length kept, the
-    crossing force converging to its integral as the samples grow (validation_contact.py)."""
-    from .validation_contact import contact_sample_cases
-    return contact_sample_cases()
+    crossing force converging to its integral as the samples grow, the wall at them (a coarse edge
+    across a ridge; a coarse coil resting on a floor) (validation_contact.py)."""
+    from .validation_contact import contact_sample_cases, wall_sample_cases
+    return contact_sample_cases() + wall_sample_cases()
 
 
 def regions() -> list[CaseResult]:

@@ -6,6 +6,7 @@ Units mm, g, s, µN."""
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from .coil import CoilSpec
 from .model import ModelBuilder
@@ -13,7 +14,7 @@ from .settings import ContactSettings
 from .solver import Control, Solver, Stepper
 from .state import state_from_positions
 from .validation import REFERENCE_D_MM, CaseResult, _row
-from .validation_friction import P0_UN, _floor, _law_uN, _overlap_for, _straight, straight_coils
+from .validation_friction import P0_UN, _floor, _law_uN, _overlap_for, _straight, _wall, straight_coils
 
 FLOOR_G_MM_S2 = 2.0e5  # weight per node ~37 µN at l0 = d: u ≈ 0.25 into the law
 
@@ -122,4 +123,88 @@ def contact_sample_cases() -> list[CaseResult]:
     order = float(np.polyfit(np.log([3, 6, 12, 24]), -np.log(errors), 1)[0])
     rows.append(CaseResult("contact samples: crossing force, observed order in K (≥ 1.5)", 2.0, order,
                            max(0.0, 1.5 - order), 0.0))
+    return rows
+
+
+RIDGE_HEIGHT_MM = 1.0  # a floor rising to a ridge along y (x = 0) at this height, falling 1 in 5 on either side
+
+
+def ridge_wall():
+    """A closed box lumen 10 × 10 × 5 mm whose floor is a ridge along y: z = 1 − |x|/5 mm (a wall edge
+    that bulges into the lumen, as a neck's rim or the crease between two lobes)."""
+    half, top, h = 5.0, 5.0, RIDGE_HEIGHT_MM
+    v = np.array([[-half, -half, 0.0], [-half, half, 0.0], [0.0, -half, h], [0.0, half, h], [half, -half, 0.0],
+                  [half, half, 0.0], [-half, -half, top], [-half, half, top], [half, -half, top], [half, half, top]])
+    faces = [[0, 2, 3], [0, 3, 1], [2, 4, 5], [2, 5, 3],  # the floor's two slopes
+             [6, 7, 9], [6, 9, 8],  # the top
+             [0, 1, 7], [0, 7, 6], [4, 8, 9], [4, 9, 5],  # the ends x = ∓5
+             [0, 6, 8], [0, 8, 4], [0, 4, 2], [1, 3, 5], [1, 5, 9], [1, 9, 7]]  # the sides y = ∓5
+    mesh = trimesh.Trimesh(v, np.array(faces), process=True)
+    mesh.fix_normals()
+    return _wall(mesh)
+
+
+def ridge_edge_forces(samples_on: bool = True) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """A coil of two edges of l0 = 3d (K = 3 contact samples each), the first straight across the ridge with
+    both its nodes out of the contact range and its middle third dipping into it: (the wall's force on the
+    three nodes, µN; the reference: the wall at the nodes and samples as a fine coil's nodes there feel it
+    (whole nodes' law), weighted by the node's contact share over K or a sample's 1/K and shared (1 − s, s);
+    the nodes' and the samples' smallest gaps, mm). ``samples_on`` False: the samples off (the nodes alone)."""
+    from .kernels import contact
+    from .solver import Solver
+
+    d = REFERENCE_D_MM
+    l0, k_samples = 3.0 * d, 3
+    height = RIDGE_HEIGHT_MM + 0.101  # node centres 0.101 mm above the ridge's height
+    nodes = np.array([[-0.5 * l0, 0.0, height], [0.5 * l0, 0.0, height], [1.5 * l0, 0.0, height]])
+    fractions = np.arange(k_samples) / k_samples
+    points = np.array([nodes[e] + s * (nodes[e + 1] - nodes[e]) for e in range(2) for s in fractions] + [nodes[2]])
+
+    def wall_forces(positions: np.ndarray, segment_mm: float, samples: bool):
+        builder = ModelBuilder(contact=ContactSettings(P0_uN=P0_UN), wall=ridge_wall())
+        builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=2 * l0, segment_length_mm=segment_mm), positions)
+        model = builder.finalize()
+        solver = Solver(model, coil_contact=False)
+        solver._samples_measured = samples and solver._samples_measured
+        solver.compute_contacts(state_from_positions(model, positions), wall_search_mm=float(contact.FAR_MM))
+        return solver.wall_force.numpy().copy(), solver.wall_distance.numpy() - 0.5 * d, model
+
+    result, node_gaps, _ = wall_forces(nodes, l0, samples_on)
+    fine, fine_gaps, fine_model = wall_forces(points, l0 / k_samples, False)
+    law = fine / fine_model.contact_share.numpy()[:, None]  # a whole node's law at each point
+    share = np.array([0.5, 1.0, 0.5])  # the coarse coil's nodes' contact shares
+    reference = np.zeros((3, 3))
+    for e in range(2):
+        for m, s in enumerate(fractions):
+            point = law[e * k_samples + m]
+            if m == 0:  # the edge's start node itself
+                reference[e] += share[e] / k_samples * point
+            else:
+                reference[e] += (1.0 - s) / k_samples * point
+                reference[e + 1] += s / k_samples * point
+    reference[2] += share[2] / k_samples * law[-1]
+    samples = [i for i in range(len(points) - 1) if i % k_samples]
+    return result, reference, float(node_gaps.min()), float(fine_gaps[samples].min())
+
+
+def wall_sample_cases() -> list[CaseResult]:
+    """The wall at the contact samples of a segment longer than 1.5 d: an edge of 3d across a ridge, its
+    nodes out of the contact range, its middle in it, is pushed as nodes at its samples would be (weight
+    1/K each, shared 1 − s and s); with the samples off (nodes alone, as before) it felt nothing."""
+    result, reference, node_gap, sample_gap = ridge_edge_forces()
+    off, _, _, _ = ridge_edge_forces(samples_on=False)
+    label = "wall at contact samples: a 3d edge across a ridge (nodes out of range)"
+    rows = [_row(f"{label}: upward force on the coil (µN)", float(reference[:, 2].sum()), float(result[:, 2].sum()),
+                 1e-9),
+            _row(f"{label}: its shared node's force (µN)", float(np.linalg.norm(reference[1])),
+                 float(np.linalg.norm(result[1])), 1e-9),
+            CaseResult(f"{label}: force with the samples off (µN; the nodes alone)", 0.0,
+                       float(np.abs(off).sum()), float(np.abs(off).sum()), 1e-12)]
+    if not (node_gap > 0.1 * REFERENCE_D_MM and sample_gap < 0.0):
+        raise RuntimeError(f"ridge case set up wrong: node gap {node_gap}, sample gap {sample_gap}")
+    # the law per length kept: a coil of 3d segments resting on a floor sinks to the gap of a coil of d segments
+    gaps, reference = coil_on_floor(3.0 * REFERENCE_D_MM, length_mm=12 * REFERENCE_D_MM)
+    label = "wall at contact samples: coil resting on a floor, l0 = 3d (K = 3)"
+    rows.append(_row(f"{label}: end-node gap (mm)", reference, gaps[0], 1e-4))
+    rows.append(_row(f"{label}: middle-node gap (mm)", reference, gaps[len(gaps) // 2], 1e-4))
     return rows

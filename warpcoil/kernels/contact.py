@@ -526,6 +526,112 @@ def wall_contact(
         stiffness[i] = k
 
 
+@wp.func
+def sample_wall_term(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.int32),
+                     owners: wp.array(dtype=wp.int32), face_first: int, origin: wp.vec3d, field: wp.uint64,
+                     grad_tolerance: wp.float64, p: wp.vec3d, radius: wp.float64, p0: wp.float64, c0: wp.float64,
+                     u_linear: wp.float64, anchor_margin: wp.float64, reach: wp.float64, with_stiffness: int):
+    """The wall's law on a sphere of ``radius`` at p (a contact sample between two nodes), as
+    :func:`wall_contact` takes it for a node it searches: from the trusted field, else the BVH (the feature
+    sum in the lumen, the law along the closest face's inward normal outside it): (force µN before any
+    weight, stiffness µN/mm)."""
+    f = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    k = wp.mat33d()
+    signed = FAR_MM
+    by_field = False
+    if field != wp.uint64(0):
+        trusted, sampled, normal = field_sample(field, p - origin, grad_tolerance)
+        if trusted:
+            by_field = True
+            signed = sampled
+            f = contact_force_magnitude(sampled - radius, p0, c0, u_linear) * normal
+    k_sum = wp.mat33d()
+    from_sum = 0
+    if not by_field:
+        face, dist, signed, f, k_sum, from_sum = wall_search(mesh, vertices, faces, owners, face_first, origin, p,
+                                                             radius, p0, c0, u_linear, anchor_margin, reach,
+                                                             with_stiffness)
+    if with_stiffness != 0:
+        magnitude = wp.length(f)
+        if from_sum != 0:
+            k = k_sum
+        elif magnitude > wp.float64(0.0):
+            n = f / magnitude
+            k = contact_stiffness(signed - radius, p0, c0, u_linear) * wp.outer(n, n)
+    return f, k
+
+
+@wp.kernel
+def wall_sample_contact(
+    x: wp.array(dtype=wp.vec3d),
+    free: wp.array(dtype=wp.int32),
+    has_next: wp.array(dtype=wp.int32),
+    world_of: wp.array(dtype=wp.int32),
+    running: wp.array(dtype=wp.int32),
+    node_radius: wp.array(dtype=wp.float64),
+    contact_samples: wp.array(dtype=wp.int32),
+    meshes: wp.array(dtype=wp.uint64),
+    face_first: wp.array(dtype=wp.int32),
+    origins: wp.array(dtype=wp.vec3d),
+    vertices: wp.array(dtype=wp.vec3d),
+    faces: wp.array(dtype=wp.int32),
+    owners: wp.array(dtype=wp.int32),
+    p0: wp.float64,
+    c0: wp.float64,
+    u_linear: wp.float64,
+    search_mm: wp.float64,
+    fields: wp.array(dtype=wp.uint64),
+    grad_tolerance: wp.float64,
+    anchor_margin: wp.float64,
+    centre_distance: wp.array(dtype=wp.float64),
+    force: wp.array(dtype=wp.vec3d),
+    with_stiffness: int,
+    stiffness: wp.array(dtype=wp.mat33d),
+):
+    """The wall at the contact samples of segments longer than 1.5 d (model.contact_samples_per_edge: K − 1
+    points between an edge's nodes at s = m/K, each of weight 1/K, the nodes' own weights their contact
+    share over K, passed so to :func:`wall_contact`), added to node i's wall ``force`` (µN) in gather form:
+    the samples of edge i (start: weight 1 − s) and of edge i − 1 (end: weight s), each edge with both nodes
+    out of the catheter. A sample is searched only where its nodes' centre distances (``centre_distance``
+    from wall_contact: exact, or a lower bound; each 1-Lipschitz) leave it possibly within its contact
+    range. With ``with_stiffness`` (the implicit step) node i's wall ``stiffness`` becomes its own over K
+    plus its shares (1 − s, s) of each sample's: the lumped blocks bound the sample's true 2 × 2 block from
+    above, as the node's own full k bounds its share of the law. A coil with K = 1 is left as it is."""
+    i = wp.tid()
+    w = world_of[i]
+    mesh = meshes[w]
+    samples = contact_samples[i]
+    if samples > 1 and free[i] != 0 and running[w] != 0 and mesh != wp.uint64(0):
+        total = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+        k_total = wp.mat33d()
+        weight = wp.float64(1.0) / wp.float64(samples)
+        for side in range(2):  # edge i (i its start), then edge i − 1 (i its end)
+            e = i - side
+            ok = e >= 0
+            if ok:
+                ok = has_next[e] != 0
+            if ok:
+                ok = free[e] != 0 and free[e + 1] != 0
+            if ok:
+                length = wp.length(x[e + 1] - x[e])
+                for m in range(1, samples):
+                    s = wp.float64(m) / wp.float64(samples)
+                    radius = (wp.float64(1.0) - s) * node_radius[e] + s * node_radius[e + 1]
+                    bound = wp.max(centre_distance[e] - s * length,
+                                   centre_distance[e + 1] - (wp.float64(1.0) - s) * length)
+                    if bound < radius + c0 + anchor_margin:
+                        p = x[e] + s * (x[e + 1] - x[e])
+                        f, k = sample_wall_term(mesh, vertices, faces, owners, face_first[w], origins[w], fields[w],
+                                                grad_tolerance, p, radius, p0, c0, u_linear, anchor_margin,
+                                                radius + c0 + search_mm, with_stiffness)
+                        share = weight * wp.where(side == 0, wp.float64(1.0) - s, s)
+                        total = total + share * f
+                        k_total = k_total + share * k
+        force[i] = force[i] + total
+        if with_stiffness != 0:
+            stiffness[i] = weight * stiffness[i] + k_total
+
+
 # --- coil–coil -----------------------------------------------------------------
 TOUCH_MARGIN_MM = wp.constant(wp.float64(1.0e-9))  # ≫ the rounding of two evaluations of one gap
 NO_PARAMS = wp.constant(wp.vec2d(-1.0, -1.0))  # closest-point parameters (s, t) not known (they lie in [0, 1]²)
