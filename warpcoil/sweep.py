@@ -389,9 +389,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                 raise SweepError(f"--resume: {folder} was made from {made_from}, not {Path(scene_path).resolve()}: "
                                  f"another sweep's member; {REPLACE_HINT}")
             if found is not None and found.get("scene_sha256", fingerprints[member.index]) != fingerprints[member.index]:
-                raise SweepError(f"--resume: {folder} was made from another version of {Path(scene_path).name} (its "
-                                 "values or the files it names changed since): its results would mix with this "
-                                 "version's; rerun the sweep with --overwrite instead of --resume, or give another -o")
+                found = None  # made from another version of the scene (a value or a named file changed): run again
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
             if found is not None and usd and DEPLOYMENT_USD not in found.get("files", {}):
