@@ -325,3 +325,21 @@ def test_a_coil_pushed_past_a_stent_under_the_tip_completes_instead_of_stalling(
     window = round(0.1 / (float(rows[1]["time_s"]) - float(rows[0]["time_s"])))  # frames of the stall window
     held = max(min(mean[i:i + window]) for i in range(len(mean) - window + 1))
     assert 30.0 * self_force < held < 100.0 * self_force  # the old ratio would have stopped it; the new does not
+
+
+def test_the_shipped_balloon_scenes_keep_their_tips_out_of_the_balloon():
+    """The tip placed at the neck (`placement = "neck"`) is checked against the inflated balloon as an explicit one
+    is: the shipped balloon scenes pass with room to spare."""
+    from pathlib import Path
+
+    from warpcoil.anatomy import resolve_anatomies
+    from warpcoil.preflight import balloon_gap_mm, check_balloon
+    from warpcoil.scene import load_scene
+
+    scenes = Path(__file__).resolve().parents[1] / "scenes"
+    for name in ("aneurisk_C0001_balloon.toml", "aneurisk_C0091_balloon.toml"):
+        scene = load_scene(scenes / name)
+        anatomy = resolve_anatomies([scene])[0]
+        check_balloon(scene, anatomy)  # no SetupError
+        radius = 0.5 * max(c.wire_diameter_mm for c in scene.coils)
+        assert balloon_gap_mm(anatomy, np.asarray(anatomy.catheter.tip_mm), radius) > 0.3
