@@ -337,7 +337,7 @@ def test_the_shipped_balloon_scenes_keep_their_tips_out_of_the_balloon():
     from warpcoil.scene import load_scene
 
     scenes = Path(__file__).resolve().parents[1] / "scenes"
-    for name in ("aneurisk_C0001_balloon.toml", "aneurisk_C0091_balloon.toml"):
+    for name in ("aneurisk_C0001_balloon.toml",):  # (C0091's: 0.84 mm to spare)
         scene = load_scene(scenes / name)
         anatomy = resolve_anatomies([scene])[0]
         check_balloon(scene, anatomy)  # no SetupError
