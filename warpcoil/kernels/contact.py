@@ -369,6 +369,22 @@ def wall_search(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces: wp.a
     return face, dist, signed, f, k_sum, from_sum
 
 
+@wp.func
+def wall_stiffness(f: wp.vec3d, from_sum: int, k_sum: wp.mat33d, gap: wp.float64, p0: wp.float64, c0: wp.float64,
+                   u_linear: wp.float64) -> wp.mat33d:
+    """The wall's stiffness (µN/mm) behind a force ``f`` found at ``gap`` (mm): the feature sum's Σ ± k n nᵀ
+    where the force is its sum (``from_sum``), else the law's k n nᵀ along the force; zero without a force."""
+    k = wp.mat33d()
+    magnitude = wp.length(f)
+    if magnitude > wp.float64(0.0):
+        if from_sum != 0:
+            k = k_sum
+        else:
+            n = f / magnitude
+            k = contact_stiffness(gap, p0, c0, u_linear) * wp.outer(n, n)
+    return k
+
+
 @wp.kernel
 def wall_contact(
     x: wp.array(dtype=wp.vec3d),
@@ -515,15 +531,19 @@ def wall_contact(
     force[i] = contact_share[i] * f
     centre_distance[i] = signed
     if with_stiffness != 0:
-        k = wp.mat33d()
-        magnitude = wp.length(force[i])
-        if magnitude > wp.float64(0.0):
-            if from_sum:
-                k = k_sum
-            else:
-                n = force[i] / magnitude
-                k = contact_stiffness(signed - node_radius[i], p0, c0, u_linear) * wp.outer(n, n)
-        stiffness[i] = k
+        stiffness[i] = wall_stiffness(force[i], wp.where(from_sum, 1, 0), k_sum, signed - node_radius[i], p0, c0,
+                                      u_linear)
+
+
+@wp.func
+def sample_point(x: wp.array(dtype=wp.vec3d), node_radius: wp.array(dtype=wp.float64),
+                 centre_distance: wp.array(dtype=wp.float64), e: int, s: wp.float64):
+    """Edge e's point at parameter s (mm), its radius (interpolated, mm) and a lower bound of its signed wall
+    centre distance (mm) from its nodes' (``centre_distance``: exact, or lower bounds; 1-Lipschitz)."""
+    length = wp.length(x[e + 1] - x[e])
+    radius = (wp.float64(1.0) - s) * node_radius[e] + s * node_radius[e + 1]
+    bound = wp.max(centre_distance[e] - s * length, centre_distance[e + 1] - (wp.float64(1.0) - s) * length)
+    return x[e] + s * (x[e + 1] - x[e]), radius, bound
 
 
 @wp.func
@@ -552,12 +572,7 @@ def sample_wall_term(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3d), faces:
                                                              radius, p0, c0, u_linear, anchor_margin, reach,
                                                              with_stiffness)
     if with_stiffness != 0:
-        magnitude = wp.length(f)
-        if from_sum != 0:
-            k = k_sum
-        elif magnitude > wp.float64(0.0):
-            n = f / magnitude
-            k = contact_stiffness(signed - radius, p0, c0, u_linear) * wp.outer(n, n)
+        k = wall_stiffness(f, from_sum, k_sum, signed - radius, p0, c0, u_linear)
     return f, k
 
 
@@ -613,14 +628,10 @@ def wall_sample_contact(
             if ok:
                 ok = free[e] != 0 and free[e + 1] != 0
             if ok:
-                length = wp.length(x[e + 1] - x[e])
                 for m in range(1, samples):
                     s = wp.float64(m) / wp.float64(samples)
-                    radius = (wp.float64(1.0) - s) * node_radius[e] + s * node_radius[e + 1]
-                    bound = wp.max(centre_distance[e] - s * length,
-                                   centre_distance[e + 1] - (wp.float64(1.0) - s) * length)
+                    p, radius, bound = sample_point(x, node_radius, centre_distance, e, s)
                     if bound < radius + c0 + anchor_margin:
-                        p = x[e] + s * (x[e + 1] - x[e])
                         f, k = sample_wall_term(mesh, vertices, faces, owners, face_first[w], origins[w], fields[w],
                                                 grad_tolerance, p, radius, p0, c0, u_linear, anchor_margin,
                                                 radius + c0 + search_mm, with_stiffness)

@@ -21,8 +21,8 @@ wall_contact notes it; a bounded node is re-anchored at its bound.
 
 import warp as wp
 
-from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, field_sample, wall_feature_sum,
-                      wall_query, wall_search)
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, field_sample, sample_point,
+                      wall_feature_sum, wall_query, wall_search)
 
 FIRST = wp.constant(0)  # measure_wall's stages
 SEED = wp.constant(1)
@@ -246,13 +246,9 @@ def sample_wall_gaps(
     if out:
         out = free[e] != 0 and free[e + 1] != 0 and running[w] != 0 and mesh != wp.uint64(0)
     if out:
-        length = wp.length(x[e + 1] - x[e])
         for m in range(1, samples):
-            s = wp.float64(m) / wp.float64(samples)
-            radius = (wp.float64(1.0) - s) * node_radius[e] + s * node_radius[e + 1]
-            bound = wp.max(centre_distance[e] - s * length, centre_distance[e + 1] - (wp.float64(1.0) - s) * length)
+            p, radius, bound = sample_point(x, node_radius, centre_distance, e, wp.float64(m) / wp.float64(samples))
             if bound - radius < smallest_gap[w]:
-                p = x[e] + s * (x[e + 1] - x[e])
                 face, signed, inward = wall_query(mesh, vertices, faces, face_first[w], origins[w], p, FAR_MM)
                 if face != NO_FACE:
                     smallest = wp.min(smallest, signed - radius)
