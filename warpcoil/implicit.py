@@ -556,7 +556,7 @@ class ImplicitSolver(Solver):
         near = max(self.near_theta, self.theta)  # θ = 1 (the settling step, Ensemble._settle_step): Euler everywhere
         wp.launch(node_theta.proximity_theta, n, device=dev, inputs=[
             state_in.x, state_in.v, state_in.free, m.has_next, m.node_radius, self.wall_distance, self.coil_gap,
-            int(self.coil_contact), reach, self.turn_gate_rad, dt, self.theta, near, self.node_theta])
+            int(self.coil_contact), m.contact_samples, reach, self.turn_gate_rad, dt, self.theta, near, self.node_theta])
         if self.has_stent:
             wp.launch(node_theta.strut_proximity, n, device=dev, inputs=[
                 state_in.x, state_in.v, state_in.free, m.has_next, m.world_of, m.node_radius, self._strut_grid.id,

@@ -462,14 +462,10 @@ class Solver:
                 int(self.wall_stiffness is not None and wall_search_mm is None),
                 self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
             if self._samples_measured:  # segments longer than 1.5 d: the wall at their points between the nodes too
-                wp.launch(contact.wall_sample_contact, n, device=dev, inputs=[
-                    state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,
-                    m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
-                    self.contact_u_linear, self.wall_search_mm if wall_search_mm is None else wall_search_mm,
-                    self._field_ids if wall_search_mm is None else self._no_fields, GRAD_TOLERANCE, self._anchor_margin,
-                    self.wall_distance, self.wall_force,
-                    int(self.wall_stiffness is not None and wall_search_mm is None),
-                    self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
+                self._launch_sample_contact(
+                    state, running, self.wall_search_mm if wall_search_mm is None else wall_search_mm,
+                    self._field_ids if wall_search_mm is None else self._no_fields,
+                    int(self.wall_stiffness is not None and wall_search_mm is None))
         if self.coil_contact:
             self._launch_midpoints(state)
             if self._conditional_rebuild:
@@ -516,6 +512,17 @@ class Solver:
             else:
                 wp.copy(self.contact_force, self.device_force)
 
+    def _launch_sample_contact(self, state: State, running: wp.array, search_mm: float, fields: wp.array,
+                               with_stiffness: int) -> None:
+        """The wall at the contact samples of segments longer than 1.5 d, added to ``wall_force`` (and, with
+        ``with_stiffness``, lumped into ``wall_stiffness``): kernels/contact.wall_sample_contact."""
+        m, c = self.model, self.model.contact
+        wp.launch(contact.wall_sample_contact, m.node_count, device=m.device, inputs=[
+            state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,
+            m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
+            self.contact_u_linear, search_mm, fields, GRAD_TOLERANCE, self._anchor_margin, self.wall_distance,
+            self.wall_force, with_stiffness, self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
+
     def _launch_wall_measure(self, state: State, running: wp.array) -> None:
         """The frame measurement's wall pass (kernels/wall_measure.py): force and signed
         centre distance of every free node, exact where the node may be in contact or
@@ -528,7 +535,7 @@ class Solver:
 
         def measure(stage: int) -> None:
             wp.launch(wall_measure.measure_wall, n, device=dev, inputs=[
-                state.x, state.free, m.world_of, running, m.node_radius, m.contact_share, m.wall_mesh,
+                state.x, state.free, m.world_of, running, m.node_radius, self._wall_share, m.wall_mesh,
                 m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
                 self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
                 self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
@@ -546,7 +553,8 @@ class Solver:
         measure(wall_measure.SEED)  # a world with bounds only: its smallest bound's node, exactly
         reduce()
         measure(wall_measure.FIX_UP)
-        if self._samples_measured:  # segments longer than 1.5 d: their points between the nodes too
+        if self._samples_measured:  # segments longer than 1.5 d: their points between the nodes too (force, gap)
+            self._launch_sample_contact(state, running, self.wall_search_mm, self._field_ids, 0)
             wp.launch(wall_measure.sample_wall_gaps, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,
                 m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, self.wall_distance,

@@ -145,8 +145,9 @@ def ridge_wall():
 
 
 def ridge_edge_forces(samples_on: bool = True) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """A coil of two edges of l0 = 3d (K = 3 contact samples each), the first straight across the ridge with
-    both its nodes out of the contact range and its middle third dipping into it: (the wall's force on the
+    """A coil of two edges of l0 = 3d (K = 3 contact samples each), the first straight across the ridge, off
+    its middle (so a swap of the samples' shares would show), both its nodes out of the contact range and a
+    sample between them in it: (the wall's force on the
     three nodes, µN; the reference: the wall at the nodes and samples as a fine coil's nodes there feel it
     (whole nodes' law), weighted by the node's contact share over K or a sample's 1/K and shared (1 − s, s);
     the nodes' and the samples' smallest gaps, mm). ``samples_on`` False: the samples off (the nodes alone)."""
@@ -155,8 +156,8 @@ def ridge_edge_forces(samples_on: bool = True) -> tuple[np.ndarray, np.ndarray, 
 
     d = REFERENCE_D_MM
     l0, k_samples = 3.0 * d, 3
-    height = RIDGE_HEIGHT_MM + 0.101  # node centres 0.101 mm above the ridge's height
-    nodes = np.array([[-0.5 * l0, 0.0, height], [0.5 * l0, 0.0, height], [1.5 * l0, 0.0, height]])
+    height = RIDGE_HEIGHT_MM + 0.13  # node centres 0.13 mm above the ridge's height, the edge 0.1 mm off its middle
+    nodes = np.array([[-0.5 * l0 + 0.1, 0.0, height], [0.5 * l0 + 0.1, 0.0, height], [1.5 * l0 + 0.1, 0.0, height]])
     fractions = np.arange(k_samples) / k_samples
     points = np.array([nodes[e] + s * (nodes[e + 1] - nodes[e]) for e in range(2) for s in fractions] + [nodes[2]])
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .contact import edge_in_contact_pass
+from .contact import edge_in_contact_pass, sample_point
 from .devices import balloon_gap, strut_gap
 from .implicit import solving
 from .rod import F64_0, F64_1
@@ -48,6 +48,7 @@ def proximity_theta(
     wall_distance: wp.array(dtype=wp.float64),
     coil_gap: wp.array(dtype=wp.float64),
     coil_contact: int,
+    contact_samples: wp.array(dtype=wp.int32),
     reach_mm: wp.float64,
     turn_rad: wp.float64,
     dt: wp.float64,
@@ -56,7 +57,8 @@ def proximity_theta(
     node_theta: wp.array(dtype=wp.float64),
 ):
     """θ_i of node i: ``near_theta`` where the wall (its centre's signed distance less
-    its radius; a certified lower bound where not searched) or another coil edge
+    its radius; a certified lower bound where not searched; on a segment longer than 1.5 d also
+    at its contact samples, bounded from its nodes') or another coil edge
     (the smallest gap of edges i − 1 and i) lies within ``reach_mm`` + |v_i| dt
     (mm) at the step start, or where edge i − 1 or i turns by more than ``turn_rad``
     (rad) in the step at the start's velocities (``turn_rad`` ≤ 0: no turn gate);
@@ -69,6 +71,11 @@ def proximity_theta(
         for e in range(i - 1, i + 1):  # the node's edges i − 1 and i, where they exist
             if e >= 0:
                 if has_next[e] != 0:
+                    if free[e] != 0 and free[e + 1] != 0:  # its wall contact samples (kernels/contact.py)
+                        for m in range(1, contact_samples[e]):
+                            p, radius, bound = sample_point(x, node_radius, wall_distance, e,
+                                                            wp.float64(m) / wp.float64(contact_samples[e]))
+                            near = near or gate(bound - radius, reach)
                     if coil_contact != 0:
                         near = near or gate(coil_gap[e], reach)
                     if turn_rad > F64_0:
