@@ -133,9 +133,9 @@ def test_a_coils_nodes_stand_for_its_length_so_herniated_never_exceeds_it():
     """Each node counts half of each edge it ends (an end node half an edge): a coil wholly outside
     the sac is reported herniated by its own length, not one segment more (the helper's 99.49 mm
     of a 99.31 mm coil)."""
-    from warpcoil.deploy import node_lengths
+    from warpcoil.model import voronoi_lengths
 
-    assert node_lengths(np.array([0.3, 0.3, 0.3])) == pytest.approx([0.15, 0.3, 0.3, 0.15])
+    assert voronoi_lengths(np.array([0.3, 0.3, 0.3, 0.0])) == pytest.approx([0.15, 0.3, 0.3, 0.15])
     scene = wc.Scene(coils=(wc.CoilSpec(shape="helix", length_mm=6.0, loop_diameter_mm=2.5, pitch_mm=0.6),
                             wc.CoilSpec(shape="helix", length_mm=4.0, loop_diameter_mm=2.0, pitch_mm=0.5)),
                      wall=wc.WallSpec(sphere_diameter_mm=6.0))

@@ -24,7 +24,7 @@ import warp as wp
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, note_samples, run_result, take_snapshot
-from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
+from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble, voronoi_lengths
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
                        settle_step_s, settle_step_scale)
@@ -39,16 +39,6 @@ COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeou
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
-
-
-def node_lengths(edge_lengths_mm: np.ndarray) -> np.ndarray:
-    """The length of coil each node stands for (mm): half of each edge it ends, so a coil's nodes
-    sum to its length (an end node half an edge)."""
-    half = 0.5 * np.asarray(edge_lengths_mm, dtype=np.float64)
-    lengths = np.zeros(len(half) + 1)
-    lengths[:-1] += half
-    lengths[1:] += half
-    return lengths
 
 
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
@@ -100,8 +90,7 @@ class Member:
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
         self.radius = host["node_radius"][self.nodes]
-        self.segment = np.concatenate([node_lengths(host["rest_length"][model.coil_first[c]:model.coil_last[c]])
-                                       for c in range(self.coils.start, self.coils.stop)])
+        self.segment = voronoi_lengths(host["rest_length"])[self.nodes]  # (half an edge at a coil's end)
         self.coil_status = ["waiting"] * len(self.coils)
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)

@@ -123,6 +123,15 @@ def _default_director(t: np.ndarray) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+def voronoi_lengths(edge_len_mm: np.ndarray) -> np.ndarray:
+    """Each node's Voronoi length (mm): half of each edge it ends, from per-node edge lengths (the edge from
+    node i to i + 1 at i, 0 at a coil's last node, as Model.rest_length holds them), so a coil's nodes sum
+    to its length and an end node counts half an edge."""
+    edge = np.asarray(edge_len_mm, dtype=np.float64)
+    edge_prev = np.concatenate([[0.0], edge[:-1]])  # (a coil's first node: the last node's 0 before it)
+    return 0.5 * (edge_prev + edge)
+
+
 def contact_samples_per_edge(segment_mm: np.ndarray, d_mm: np.ndarray) -> np.ndarray:
     """Coil–coil contact samples per edge (int32, ≥ 1) of coils with segment length
     ``segment_mm`` and wire diameter ``d_mm`` (mm): 1 (the nodes) up to
@@ -405,12 +414,11 @@ class ModelBuilder:
             arc_s[sl] = np.concatenate([[0.0], np.cumsum(edge_len[first[c]:last[c]])])
 
         per_coil = lambda f: np.repeat([f(c) for c in self._coils], counts)  # noqa: E731
-        edge_prev = np.concatenate([[0.0], edge_len[:-1]])
-        edge_prev[first] = 0.0
-        node_len = 0.5 * (edge_prev + edge_len)  # Voronoi length: half a segment at a coil end
+        node_len = voronoi_lengths(edge_len)  # half a segment at a coil end
         rho = per_coil(lambda c: c.rho)
         mass = rho * node_len * s.mass_scale
         winding_r = per_coil(lambda c: 0.5 * (c.d - c.primary_wire_diameter_mm))
+        edge_prev = np.concatenate([[0.0], edge_len[:-1]])
         spin_len = np.where(has_next == 1, edge_len, edge_prev)  # per edge; a coil's last index repeats its edge
         inertia = rho * spin_len * s.mass_scale * winding_r**2
         damping_c = s.damping_uN_per_mm * node_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
