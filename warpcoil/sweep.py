@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import dataclasses
 import hashlib
 import io
 import itertools
@@ -40,7 +39,7 @@ from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
-from .sweep_task import MemberOutput, make_task, run_task
+from .sweep_task import MemberOutput, make_task, named_files, run_task
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
 NAMING_INTEGRATOR = tuple(f"simulation.{key}" for key in INTEGRATOR_KEYS)  # member keys that choose the integrator
@@ -152,26 +151,13 @@ def complete_result(folder: Path) -> dict | None:
     return result
 
 
-def _file_paths(value) -> Iterator[Path]:
-    """The file paths a scene names (its wall mesh, neck contour, pre-shape and centerline files), not its source."""
-    if isinstance(value, Path):
-        yield value
-    elif dataclasses.is_dataclass(value):
-        for field in dataclasses.fields(value):
-            if field.name != "source":
-                yield from _file_paths(getattr(value, field.name))
-    elif isinstance(value, (tuple, list)):
-        for item in value:
-            yield from _file_paths(item)
-
-
 def scene_fingerprint(scene: Scene, files: dict[Path, bytes] | None = None) -> str:
     """SHA-256 of a member's scene as the scene file and its values give it: every value (its repr) and
     the bytes of every file it names (``files``: a cache of those bytes by path), so --resume tells a
     member of an edited scene (or of a changed mesh) from one of this scene."""
     files = {} if files is None else files
     digest = hashlib.sha256(repr(scene).encode())
-    for path in _file_paths(scene):
+    for path in named_files(scene):
         if path not in files:
             files[path] = path.read_bytes() if path.is_file() else b"(missing)"
         digest.update(str(path).encode())
