@@ -130,14 +130,18 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
 
 def balloon_gap_mm(anatomy, point_mm: np.ndarray, radius_mm: float) -> float:
     """Gap (mm) between a sphere of ``radius_mm`` at ``point_mm`` and the inflated balloon (< 0:
-    overlapping; inf without a balloon): kernels/devices.balloon_gap's capsule chain."""
+    overlapping; inf without a balloon), as the steps' kernels/devices.balloon_gap takes it."""
+    from .kernels import devices
+
     if anatomy.balloon is None:
         return math.inf
     stations, radii = (np.asarray(a, dtype=np.float64) for a in anatomy.balloon)
-    a, ab = stations[:-1], np.diff(stations, axis=0)
-    t = np.clip(np.einsum("sk,sk->s", point_mm - a, ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
-    dist = np.linalg.norm(point_mm - (a + t[:, None] * ab), axis=1)
-    return float((dist - ((1.0 - t) * radii[:-1] + t * radii[1:]) - radius_mm).min())
+    gaps = wp.zeros(1, dtype=wp.float64, device="cpu")
+    wp.launch(devices.point_balloon_gaps, 1, device="cpu", inputs=[
+        wp.array(np.asarray(point_mm, dtype=np.float64).reshape(1, 3), dtype=wp.vec3d, device="cpu"),
+        float(radius_mm), wp.array(stations, dtype=wp.vec3d, device="cpu"),
+        wp.array(radii, dtype=wp.float64, device="cpu"), len(stations), gaps])
+    return float(gaps.numpy()[0])
 
 
 def check_balloon(scene: Scene, anatomy) -> None:

@@ -50,6 +50,16 @@ def balloon_gap(p: wp.vec3d, radius: wp.float64, stations: wp.array(dtype=wp.vec
 
 
 @wp.kernel
+def point_balloon_gaps(points: wp.array(dtype=wp.vec3d), radius: wp.float64, stations: wp.array(dtype=wp.vec3d),
+                       cap_radius: wp.array(dtype=wp.float64), count: int, gaps: wp.array(dtype=wp.float64)):
+    """Gap (mm) between a sphere of ``radius`` at each point and the fully inflated balloon of ``count`` stations
+    (:func:`balloon_gap`; < 0: overlapping): for the checks before a run."""
+    i = wp.tid()
+    gap, normal = balloon_gap(points[i], radius, stations, cap_radius, 0, count, F64_1)
+    gaps[i] = gap
+
+
+@wp.kernel
 def balloon_contact(
     x: wp.array(dtype=wp.vec3d),
     free: wp.array(dtype=wp.int32),
