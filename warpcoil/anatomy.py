@@ -11,8 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .sac import (AMBIGUOUS_PIECE, NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour,
-                  neck_from_plane, sac_from_neck)
+from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour, neck_from_plane,
+                  sac_from_neck, side_in_doubt)
 from .settings import CatheterSpec, Scene
 from .scene import SceneError
 from .wall import WallError, WallMesh, load_wall
@@ -66,19 +66,18 @@ def _wall_and_sac(scene: Scene) -> tuple[WallMesh | None, Sac | None]:
 def _placed_catheter(scene: Scene, wall: WallMesh | None, sac: Sac | None) -> CatheterSpec:
     """The scene's catheter with its tip and direction (placed at the neck, or as given). An explicit tip in
     the piece of the lumen the neck did not take as the sac, where only the pieces' sizes told the sac's side
-    and the other piece is not small (sac.AMBIGUOUS_PIECE), is a SceneError naming neck.sac_point_mm."""
+    and the other piece is not small (sac.side_in_doubt), is a SceneError naming neck.sac_point_mm."""
     catheter = scene.catheter
     if catheter.placement == "neck":
         tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
         return replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
-    other = sac.neck.other_volume_mm3 if sac is not None else None
-    if other is not None and other >= AMBIGUOUS_PIECE * sac.volume_mm3 and \
-            in_other_piece(sac, wall, np.asarray(catheter.tip_mm, dtype=np.float64)):
+    if side_in_doubt(sac) and in_other_piece(sac, wall, np.asarray(catheter.tip_mm, dtype=np.float64)):
         raise SceneError(
             f"{scene.where}: neck.sac_point_mm: the neck cuts the lumen into two pieces and the wall has no flat "
             f"vessel cap to tell which is the sac, so the larger ({sac.volume_mm3:.4g} mm³) would be taken; "
-            f"catheter.tip {list(map(float, catheter.tip_mm))} mm lies in the other ({other:.4g} mm³); fix: give "
-            "neck.sac_point_mm, a point inside the sac (e.g. the tip, if it is in the sac)")
+            f"catheter.tip {list(map(float, catheter.tip_mm))} mm lies in the other "
+            f"({sac.neck.other_volume_mm3:.4g} mm³); fix: give neck.sac_point_mm, a point inside the sac (e.g. the "
+            "tip, if it is in the sac)")
     return catheter
 
 

@@ -19,7 +19,7 @@ import math
 import numpy as np
 import warp as wp
 
-from .sac import AMBIGUOUS_PIECE
+from .sac import side_in_doubt
 from .settings import Scene, coarse_segment_coils, fine_segment_coils
 
 MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned about (clinical: 20–35 %)
@@ -165,7 +165,7 @@ def check_sac_side(scene: Scene, anatomy) -> list[str]:
     neck.sac_point_mm) and the other piece is not small: a parent vessel larger than the sac is
     then taken as the sac (a helper's curved tube: everything herniated, 0 % packing, no word)."""
     sac = anatomy.sac
-    if sac is None or sac.neck.other_volume_mm3 is None or sac.neck.other_volume_mm3 < AMBIGUOUS_PIECE * sac.volume_mm3:
+    if not side_in_doubt(sac):
         return []
     return [f"{scene.where}: neck: the wall has no flat vessel cap to tell the sac's side of the neck, so the larger "
             f"piece ({sac.volume_mm3:.4g} mm³) is taken as the sac, the other being {sac.neck.other_volume_mm3:.4g} "

@@ -158,6 +158,13 @@ def sac_from_neck(wall: WallMesh, neck: Neck) -> Sac:
     return Sac(neck=neck, closed_surface=surface, volume_mm3=volume)
 
 
+def side_in_doubt(sac: Sac | None) -> bool:
+    """Whether only the pieces' sizes told the sac's side of its neck (no flat vessel cap, no sac point) and the
+    other piece is at least AMBIGUOUS_PIECE of the sac's volume, so it may be the sac."""
+    other = sac.neck.other_volume_mm3 if sac is not None else None
+    return other is not None and other >= AMBIGUOUS_PIECE * sac.volume_mm3
+
+
 def in_other_piece(sac: Sac, wall: WallMesh, point_mm: np.ndarray) -> bool:
     """Whether ``point_mm`` lies in the lumen on the neck's other side (not in the sac)."""
     point = _points(np.asarray(point_mm, dtype=np.float64).reshape(1, 3))
