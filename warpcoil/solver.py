@@ -324,11 +324,11 @@ class Solver:
         # mm, per edge with contact samples: the smallest wall gap of its samples (wall_measure.sample_wall_gaps)
         self.sample_wall_gap = zeros(wp.float64)
         self.sample_wall_gap.fill_(float(contact.FAR_MM))
-        self._samples_measured = int(model.host("contact_samples").max()) > 1
+        self._has_samples = int(model.host("contact_samples").max()) > 1
         # the wall's weight on each node (µN per law): its contact share, over its coil's contact samples per edge
         # where they share the law (kernels/contact.wall_sample_contact); the share itself where none has any
         self._wall_share = (model.array(model.host("contact_share") / model.host("contact_samples"), wp.float64)
-                            if self._samples_measured else model.contact_share)
+                            if self._has_samples else model.contact_share)
         # the implicit step's wall stiffness, taken in the wall pass (None: not wanted)
         self.wall_stiffness: wp.array | None = None
         self._no_stiffness = wp.zeros(1, dtype=wp.mat33d, device=dev)
@@ -461,7 +461,7 @@ class Solver:
                 self._wall_seen_x, self._wall_seen_mm, self.wall_force, self.wall_distance, self.wall_searches,
                 int(self.wall_stiffness is not None and wall_search_mm is None),
                 self.wall_stiffness if self.wall_stiffness is not None else self._no_stiffness])
-            if self._samples_measured:  # segments longer than 1.5 d: the wall at their points between the nodes too
+            if self._has_samples:  # segments longer than 1.5 d: the wall at their points between the nodes too
                 self._launch_sample_contact(
                     state, running, self.wall_search_mm if wall_search_mm is None else wall_search_mm,
                     self._field_ids if wall_search_mm is None else self._no_fields,
@@ -553,7 +553,7 @@ class Solver:
         measure(wall_measure.SEED)  # a world with bounds only: its smallest bound's node, exactly
         reduce()
         measure(wall_measure.FIX_UP)
-        if self._samples_measured:  # segments longer than 1.5 d: their points between the nodes too (force, gap)
+        if self._has_samples:  # segments longer than 1.5 d: their points between the nodes too (force, gap)
             self._launch_sample_contact(state, running, self.wall_search_mm, self._field_ids, 0)
             wp.launch(wall_measure.sample_wall_gaps, n, device=dev, inputs=[
                 state.x, state.free, m.has_next, m.world_of, running, m.node_radius, m.contact_samples, m.wall_mesh,

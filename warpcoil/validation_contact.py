@@ -166,7 +166,7 @@ def ridge_edge_forces(samples_on: bool = True) -> tuple[np.ndarray, np.ndarray, 
         builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=2 * l0, segment_length_mm=segment_mm), positions)
         model = builder.finalize()
         solver = Solver(model, coil_contact=False)
-        solver._samples_measured = samples and solver._samples_measured
+        solver._has_samples = samples and solver._has_samples
         solver.compute_contacts(state_from_positions(model, positions), wall_search_mm=float(contact.FAR_MM))
         return solver.wall_force.numpy().copy(), solver.wall_distance.numpy() - 0.5 * d, model
 
