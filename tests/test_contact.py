@@ -277,49 +277,44 @@ def test_the_wall_acts_at_the_contact_samples_of_coarse_segments():
         assert row.passed, row
     result, reference, node_gap, sample_gap = ridge_edge_forces()
     assert node_gap > 0.0292 > 0.0 > sample_gap and result[:, 2].sum() > 500.0  # µN, up, out of the ridge
-    # the implicit step: each node's wall block its own over K plus its shares of the samples' (PSD, upward)
     from warpcoil.validation_contact import ridge_wall
+    from warpcoil.validation_friction import _floor
+
     d, l0 = 0.2921, 3 * 0.2921
-    nodes = np.array([[-0.5 * l0, 0.0, 1.101], [0.5 * l0, 0.0, 1.101], [1.5 * l0, 0.0, 1.101]])
-    builder = wc.ModelBuilder(contact=wc.ContactSettings(P0_uN=1000.0), wall=ridge_wall())
-    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=2 * l0, segment_length_mm=l0), nodes)
-    model = builder.finalize()
-    solver = ImplicitSolver(model, dt_s=1e-4)
-    state = wc.state_from_positions(model, nodes)
-    solver.compute_contacts(state, wall_search_mm=float(kernels.FAR_MM))  # every node's side and distance known
-    solver.compute_contacts(state)  # as a step takes it (its stiffness)
+
+    def wall_pass(nodes: np.ndarray, segment_mm: float, wall):
+        """An implicit solver's wall pass on a coil through ``nodes``: (solver, state) as a step takes it."""
+        length_mm = float(np.linalg.norm(np.diff(nodes, axis=0), axis=1).sum())
+        builder = wc.ModelBuilder(contact=wc.ContactSettings(P0_uN=1000.0), wall=wall)
+        builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=length_mm, segment_length_mm=segment_mm), nodes)
+        model = builder.finalize()
+        solver = ImplicitSolver(model, dt_s=1e-4)
+        state = wc.state_from_positions(model, nodes)
+        solver.compute_contacts(state, wall_search_mm=float(kernels.FAR_MM))  # every node's side and distance known
+        solver.compute_contacts(state)  # as a step takes it (its stiffness)
+        return solver, state
+
+    # the implicit step: each node's wall block its own over K plus its shares of the samples' (PSD, upward)
+    solver, _ = wall_pass(np.array([[-0.5 * l0, 0.0, 1.101], [0.5 * l0, 0.0, 1.101], [1.5 * l0, 0.0, 1.101]]), l0,
+                          ridge_wall())
     blocks = solver.wall_stiffness.numpy()
     assert blocks[0][2, 2] > 0.0 and blocks[1][2, 2] > 0.0 and np.all(np.linalg.eigvalsh(blocks[:2]) > -1e-9)
     assert np.allclose(blocks[2], 0.0)  # the second edge's samples are out of range
     # θ 1 at the nodes of an edge whose sample touches the wall, as at a touching node: an edge of 6d whose middle
     # presses the ridge, its nodes 0.12 mm away (beyond the gate's 3 c0 of their own)
     long = 6 * d
-    nodes = np.array([[-0.5 * long, 0.0, 1.1], [0.5 * long, 0.0, 1.1], [1.5 * long, 0.0, 1.1]])
-    builder = wc.ModelBuilder(contact=wc.ContactSettings(P0_uN=1000.0), wall=ridge_wall())
-    builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=2 * long, segment_length_mm=long), nodes)
-    model = builder.finalize()
-    solver = ImplicitSolver(model, dt_s=1e-4)
-    state = wc.state_from_positions(model, nodes)
-    solver.compute_contacts(state, wall_search_mm=float(kernels.FAR_MM))
+    solver, state = wall_pass(np.array([[-0.5 * long, 0.0, 1.1], [0.5 * long, 0.0, 1.1], [1.5 * long, 0.0, 1.1]]),
+                              long, ridge_wall())
     assert solver.wall_distance.numpy()[:2].min() - 0.5 * d > 3 * 0.1 * d  # the nodes: out of the gate's reach
     solver._gate(state, 1e-4)
     theta = solver.node_theta.numpy()
     assert theta[0] == theta[1] == 1.0 > solver.theta
     # on a floor: an interior node's block is the nodes-only coil's k (its own k/3 and its samples' shares 2/3),
     # an end node's 2/3 of it (its own k/3, its one edge's samples' 1/3)
-    from warpcoil.validation_friction import _floor
-
     gap = 0.5 * 0.1 * d  # half c0 into the law's range
     zz = {}
     for segment in (d, l0):
         line = np.array([[x, 0.0, 0.5 * d + gap] for x in np.arange(0.0, 6 * l0 + 1e-9, segment)])
-        builder = wc.ModelBuilder(contact=wc.ContactSettings(P0_uN=1000.0), wall=_floor())
-        builder.add_coil(wc.CoilSpec(wire_diameter_mm=d, length_mm=6 * l0, segment_length_mm=segment), line)
-        model = builder.finalize()
-        solver = ImplicitSolver(model, dt_s=1e-4)
-        state = wc.state_from_positions(model, line)
-        solver.compute_contacts(state, wall_search_mm=float(kernels.FAR_MM))
-        solver.compute_contacts(state)
-        zz[segment] = solver.wall_stiffness.numpy()[:, 2, 2]
+        zz[segment] = wall_pass(line, segment, _floor())[0].wall_stiffness.numpy()[:, 2, 2]
     k = zz[d][3]
     assert k > 0.0 and zz[l0][3] == pytest.approx(k, rel=1e-12) and zz[l0][0] == pytest.approx(2 / 3 * k, rel=1e-12)
