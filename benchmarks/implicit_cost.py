@@ -73,9 +73,9 @@ def timed_run(ensemble: Ensemble) -> dict:
     in_steps = [0.0]
     run_chunk = Stepper.run_chunk
 
-    def timed_chunk(stepper):
+    def timed_chunk(stepper, between=None):
         start = time.process_time()
-        state = run_chunk(stepper)
+        state = run_chunk(stepper, between)
         in_steps[0] += time.process_time() - start
         return state
 

@@ -39,10 +39,10 @@ def main(scene_path: str = "scenes/seed_sphere.toml") -> dict:
                 spent["captures_s"] += time.perf_counter() - self._started
             return done
 
-    def timed_chunk(stepper):
+    def timed_chunk(stepper, between=None):
         in_chunk[0], started = True, time.perf_counter()
         try:
-            return run_chunk(stepper)
+            return run_chunk(stepper, between)
         finally:
             spent["chunks_s"] += time.perf_counter() - started
             in_chunk[0] = False

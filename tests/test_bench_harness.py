@@ -1,0 +1,42 @@
+"""The benchmarks that time a run from inside (``benchmarks.outside_steps``,
+``benchmarks.implicit_cost.timed_run``) wrap ``Stepper.run_chunk``: the wrapped run is the
+plain run (same steps, same end state) and its parts add up to its whole."""
+
+from dataclasses import replace
+
+import pytest
+
+from benchmarks import implicit_cost, outside_steps
+from warpcoil.deploy import Deployment
+from warpcoil.scene import load_scene
+
+from test_cli_run import SCENE
+
+
+@pytest.fixture(scope="module")
+def scene_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bench") / "short.toml"
+    path.write_text(SCENE)
+    return path
+
+
+def plain(scene_path):
+    scene = load_scene(scene_path)
+    return Deployment(replace(scene, output=replace(scene.output, usd=False, png=False, tube_mesh=False)))
+
+
+def test_outside_steps_times_the_plain_run(scene_path):
+    reference = plain(scene_path).run()
+    timed = outside_steps.main(str(scene_path))
+    assert timed["steps"] == reference.steps > 0
+    assert 0.0 < timed["steps_s"] < timed["wall_s"]
+    assert timed["outside_s"] == pytest.approx(timed["wall_s"] - timed["steps_s"], abs=2e-3)
+
+
+def test_implicit_cost_timed_run_times_the_plain_run(scene_path):
+    reference = plain(scene_path).run()
+    timed = implicit_cost.timed_run(plain(scene_path))
+    assert timed["status"] == reference.status == "completed"
+    assert timed["steps"] == reference.steps
+    assert 0.0 < timed["steps_s"] <= timed["cpu_s"]
+    assert timed["frames_s"] == pytest.approx(timed["cpu_s"] - timed["steps_s"])
