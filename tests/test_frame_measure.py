@@ -259,3 +259,32 @@ def test_a_centre_line_past_the_wall_is_said_in_the_reason():
     note_samples(member, types.SimpleNamespace(sample_wall_gap=gaps - 0.1))
     note = wall_crossing_note(member.sample_centre_mm, coils)
     assert "crossed the wall between its nodes (0.07 mm past it" in note and "segment_length_mm ≤ 1.5 d" in note
+
+
+def test_how_often_frames_are_taken_does_not_change_the_run():
+    """The default scheme (gated θ) at frames of 22 and 44 push steps: the states at their common
+    frames are bit for bit the same through the push (the frame's measurement writes nothing the steps
+    read; it used to re-anchor the step pass's wall search, whose lower bounds the θ gate reads: 0.10 mm
+    apart by the end of the push). The detachment step is held at the push step: detachment frames are
+    whole frames by design, and so is the health check (neither run here halves its step)."""
+    runs = []
+    for frame_s in (0.01, 0.0205):
+        scene = small_seed("bvh")
+        scene = replace(scene, simulation=replace(scene.simulation, frame_interval_s=frame_s))
+        deployment = Deployment(scene)
+        deployment.detach_rule = lambda _speed, _dt, _c0: 1
+        total = float(deployment.coil_lengths_mm.sum())
+        states = {}
+
+        def on_frame(frame, state, states=states, total=total):
+            if frame.deployed_length_mm < total:
+                states[round(state.time_s, 9)] = state.x.numpy().copy()
+
+        result = deployment.run(on_frame)
+        assert result.step_reductions == []
+        runs.append(states)
+    fine, coarse = runs
+    common = sorted(set(fine) & set(coarse))
+    assert len(common) >= 8 and len(fine) > len(common)
+    for t in common:
+        assert np.array_equal(fine[t], coarse[t]), t

@@ -527,9 +527,8 @@ class Solver:
         """The frame measurement's wall pass (kernels/wall_measure.py): force and signed
         centre distance of every free node, exact where the node may be in contact or
         outside the lumen and for each world's smallest gap, elsewhere a certified lower
-        bound above the contact range (``wall_distance_exact`` 0). Notes for the steps
-        what wall_contact's full search notes for the nodes it searches; re-anchors a
-        bounded node at its bound (docs/FORMULATION.md, "The frame's wall measurement")."""
+        bound above the contact range (``wall_distance_exact`` 0). It writes nothing the steps
+        read, so frames do not change the run (docs/FORMULATION.md, "The frame's wall measurement")."""
         m, dev, n = self.model, self.model.device, self.model.node_count
         c = m.contact
 
@@ -538,8 +537,7 @@ class Solver:
                 state.x, state.free, m.world_of, running, m.node_radius, self._wall_share, m.wall_mesh,
                 m.wall_face_first, m.wall_origin, m.wall_vertices, m.wall_faces, m.wall_owners, c.p0_uN, c.c0_mm,
                 self.contact_u_linear, self._field_ids, GRAD_TOLERANCE, self._anchor_margin, int(self.wall_sided_skip),
-                self._wall_side, self._wall_anchor, self._wall_slack, self._wall_quiet, self._wall_seen_x,
-                self._wall_seen_mm, self._measure_ref_x, self._measure_ref_mm, stage, *smallest, self.wall_force,
+                self._measure_ref_x, self._measure_ref_mm, stage, *smallest, self.wall_force,
                 self.wall_distance, self.wall_distance_exact])
 
         def reduce() -> None:

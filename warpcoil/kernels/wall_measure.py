@@ -15,13 +15,14 @@ needs a bounded node's value: stage FIX_UP searches in full the bounded nodes wh
 bound gap lies below the world's smallest exact gap (:func:`smallest_gaps`) and that
 have a face that near (:func:`face_distance_within`), after stage SEED has searched
 the smallest bound's node of a world with no exact node; so the minimum is exact.
-What a full search notes for the steps (side, anchor, last search) is noted as
-wall_contact notes it; a bounded node is re-anchored at its bound.
+It writes nothing the steps read (their sides, anchors and last searches are
+wall_contact's own): a frame's measurement leaves the run as it was, so the run does
+not depend on how often frames are taken.
 """
 
 import warp as wp
 
-from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_ANCHOR, NO_FACE, field_sample, sample_point,
+from .contact import (ANCHOR_MARGIN_MM, BOX_MARGIN_MM, FAR_MM, NO_FACE, field_sample, sample_point,
                       wall_feature_sum, wall_query, wall_search)
 
 FIRST = wp.constant(0)  # measure_wall's stages
@@ -69,17 +70,6 @@ def distance_lower_bound(p: wp.vec3d, reference_x: wp.vec3d, reference_distance:
     return bound
 
 
-@wp.func
-def set_anchor(i: int, p: wp.vec3d, slack: wp.float64, inside: wp.array(dtype=wp.int32),
-               anchor: wp.array(dtype=wp.vec3d), anchor_slack: wp.array(dtype=wp.float64),
-               quiet_steps: wp.array(dtype=wp.int32)):
-    """Anchor node i at p, in the lumen with ``slack`` (mm) beyond its contact range (wall_contact's anchor)."""
-    inside[i] = 1
-    anchor[i] = p
-    anchor_slack[i] = slack
-    quiet_steps[i] = 0
-
-
 @wp.kernel
 def measure_wall(
     x: wp.array(dtype=wp.vec3d),
@@ -101,12 +91,6 @@ def measure_wall(
     grad_tolerance: wp.float64,
     margin: wp.float64,
     sided_skip: int,
-    inside: wp.array(dtype=wp.int32),
-    anchor: wp.array(dtype=wp.vec3d),
-    anchor_slack: wp.array(dtype=wp.float64),
-    quiet_steps: wp.array(dtype=wp.int32),
-    seen_x: wp.array(dtype=wp.vec3d),
-    seen_distance: wp.array(dtype=wp.float64),
     reference_x: wp.array(dtype=wp.vec3d),
     reference_distance: wp.array(dtype=wp.float64),
     stage: int,
@@ -155,8 +139,6 @@ def measure_wall(
                     signed = nearest
                     f = summed
                     searched = True
-                    seen_x[i] = p  # in the lumen at that distance (as wall_contact renews it)
-                    seen_distance[i] = nearest
                 elif beyond > contact_range:
                     signed = beyond
                     is_exact = 0
@@ -164,8 +146,6 @@ def measure_wall(
                 if searched:  # in the lumen (certified by the bound) at that distance or beyond
                     reference_x[i] = p
                     reference_distance[i] = signed
-            if is_exact == 0:  # re-anchored here at its bound (the steps search it again after 0.9 of that)
-                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
         elif stage == FIX_UP:  # a face nearer than the world's smallest exact gap allows?
             reach = smallest_gap[w] + node_radius[i] + wp.float64(2.0) * ANCHOR_MARGIN_MM
             if face_distance_within(mesh, vertices, faces, face_first[w], origins[w], p, reach) >= reach:
@@ -176,13 +156,6 @@ def measure_wall(
             face, dist, signed, f, k_sum, by_sum = wall_search(mesh, vertices, faces, owners, face_first[w],
                                                                origins[w], p, node_radius[i], p0, c0, u_linear,
                                                                margin, FAR_MM, 0)
-            # what wall_contact's full search notes: the side, an anchor beyond the contact range, the search
-            inside[i] = wp.where(signed > wp.float64(0.0), 1, 0)
-            quiet_steps[i] = NO_ANCHOR
-            if signed > contact_range:
-                set_anchor(i, p, signed - contact_range, inside, anchor, anchor_slack, quiet_steps)
-            seen_x[i] = p
-            seen_distance[i] = wp.max(signed, wp.float64(0.0))
             reference_x[i] = p
             reference_distance[i] = wp.where(signed > wp.float64(0.0), signed, -FAR_MM)
     force[i] = contact_share[i] * f
