@@ -7,11 +7,14 @@
 2. two float64 hash grids each built in its own captured graph, A replayed after B's capture: does A's
    replay pick up B's descriptor (Warp's native hashgrid keeps one static descriptor per type)?
 3. ``validation_push._law_uN`` (CPU arrays beside a GPU default device)."""
-import sys
+import argparse
+
 import numpy as np
 import warp as wp
 
-dev = wp.get_device(sys.argv[1] if len(sys.argv) > 1 else None)
+parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+parser.add_argument("device", nargs="?", help="Warp device, e.g. cuda:0 (default Warp's)")
+dev = wp.get_device(parser.parse_args().device)
 from warp._src import context as c
 print("device", dev, "toolkit", c.runtime.toolkit_version, "driver", c.runtime.driver_version,
       "conditional", wp.is_conditional_graph_supported(),

@@ -23,7 +23,8 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PART_MIB=${PART_MIB:-56}
-WHEELS=(warp-lang==1.19.0 trimesh usd-core dask distributed tblib tornado zict locket partd)
+WHEELS=(warp-lang==1.19.0 trimesh usd-core dask distributed tblib tornado zict locket partd
+        pytest-timeout pytest-xdist execnet)  # (the image's pytest has neither plugin the pytest step uses)
 
 fetch() {
     grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo '/.whl/' >> .git/info/exclude

@@ -11,8 +11,8 @@ the steps").
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import time
 from dataclasses import replace
 
@@ -61,4 +61,6 @@ def main(scene_path: str = "scenes/seed_sphere.toml") -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(main(*sys.argv[1:])), flush=True)
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("scene", nargs="?", default="scenes/seed_sphere.toml", help="scene file (TOML)")
+    print(json.dumps(main(parser.parse_args().scene)), flush=True)

@@ -418,6 +418,19 @@ def test_bench_help_names_all_four_kinds(tmp_path):
         assert f"{kind}:" in out
 
 
+@pytest.mark.parametrize("args, said", [
+    (("ensemble", "--device", "gpu7"), "--device gpu7"),
+    (("stress", "--device", "cpu"), "applies to `bench ensemble` only"),
+    (("ensemble", "--repeats", "5"), "--repeats does not apply"),
+])
+def test_bench_refuses_options_it_cannot_use_in_one_line(tmp_path, args, said):
+    """A bad device, a device for a CPU benchmark or repeats for the ensemble: one line, exit 2, no folder."""
+    code, _, err = cli(tmp_path, "bench", *args, "--quick", "-o", "report")
+    assert code == 2
+    assert said in one_line(err) and "fix:" in err
+    assert not (tmp_path / "report").exists()
+
+
 def test_cuda_asked_for_without_a_driver_is_said_once(tmp_path):
     import warp as wp
 
@@ -747,3 +760,18 @@ def test_frames_shorter_than_two_steps_are_refused(tmp_path, integrator):
     path.write_text(path.read_text().replace("frame_interval_s = 1e-9", f"frame_interval_s = {fixed}"))
     code, _, err = cli(tmp_path, "run", str(path), "-o", "fixed", "--no-usd", log="fixed")
     assert code == 0, err
+
+
+def test_a_run_without_a_tube_mesh_needs_no_vtk(tmp_path, monkeypatch):
+    """VTK is loaded only to write tube meshes and porous fields (and read VTK walls): a run that
+    writes neither completes with VTK unimportable (the GPU image has none), result.json last."""
+    blocked = tmp_path / "no_vtk"
+    (blocked / "vtkmodules").mkdir(parents=True)
+    (blocked / "vtkmodules" / "__init__.py").write_text("raise ImportError('VTK is not installed here')\n")
+    monkeypatch.setenv("PYTHONPATH", str(blocked) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    path = scene(tmp_path, **{"usd = false": "usd = false\ntube_mesh = false\npng = true"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "out")
+    assert code == 0, err
+    written = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert "result.json" in written and "summary.png" in written and "coils.stl" not in written
+    assert json.loads((tmp_path / "out" / "result.json").read_text())["status"] == "completed"

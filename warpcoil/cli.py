@@ -272,12 +272,28 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    from .preflight import SetupError
+
+    ensemble = args.kind == "ensemble"
+    refused = None
+    if args.device is not None and not ensemble:
+        refused = (f"--device applies to `bench ensemble` only ({args.kind} runs on Warp's default device); "
+                   "fix: leave --device out")
+    elif args.repeats is not None and ensemble:
+        refused = "--repeats does not apply to `bench ensemble` (it times each size once); fix: leave --repeats out"
+    try:
+        device = _device(args.device)
+    except SetupError as error:
+        refused = str(error)
+    if refused:
+        print(f"warpcoil bench: {refused}", file=sys.stderr)
+        return 2
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    if args.kind == "ensemble":
+    if ensemble:
         from .bench.ensemble import main as ensemble_main
 
-        return ensemble_main(out, quick=args.quick, repeats=1, device=args.device)
+        return ensemble_main(out, quick=args.quick, repeats=1, device=device)
     if args.kind == "accuracy":
         from .bench.accuracy import main as bench_main
     elif args.kind == "peers":

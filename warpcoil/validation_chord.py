@@ -152,6 +152,7 @@ def chord_cases() -> list[CaseResult]:
     fine, finer = (abs(depth["chord", a] - reference) for a in THROW_ADVANCES_C0[-2:])
     order = float(np.log2(fine / finer))
     rows.append(CaseResult(f"... chord: observed order of its depth error ({THROW_ADVANCES_C0[-2]:g} → "
-                           f"{THROW_ADVANCES_C0[-1]:g} c0/step)", 1.0, order, max(0.0, THROW_MIN_ORDER - order),
+                           f"{THROW_ADVANCES_C0[-1]:g} c0/step; error: its shortfall below {THROW_MIN_ORDER:g})", 1.0, order,
+                           max(0.0, THROW_MIN_ORDER - order),
                            0.0))
     return rows

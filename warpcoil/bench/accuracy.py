@@ -54,7 +54,7 @@ SEED_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "seed_sphere.toml"
 D = validation.REFERENCE_D_MM
 L0_IS_THE_MODEL = "l0 = d defines the model (MODEL.md)"
 QUASI_STATIC_KE_RATIO = 0.1  # kinetic / elastic energy while pushing, above which a push is not quasi-static
-MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a free release: error 0.85)"
+MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a free release: its error in the table)"
 # a deployment setting is a default candidate only while its push force's mean over the push is within this
 # many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
 PUSH_FORCE_TOLERANCE_F0 = 0.25

@@ -172,7 +172,6 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
     its last healthy frame) are not written as geometry; result.json says so in
     ``not_written``."""
     from .figures import write_summary_png
-    from .tube import coils_tube_mesh, write_tube_stl, write_tube_vtp
 
     write_timeseries_csv(out / TIMESERIES_CSV, result.frames)
     extra = dict(extra or {})
@@ -184,6 +183,8 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
     write_centerline_csv(out / CENTERLINE_CSV, result.positions_mm)
     diameters = [c.d for c in scene.coils]
     if scene.output.tube_mesh:
+        from .tube import coils_tube_mesh, write_tube_stl, write_tube_vtp  # (VTK: only a tube mesh needs it)
+
         mesh = coils_tube_mesh(result.positions_mm, diameters)
         write_tube_stl(out / TUBE_STL, mesh)
         write_tube_vtp(out / TUBE_VTP, mesh)
