@@ -135,15 +135,15 @@ def test_members_with_their_own_step_bound_and_search_radius():
         assert [f.min_coil_gap_mm for f in member.frames] == [f.min_coil_gap_mm for f in single.frames]
 
 
-@pytest.mark.parametrize("scheme, push_mm_s", [("euler", 600.0), ("gated_chord", 400.0)])
-def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch, scheme, push_mm_s):
-    """Implicit step, Euler and gated_chord (the default; at 600 mm/s its members settle at one
-    step in every shared frame, so 400): after the push each member steps at the settling step its
+@pytest.mark.parametrize("scheme, push_mm_s, tilt_deg", [("euler", 600.0, 40.0), ("gated_chord", 400.0, 60.0)])
+def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch, scheme, push_mm_s, tilt_deg):
+    """Implicit step, Euler and gated_chord (the default; its members at a 40° tilt settle at one step in
+    every shared frame at 200–600 mm/s, so 60°): after the push each member steps at the settling step its
     own fastest node sets (implicit.settle_level); members at different steps in the
     same frame advance apart, so each still equals its single run."""
     from dataclasses import replace
 
-    scenes = [scene(a, push_mm_s=push_mm_s) for a in (0.0, 40.0)]
+    scenes = [scene(a, push_mm_s=push_mm_s) for a in (0.0, tilt_deg)]
     scenes = [replace(s, simulation=replace(s.simulation, integrator="implicit", implicit_scheme=scheme)) for s in scenes]
     real = Ensemble._settle_chunk
     levels: list[set[int]] = []

@@ -11,6 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
+from .model import default_director
+from .orientation import anatomy_normal, turned
 from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour, neck_from_plane,
                   sac_from_neck, side_in_doubt)
 from .settings import CatheterSpec, Scene
@@ -33,6 +35,21 @@ class Anatomy:
         if self.sac is not None:
             return self.sac.volume_mm3
         return self.wall.volume_mm3 if self.wall is not None else None
+
+    def roll_reference(self) -> np.ndarray | None:
+        """The direction normal to the catheter from which the coil's roll about it is counted (unit): the
+        one the wall defines (orientation.anatomy_normal: it turns with the scene), turned by
+        ``catheter.roll_deg``; None (the model's default roll) where the wall defines none and roll_deg is 0."""
+        axis = np.asarray(self.catheter.direction, dtype=np.float64)
+        axis = axis / np.linalg.norm(axis)
+        wall = self.wall
+        reference = anatomy_normal(axis, None if wall is None else wall.vertices_mm,
+                                   None if wall is None else wall.faces, np.asarray(self.catheter.tip_mm))
+        if reference is None:
+            if self.catheter.roll_deg == 0.0:
+                return None
+            reference = default_director(-axis)  # (the coil's first edge points back into the catheter)
+        return turned(reference, axis, self.catheter.roll_deg)
 
 
 def resolve_anatomy(scene: Scene) -> Anatomy:
@@ -69,7 +86,10 @@ def _placed_catheter(scene: Scene, wall: WallMesh | None, sac: Sac | None) -> Ca
     and the other piece is not small (sac.side_in_doubt), is a SceneError naming neck.sac_point_mm."""
     catheter = scene.catheter
     if catheter.placement == "neck":
-        tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg)
+        normal = sac.neck.normal / np.linalg.norm(sac.neck.normal)
+        reference = anatomy_normal(normal, wall.vertices_mm, wall.faces, sac.neck.centroid_mm)  # (turns with the wall)
+        tip, direction = catheter_from_neck(sac, catheter.depth_mm, catheter.angle_deg, catheter.azimuth_deg,
+                                            reference)
         return replace(catheter, tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)))
     if side_in_doubt(sac) and in_other_piece(sac, wall, np.asarray(catheter.tip_mm, dtype=np.float64)):
         raise SceneError(

@@ -190,8 +190,9 @@ class Ensemble:
                                   allow_unstable_dt=sims[0].allow_unstable_dt, **self._solver_options)
         self.scheme = dict(self.solver.scheme)  # the push's (result.json: settling and step halving change θ)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
-        self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM), self.control,
-                               chunk=steps[0][2])
+        rolls = [a.roll_reference() for a in self.anatomies]  # (each coil's roll: the wall's, turned with it)
+        self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM, roll_references=rolls),
+                               self.control, chunk=steps[0][2])
         for module in self.solver.kernel_modules:  # hashed and loaded (from the kernel cache) with the solver,
             wp.load_module(module, device=self.model.device)  # not at the first step inside the run's clock
         packed, _ = self.solver.world_energies(self.stepper.state)

@@ -116,7 +116,7 @@ class ContactModel:
         return self.p0_uN / ((math.e - 1.0) * self.c0_mm) * (math.exp(u) * (1.0 + u) - 1.0)
 
 
-def _default_director(t: np.ndarray) -> np.ndarray:
+def default_director(t: np.ndarray) -> np.ndarray:
     """A unit vector normal to ``t``, chosen deterministically."""
     axis = np.eye(3)[int(np.argmin(np.abs(t)))]
     d = np.cross(t, axis)
@@ -288,7 +288,7 @@ class Model:
         """Twist-free (Bishop) directors along each coil of ``positions``."""
         if first_directors is None:
             first_directors = np.stack([
-                _default_director(_unit(positions[f + 1] - positions[f])) for f in self.coil_first
+                default_director(_unit(positions[f + 1] - positions[f])) for f in self.coil_first
             ])
             clamp_t, clamp_d = self.clamp_tangent.numpy(), self.clamp_director.numpy()
             for c, f in enumerate(self.coil_first):  # a clamped coil starts untwisted at its clamp

@@ -108,14 +108,14 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
                 f"{scene.where}: catheter.centerline leaves the lumen at {_vec(samples[outside[0]])} mm, between "
                 f"points {k} and {k + 1}; fix: route the centerline inside the vessel and sac (every point and the "
                 "straight pieces between them)")
-    warnings = []
     radius = 0.5 * max(c.wire_diameter_mm for c in scene.coils)
-    if depth < radius:
+    if depth < radius:  # (a warning once: the wall then shoved every node leaving the catheter, the whole push)
         key = "catheter.depth_mm" if catheter.placement == "neck" else "catheter.tip"
-        warnings.append(f"{scene.where}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
-                        f"the coil's radius d/2 = {radius:.3g} mm: the coil leaves the catheter pressed into the wall "
-                        f"(large contact forces in the first frames); move the tip at least {radius - depth:.2g} mm "
-                        "further into the lumen")
+        raise SetupError(f"{scene.where}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
+                         f"the coil's radius d/2 = {radius:.3g} mm: the coil would leave the catheter inside the wall "
+                         f"(and a catheter's own wall is thicker still); fix: move the tip at least "
+                         f"{radius - depth:.2g} mm further into the lumen")
+    warnings = []
     centre = _sac_centre_mm(anatomy)
     direction = np.asarray(catheter.direction, dtype=np.float64)
     to_centre = centre - tip

@@ -190,15 +190,17 @@ def herniated_length_mm(sac: Sac, wall: WallMesh, points_mm: np.ndarray, segment
 
 
 def catheter_from_neck(
-    sac: Sac, depth_mm: float = 0.5, angle_deg: float = 0.0, azimuth_deg: float = 0.0
+    sac: Sac, depth_mm: float = 0.5, angle_deg: float = 0.0, azimuth_deg: float = 0.0,
+    reference: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Tip = neck centroid + depth·normal (inside the sac); direction = the neck normal tilted.
 
     The tilt is ``angle_deg`` towards the azimuth ``azimuth_deg``, measured in
-    the neck plane from the reference direction ``e1`` of :func:`neck_frame`.
+    the neck plane from the reference direction ``e1`` of :func:`neck_frame`
+    (``reference``: a unit vector in the plane the wall defines, orientation.anatomy_normal).
     """
     neck = sac.neck
-    e1, e2, normal = neck_frame(neck.normal)
+    e1, e2, normal = neck_frame(neck.normal, reference)
     tip = neck.centroid_mm + depth_mm * normal
     angle, azimuth = np.radians(angle_deg), np.radians(azimuth_deg)
     towards = np.cos(azimuth) * e1 + np.sin(azimuth) * e2
@@ -206,10 +208,14 @@ def catheter_from_neck(
     return tip, direction / np.linalg.norm(direction)
 
 
-def neck_frame(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Right-handed unit frame (e1, e2, n): e1 = the coordinate axis least aligned with n, projected onto the plane."""
+def neck_frame(normal: np.ndarray, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Right-handed unit frame (e1, e2, n): e1 = ``reference`` (a unit vector normal to n), or without it
+    the coordinate axis least aligned with n, projected onto the plane."""
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
+    if reference is not None:
+        e1 = np.asarray(reference, dtype=np.float64)
+        return e1, np.cross(n, e1), n
     axis = np.eye(3)[int(np.argmin(np.abs(n)))]
     e1 = axis - (axis @ n) * n
     e1 /= np.linalg.norm(e1)

@@ -171,6 +171,7 @@ _CATHETER = {
     "depth_mm": _Key(_finite),
     "angle_deg": _Key(_finite),
     "azimuth_deg": _Key(_finite),
+    "roll_deg": _Key(_finite),
 }
 _NECK = {
     "contour": _Key(_existing_file),

@@ -33,6 +33,7 @@ class CatheterSpec:
     depth_mm: float = 0.5  # placement "neck": tip this far inside the neck centroid, along the sac axis
     angle_deg: float = 0.0  # placement "neck": tilt of the direction from the sac axis (for sweeps)
     azimuth_deg: float = 0.0  # placement "neck": direction of that tilt in the neck plane
+    roll_deg: float = 0.0  # the coil's roll about the catheter axis, from the one the wall defines (orientation.py)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ import numpy as np
 import warp as wp
 
 from .kernels import integrate
-from .model import Model
+from .model import Model, default_director
+from .orientation import normal_part
 
 ALL_OUT_MM = 1.0e9  # a pusher advance that puts every node past the tip (free space)
 
@@ -62,11 +63,13 @@ def rest_state(model: Model) -> State:
     return state_from_positions(model, model.rest_positions)
 
 
-def packed_state(model: Model, gap_mm: float = 1.0) -> State:
+def packed_state(model: Model, gap_mm: float = 1.0, roll_references: list[np.ndarray | None] | None = None) -> State:
     """The coils packed in the catheter, one behind the other (``gap_mm`` apart),
     the first coil's distal node at the tip (in each world, in its own
     catheter); directors carried along the catheter so each edge keeps its
-    pre-shape frame orientation (MODEL.md, Step 2)."""
+    pre-shape frame orientation (MODEL.md, Step 2). ``roll_references`` (per world, a unit
+    vector or None): each coil's first director is that vector's part normal to its first edge
+    (the coil's roll about the catheter; anatomy.roll_reference), else the model's default."""
     lengths = model.host("arc_s")[model.coil_last]
     advance = np.zeros(model.coil_count)
     for w in range(model.world_count):
@@ -78,7 +81,18 @@ def packed_state(model: Model, gap_mm: float = 1.0) -> State:
         model.arc_s, model.coil_of, model.world_of, model.array(advance, wp.float64), model.catheter_path,
         model.catheter_first, model.catheter_count, x])
     positions = x.numpy()
-    return _state(model, positions, model.directors_along(positions), advance)
+    first = None
+    if roll_references is not None and any(r is not None for r in roll_references):
+        first = []
+        coil_world = model.host("coil_world")
+        for c, f in enumerate(model.coil_first):
+            tangent = positions[f + 1] - positions[f]
+            tangent = tangent / np.linalg.norm(tangent)
+            reference = roll_references[int(coil_world[c])]
+            director = None if reference is None else normal_part(reference, tangent)
+            first.append(default_director(tangent) if director is None else director)
+        first = np.stack(first)
+    return _state(model, positions, model.directors_along(positions, first), advance)
 
 
 def new_state_like(model: Model) -> State:

@@ -1,0 +1,103 @@
+"""A scene turned as a whole turns its run with it (warpcoil/orientation.py): the wall's own axes
+turn with the wall, a sphere defines none, and a coil deployed into a turned faceted sac stays the
+turned copy of the coil deployed into the original (its roll about the catheter is the wall's, not
+the coordinate axes'); ``catheter.roll_deg`` turns the coil about the catheter."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from warpcoil.anatomy import Anatomy
+from warpcoil.coil import CoilSpec
+from warpcoil.deploy import Ensemble
+from warpcoil.faceted_sac import catheter_tip, lobulated_sac
+from warpcoil.orientation import wall_axes
+from warpcoil.settings import CatheterSpec, ContactSettings, OutputSettings, Scene, SimulationSettings
+from warpcoil.wall import sphere_wall
+
+D = 0.2921
+
+
+def rotation(seed: int = 3) -> np.ndarray:
+    """A proper rotation with no special axis (QR of a random matrix)."""
+    q, r = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def sac():
+    return lobulated_sac(math.pi * (D / 2.0) ** 2 * 12.0 / 0.2, seed=2)
+
+
+def test_the_walls_axes_turn_with_it_and_a_sphere_has_none():
+    wall, turn = sac(), rotation()
+    axes = wall_axes(wall.vertices_mm, wall.faces)
+    turned = wall_axes(wall.vertices_mm @ turn.T, wall.faces)
+    assert len(axes) >= 1 and len(turned) == len(axes)
+    for a, b in zip(axes, turned):
+        assert np.allclose(turn @ a, b, atol=1e-9)
+    sphere = sphere_wall(3.5)
+    assert wall_axes(sphere.vertices_mm, sphere.faces) == []
+
+
+def run(wall, tip, direction, roll_deg: float = 0.0, max_time_s: float | None = 0.03):
+    """12 mm of a 2.5 mm helix pushed into ``wall`` from ``tip`` along ``direction`` (BVH wall: a field's
+    voxels would not turn with it) for ``max_time_s`` (None: not run): the ensemble and its result."""
+    catheter = CatheterSpec(tip_mm=tuple(map(float, tip)), direction=tuple(map(float, direction)), roll_deg=roll_deg)
+    scene = Scene(coils=(CoilSpec(wire_diameter_mm=D, length_mm=12.0, loop_diameter_mm=2.5, shape="helix",
+                                  pitch_mm=0.6),),
+                  catheter=catheter, output=OutputSettings(usd=False), contact=ContactSettings(wall_query="bvh"),
+                  simulation=SimulationSettings(max_time_s=max_time_s or 1.0))
+    ensemble = Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])
+    return ensemble, ensemble.run()[0] if max_time_s else None
+
+
+def test_a_turned_scene_deploys_the_turned_coil():
+    wall, turn = sac(), rotation()
+    tip, direction = np.array(catheter_tip(wall, 2)), np.array([0.0, 0.0, 1.0])
+    first, result = run(wall, tip, direction)
+    turned_wall = replace(wall, vertices_mm=wall.vertices_mm @ turn.T)
+    second, turned_result = run(turned_wall, turn @ tip, turn @ direction)
+    assert result.status == turned_result.status and result.steps == turned_result.steps
+    assert result.min_wall_gap_mm < 0.0  # the coil has met the wall (its float32 BVH rounds differently when turned,
+    x, y = result.positions_mm[0], turned_result.positions_mm[0]  # and contact amplifies it from here on)
+    out = np.linalg.norm(x - tip, axis=1) > 1.0  # the curled part, out of the catheter
+    assert out.sum() > 10
+    assert np.abs(x @ turn.T - y).max() < 1e-6  # (8e-9 mm; rolled by the coordinate axes it was 0.57 mm apart)
+
+
+def test_roll_deg_turns_the_coil_about_the_catheter():
+    wall = sac()
+    tip, direction = np.array(catheter_tip(wall, 2)), np.array([0.0, 0.0, 1.0])
+    ensemble, _ = run(wall, tip, direction, max_time_s=None)
+    rolled, _ = run(wall, tip, direction, roll_deg=90.0, max_time_s=None)
+    m1, m1_rolled = ensemble.stepper.state.m1.numpy()[0], rolled.stepper.state.m1.numpy()[0]
+    assert abs(m1 @ direction) < 1e-12 and m1 @ m1_rolled == pytest.approx(0.0, abs=1e-12)
+    assert np.cross(m1, m1_rolled) @ direction == pytest.approx(1.0)  # right-handed about the catheter direction
+
+
+def test_a_tilted_neck_catheter_turns_with_the_scene():
+    """placement = "neck" with angle_deg 30 and azimuth_deg 45 on C0003: the azimuth is counted from the
+    wall's own axis, so the turned patient places the turned catheter (it was counted from the coordinate
+    axis least aligned with the neck normal)."""
+    from pathlib import Path
+
+    from warpcoil.anatomy import _placed_catheter, _wall_and_sac
+    from warpcoil.sac import sac_from_neck
+    from warpcoil.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "aneurisk_C0003.toml",
+                       {"catheter.angle_deg": 30.0, "catheter.azimuth_deg": 45.0})
+    wall, sac_ = _wall_and_sac(scene)
+    turn = rotation(5)
+    turned_wall = replace(wall, vertices_mm=wall.vertices_mm @ turn.T)
+    neck = sac_.neck
+    turned_neck = replace(neck, contour_mm=neck.contour_mm @ turn.T, centroid_mm=turn @ neck.centroid_mm,
+                          normal=turn @ neck.normal)
+    placed = _placed_catheter(scene, wall, sac_)
+    turned = _placed_catheter(scene, turned_wall, sac_from_neck(turned_wall, turned_neck))
+    assert np.allclose(turn @ np.array(placed.tip_mm), turned.tip_mm, atol=1e-9)
+    assert np.allclose(turn @ np.array(placed.direction), turned.direction, atol=1e-9)
+    assert np.degrees(np.arccos(np.array(placed.direction) @ neck.normal)) == pytest.approx(30.0)
