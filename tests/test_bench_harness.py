@@ -1,6 +1,7 @@
 """The benchmarks that time a run from inside (``benchmarks.outside_steps``,
 ``benchmarks.implicit_cost.timed_run``) wrap ``Stepper.run_chunk``: the wrapped run is the
-plain run (same steps, same end state) and its parts add up to its whole."""
+plain run (the same status and steps; a wrapper out of step with run_chunk's signature raised
+TypeError at the first chunk) and its parts add up to its whole."""
 
 from dataclasses import replace
 

@@ -137,10 +137,10 @@ def test_members_with_their_own_step_bound_and_search_radius():
 
 @pytest.mark.parametrize("scheme, push_mm_s, tilt_deg", [("euler", 600.0, 40.0), ("gated_chord", 400.0, 60.0)])
 def test_members_settling_at_different_steps_equal_their_single_runs(monkeypatch, scheme, push_mm_s, tilt_deg):
-    """Implicit step, Euler and gated_chord (the default; its members at a 40° tilt settle at one step in
-    every shared frame at 200–600 mm/s, so 60°): after the push each member steps at the settling step its
-    own fastest node sets (implicit.settle_level); members at different steps in the
-    same frame advance apart, so each still equals its single run."""
+    """Implicit step, Euler and gated_chord (the default). After the push each member steps at the settling
+    step its own fastest node sets (implicit.settle_level); members at different steps in the same frame
+    advance apart, so each still equals its single run. (gated_chord's members with the catheter tilted
+    40° settle at one step in every shared frame at 200–600 mm/s, so its second member is tilted 60°.)"""
     from dataclasses import replace
 
     scenes = [scene(a, push_mm_s=push_mm_s) for a in (0.0, tilt_deg)]

@@ -13,7 +13,7 @@ from warpcoil.anatomy import Anatomy
 from warpcoil.coil import CoilSpec
 from warpcoil.deploy import Ensemble
 from warpcoil.faceted_sac import catheter_tip, lobulated_sac
-from warpcoil.orientation import wall_axes
+from warpcoil.orientation import anatomy_normal, skew_vector
 from warpcoil.settings import CatheterSpec, ContactSettings, OutputSettings, Scene, SimulationSettings
 from warpcoil.wall import sphere_wall
 
@@ -31,15 +31,48 @@ def sac():
     return lobulated_sac(math.pi * (D / 2.0) ** 2 * 12.0 / 0.2, seed=2)
 
 
-def test_the_walls_axes_turn_with_it_and_a_sphere_has_none():
+def test_the_walls_skew_vector_turns_with_it_and_a_sphere_has_none():
     wall, turn = sac(), rotation()
-    axes = wall_axes(wall.vertices_mm, wall.faces)
-    turned = wall_axes(wall.vertices_mm @ turn.T, wall.faces)
-    assert len(axes) >= 1 and len(turned) == len(axes)
-    for a, b in zip(axes, turned):
-        assert np.allclose(turn @ a, b, atol=1e-9)
+    skew, centroid = skew_vector(wall.vertices_mm, wall.faces)
+    turned, turned_centroid = skew_vector(wall.vertices_mm @ turn.T, wall.faces)
+    assert skew is not None and np.allclose(turn @ skew, turned, rtol=1e-9, atol=1e-12)
+    assert np.allclose(turn @ centroid, turned_centroid, atol=1e-12)
     sphere = sphere_wall(3.5)
-    assert wall_axes(sphere.vertices_mm, sphere.faces) == []
+    assert skew_vector(sphere.vertices_mm, sphere.faces)[0] is None
+
+
+def tilts(axis: np.ndarray, degrees: float) -> np.ndarray:
+    """``axis`` tilted by ``degrees`` towards a fixed normal of it."""
+    normal = np.cross(axis, [0.3, -0.5, 0.8])
+    normal /= np.linalg.norm(normal)
+    a = np.radians(degrees)
+    return np.cos(a) * axis + np.sin(a) * normal
+
+
+def test_the_roll_turns_little_for_a_small_tilt():
+    """The reference normal to the catheter turns by less than 1° for a 0.1° tilt at 400 random directions
+    more than 10° from the skew vector's line (the old rule jumped by 90–180° across its boundaries), and
+    in a sphere (the tip off its centre) across the 17.5° tilt where the first version of this rule jumped."""
+    wall = sac()
+    skew, _ = skew_vector(wall.vertices_mm, wall.faces)
+    skew = skew / np.linalg.norm(skew)
+    rng = np.random.default_rng(7)
+    checked = 0
+    for axis in rng.standard_normal((400, 3)):
+        axis /= np.linalg.norm(axis)
+        if abs(axis @ skew) > math.cos(math.radians(10.0)):
+            continue
+        before = anatomy_normal(axis, wall.vertices_mm, wall.faces)
+        after = anatomy_normal(tilts(axis, 0.1), wall.vertices_mm, wall.faces)
+        assert np.degrees(np.arccos(min(1.0, before @ after))) < 1.0
+        checked += 1
+    assert checked > 300
+    sphere, tip = sphere_wall(3.5), np.array([0.0, 0.0, -1.475])
+    for degrees in (17.4, 17.6):
+        a = np.radians(degrees)
+        axis = np.array([np.sin(a), 0.0, np.cos(a)])
+        reference = anatomy_normal(axis, sphere.vertices_mm, sphere.faces, tip)
+        assert reference @ np.array([-1.0, 0.0, 0.0]) > 0.95  # towards the centre, on both sides
 
 
 def run(wall, tip, direction, roll_deg: float = 0.0, max_time_s: float | None = 0.03):
@@ -101,3 +134,22 @@ def test_a_tilted_neck_catheter_turns_with_the_scene():
     assert np.allclose(turn @ np.array(placed.tip_mm), turned.tip_mm, atol=1e-9)
     assert np.allclose(turn @ np.array(placed.direction), turned.direction, atol=1e-9)
     assert np.degrees(np.arccos(np.array(placed.direction) @ neck.normal)) == pytest.approx(30.0)
+
+
+def test_the_roll_is_about_a_centerlines_last_piece():
+    """A scene built in Python with a centerline tilted 50° from its (default) direction, in an 8 mm sphere:
+    the coil's first director is normal to the centerline at the tip, and roll_deg turns it by 90° about that
+    axis (it was turned about the direction, then projected)."""
+    wall, tip = sphere_wall(8.0), np.array([0.0, 0.0, 0.5])  # (its reference: from the tip to the centre)
+    axis = np.array([math.sin(math.radians(50.0)), 0.0, math.cos(math.radians(50.0))])
+    line = (tuple(tip - 3.0 * axis), tuple(tip - 1.0 * axis), tuple(tip))
+    directors = []
+    for roll in (0.0, 90.0):
+        catheter = CatheterSpec(tip_mm=tuple(tip), centerline_mm=line, roll_deg=roll)
+        scene = Scene(coils=(CoilSpec(wire_diameter_mm=D, length_mm=12.0, loop_diameter_mm=2.5, shape="helix",
+                                      pitch_mm=0.6),), catheter=catheter, output=OutputSettings(usd=False))
+        ensemble = Ensemble([scene], anatomies=[Anatomy(wall=wall, sac=None, catheter=catheter)])
+        directors.append(ensemble.stepper.state.m1.numpy()[0])
+    plain, rolled = directors
+    assert abs(plain @ axis) < 1e-12 and abs(rolled @ axis) < 1e-12
+    assert np.cross(plain, rolled) @ axis == pytest.approx(1.0)

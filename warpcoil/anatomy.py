@@ -37,10 +37,12 @@ class Anatomy:
         return self.wall.volume_mm3 if self.wall is not None else None
 
     def roll_reference(self) -> np.ndarray | None:
-        """The direction normal to the catheter from which the coil's roll about it is counted (unit): the
-        one the wall defines (orientation.anatomy_normal: it turns with the scene), turned by
+        """The direction normal to the catheter at its tip from which the coil's roll about it is counted
+        (unit): the one the wall defines (orientation.anatomy_normal: it turns with the scene), turned by
         ``catheter.roll_deg``; None (the model's default roll) where the wall defines none and roll_deg is 0."""
-        axis = np.asarray(self.catheter.direction, dtype=np.float64)
+        line = self.catheter.centerline_mm
+        axis = np.asarray(self.catheter.direction if line is None else np.subtract(line[-1], line[-2]),
+                          dtype=np.float64)  # (at the tip: a centerline's last piece)
         axis = axis / np.linalg.norm(axis)
         wall = self.wall
         reference = anatomy_normal(axis, None if wall is None else wall.vertices_mm,

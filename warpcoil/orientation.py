@@ -6,76 +6,61 @@ coordinate axes (the axis least aligned with the normal) made both depend on how
 coordinates happen to lie: the same patient scene rotated rolled its coil by 160° and deployed
 differently, and a 1° tilt across a boundary of that rule rolled it by up to 90°.
 
-:func:`wall_axes` are the wall's own axes: the principal axes of its surface's second moment
-(area-weighted face centres about their centroid), each signed by the surface's third moment
-along it. Rotating the wall rotates them, and they do not move with the catheter. An axis whose
-second moment is within AXIS_GAP of another's, or whose third moment is near zero, is not
-defined by the wall (a sphere defines none) and is left out.
+The wall's skew vector v = Σ a_f |d_f|² d_f / Σ a_f (mm³; a_f each face's area, d_f its centre
+less the area-weighted centroid) turns with the wall and does not move with the catheter; its
+part normal to the axis turns continuously with the axis, except where the axis runs along v
+(any rule for a direction normal to every axis must fail somewhere: the hairy-ball theorem; on
+the five shipped patients v lies 34–61° off the catheter). A wall whose v is below
+SKEW_FLOOR of its spread cubed (a sphere: v = 0 by symmetry) defines none: then the direction
+from the tip (neck centroid) to the wall's centroid, and where that runs along the axis too (a
+catheter through a sphere's centre, which has no preferred roll), none at all.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-AXIS_GAP = 0.05  # relative gap of second moments below which two principal axes are not told apart
-AXIS_SKEW = 1.0e-3  # |third moment| / (spread³ · area) below which an axis has no sign
-NORMAL_SHARE = 0.3  # a reference's part normal to the axis, below which it does not define a direction
+SKEW_FLOOR = 1.0e-6  # |v| / spread³ below which a wall defines no skew vector (a sphere's is rounding)
+ALONG_AXIS = 1.0e-9  # a reference's part normal to the axis, relative, below which it runs along it
 
 
-def wall_axes(vertices_mm: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
-    """The wall's defined axes (unit vectors), largest spread first (see the module's note)."""
+def skew_vector(vertices_mm: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """The wall's skew vector (mm³; None where it defines none) and its area-weighted centroid (mm)."""
     vertices = np.asarray(vertices_mm, dtype=np.float64)
     triangles = vertices[np.asarray(faces, dtype=np.int64)]
     areas = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]),
                                  axis=1)
     total = float(areas.sum())
-    if not total > 0.0:
-        return []
-    offsets = triangles.mean(axis=1) - (areas[:, None] * triangles.mean(axis=1)).sum(axis=0) / total
-    moments = np.einsum("f,fi,fj->ij", areas, offsets, offsets) / total
-    values, vectors = np.linalg.eigh(moments)  # ascending
-    axes = []
-    for k in (2, 1, 0):
-        others = [values[j] for j in range(3) if j != k]
-        if min(abs(values[k] - v) for v in others) < AXIS_GAP * values[2]:
-            continue
-        axis = vectors[:, k]
-        along = offsets @ axis
-        skew = float((areas * along ** 3).sum()) / total
-        if abs(skew) < AXIS_SKEW * values[2] ** 1.5:
-            continue
-        axes.append(axis if skew > 0.0 else -axis)
-    return axes
+    centres = triangles.mean(axis=1)
+    centroid = (areas[:, None] * centres).sum(axis=0) / total
+    offsets = centres - centroid
+    squared = np.einsum("fi,fi->f", offsets, offsets)
+    skew = (areas * squared) @ offsets / total
+    spread = float(np.sqrt((areas * squared).sum() / total))
+    return (skew if np.linalg.norm(skew) > SKEW_FLOOR * spread ** 3 else None), centroid
 
 
 def normal_part(reference: np.ndarray, axis: np.ndarray) -> np.ndarray | None:
-    """``reference``'s part normal to the unit ``axis``, as a unit vector; None where that part is
-    under NORMAL_SHARE of the reference (it would turn fast with a small tilt of the axis)."""
+    """``reference``'s part normal to the unit ``axis``, as a unit vector; None where it runs along it."""
     reference = np.asarray(reference, dtype=np.float64)
-    size = float(np.linalg.norm(reference))
     part = reference - (reference @ axis) * axis
     length = float(np.linalg.norm(part))
-    if not size > 0.0 or length < NORMAL_SHARE * size:
+    if not length > ALONG_AXIS * float(np.linalg.norm(reference)):
         return None
     return part / length
 
 
 def anatomy_normal(axis: np.ndarray, vertices_mm: np.ndarray | None, faces: np.ndarray | None,
                    point_mm: np.ndarray | None = None) -> np.ndarray | None:
-    """A unit vector normal to the unit ``axis`` that the wall defines: its first axis (wall_axes) with a
-    part normal to ``axis``, else the direction from ``point_mm`` to the wall's centroid (a sphere: its
-    centre); None where neither does (a sphere with the axis through its centre, which then has no
-    preferred roll)."""
+    """A unit vector normal to the unit ``axis`` that the wall defines (the module's note): its skew vector's
+    part normal to it, else the direction from ``point_mm`` to the wall's centroid; None where neither."""
     if vertices_mm is None or faces is None or len(faces) == 0:
         return None
-    for reference in wall_axes(vertices_mm, faces):
-        direction = normal_part(reference, axis)
-        if direction is not None:
-            return direction
-    if point_mm is None:
-        return None
-    vertices = np.asarray(vertices_mm, dtype=np.float64)
-    return normal_part(vertices.mean(axis=0) - np.asarray(point_mm, dtype=np.float64), axis)
+    skew, centroid = skew_vector(vertices_mm, faces)
+    direction = None if skew is None else normal_part(skew, axis)
+    if direction is None and point_mm is not None:
+        direction = normal_part(centroid - np.asarray(point_mm, dtype=np.float64), axis)
+    return direction
 
 
 def turned(direction: np.ndarray, axis: np.ndarray, angle_deg: float) -> np.ndarray:

@@ -1,10 +1,10 @@
 """Checks of a scene's set-up before the first step (one clear message each).
 
 * The catheter tip must lie inside the lumen (the wall's winding number, via
-  its ``wp.Mesh``), and so must a given catheter centerline: otherwise
-  :class:`SetupError` naming the scene file, the key and the fix (exit 2).
-* Warnings, for a run that may go on but will likely disappoint: a tip closer
-  to the wall than the coil's radius, a catheter
+  its ``wp.Mesh``), at least the coil's radius from the wall, and so must a given
+  catheter centerline lie inside: otherwise :class:`SetupError` naming the scene
+  file, the key and the fix (exit 2).
+* Warnings, for a run that may go on but will likely disappoint: a catheter
   pointing away from the sac, a coil whose segments make it more than 1 % shorter than its
   length (coarse on its loops), coils whose volume exceeds MAX_PACKING of the
   sac, a loop far larger than the sac.
@@ -80,9 +80,8 @@ def _vec(values) -> str:
 
 
 def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
-    """Raise SetupError for a tip (or centerline) outside the lumen; warn when the tip is
-    closer to the wall than the coil's radius, and when the catheter points away from the
-    sac. ``anatomy``: the resolved Anatomy."""
+    """Raise SetupError for a tip (or centerline) outside the lumen, or a tip closer to the wall than the
+    coil's radius; warn when the catheter points away from the sac. ``anatomy``: the resolved Anatomy."""
     wall = anatomy.wall
     if wall is None:
         return []
@@ -113,8 +112,10 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
         key = "catheter.depth_mm" if catheter.placement == "neck" else "catheter.tip"
         raise SetupError(f"{scene.where}: {key}: the tip {_vec(tip)} mm is {depth:.3g} mm from the wall, less than "
                          f"the coil's radius d/2 = {radius:.3g} mm: the coil would leave the catheter inside the wall "
-                         f"(and a catheter's own wall is thicker still); fix: move the tip at least "
-                         f"{radius - depth:.2g} mm further into the lumen")
+                         "(and a catheter's own wall is thicker still); fix: "
+                         + (f"a catheter.depth_mm that puts the tip at least {radius - depth:.2g} mm further from "
+                            "the wall" if catheter.placement == "neck" else
+                            f"move the tip at least {radius - depth:.2g} mm further into the lumen"))
     warnings = []
     centre = _sac_centre_mm(anatomy)
     direction = np.asarray(catheter.direction, dtype=np.float64)

@@ -196,8 +196,9 @@ def catheter_from_neck(
     """Tip = neck centroid + depth·normal (inside the sac); direction = the neck normal tilted.
 
     The tilt is ``angle_deg`` towards the azimuth ``azimuth_deg``, measured in
-    the neck plane from the reference direction ``e1`` of :func:`neck_frame`
-    (``reference``: a unit vector in the plane the wall defines, orientation.anatomy_normal).
+    the neck plane from the reference direction ``e1`` of :func:`neck_frame` (``reference``: the
+    direction the wall defines, orientation.anatomy_normal, as a scene's catheter has it; without it
+    the coordinate axes', which do not turn with the scene).
     """
     neck = sac.neck
     e1, e2, normal = neck_frame(neck.normal, reference)
@@ -209,12 +210,15 @@ def catheter_from_neck(
 
 
 def neck_frame(normal: np.ndarray, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Right-handed unit frame (e1, e2, n): e1 = ``reference`` (a unit vector normal to n), or without it
-    the coordinate axis least aligned with n, projected onto the plane."""
+    """Right-handed unit frame (e1, e2, n): e1 = ``reference`` (not along n; the scene path gives the wall's,
+    orientation.anatomy_normal), or without it the coordinate axis least aligned with n, each projected onto
+    the plane."""
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     if reference is not None:
         e1 = np.asarray(reference, dtype=np.float64)
+        e1 = e1 - (e1 @ n) * n
+        e1 /= np.linalg.norm(e1)
         return e1, np.cross(n, e1), n
     axis = np.eye(3)[int(np.argmin(np.abs(n)))]
     e1 = axis - (axis @ n) * n
