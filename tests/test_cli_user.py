@@ -653,6 +653,37 @@ def test_a_coil_that_fits_completes_well_below_the_stall_force(tmp_path):
     assert result["push_force_mean_max_uN"] < 0.1 * 100.0 * self_force  # margin ≥ 10×
 
 
+def test_a_straight_coil_in_free_space_completes_instead_of_stalling(tmp_path):
+    """A straight pre-shape (self-deployment force 0 µN) pushed 12 mm into free space: its free part's damping
+    drag (tens of µN) stayed above 100 × 0 µN, so it stalled at once (a physicist's audit); the stall force is
+    at least contact.P0_uN now, and it completes."""
+    points = "\n".join(f"0 0 {0.1 * k:.1f}" for k in range(121))
+    (tmp_path / "straight.txt").write_text(points + "\n")
+    text = """
+[catheter]
+tip = [0.0, 0.0, 0.0]
+direction = [0.0, 0.0, 1.0]
+
+[[coil]]
+shape = "file"
+file = "straight.txt"
+wire_diameter_mm = 0.2921
+loop_diameter_mm = 3.0
+length_mm = 12.0
+
+[simulation]
+push_speed_mm_s = 50.0
+
+[output]
+usd = false
+"""
+    code, out, err = cli(tmp_path, "run", str(scene(tmp_path, text, name="straight.toml")), "-o", "out")
+    assert code == 0, err
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["status"] == "completed" and result["stored_energy_nJ"] < 1e-6
+    assert 0.0 < result["push_force_mean_max_uN"] < 1000.0  # the drag, below P0
+
+
 def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):
     path = scene(tmp_path, **{"tip = [0.0, 0.0, -1.45]": "tip = [0.0, 0.0, -2.0]"})
     code, _, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "never")

@@ -95,8 +95,10 @@ class Member:
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
         self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
+        # (at least contact.P0_uN, one node patch pressed to zero clearance: a coil with little or no pre-shape
+        # draws itself out with ~0 µN, and the damping drag of its free part alone stalled it)
         self.stall_force_uN = (sim.stall_force_uN if sim.stall_force_uN is not None
-                               else sim.stall_force_ratio * self.self_deployment_force_uN)
+                               else max(sim.stall_force_ratio * self.self_deployment_force_uN, scene.contact.P0_uN))
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -465,7 +467,7 @@ class Ensemble:
             return None
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
-                 f"{member.self_deployment_force_uN:.4g} µN = {member.stall_force_uN:.4g} µN")
+                 f"{member.self_deployment_force_uN:.4g} µN, at least contact.P0_uN, = {member.stall_force_uN:.4g} µN")
         return (f"stalled: {where()}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")
