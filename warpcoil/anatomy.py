@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from .model import default_director
-from .orientation import anatomy_normal, turned
+from .orientation import anatomy_normal, tip_axis, turned
 from .sac import (NeckError, Sac, catheter_from_neck, in_other_piece, neck_from_contour, neck_from_plane,
                   sac_from_neck, side_in_doubt)
 from .settings import CatheterSpec, Scene
@@ -39,11 +39,9 @@ class Anatomy:
     def roll_reference(self) -> np.ndarray | None:
         """The direction normal to the catheter at its tip from which the coil's roll about it is counted
         (unit): the one the wall defines (orientation.anatomy_normal: it turns with the scene), turned by
-        ``catheter.roll_deg``; None (the model's default roll) where the wall defines none and roll_deg is 0."""
-        line = self.catheter.centerline_mm
-        axis = np.asarray(self.catheter.direction if line is None else np.subtract(line[-1], line[-2]),
-                          dtype=np.float64)  # (at the tip: a centerline's last piece)
-        axis = axis / np.linalg.norm(axis)
+        ``catheter.roll_deg``; None (the model's default roll) where the wall defines none and roll_deg is 0.
+        (A curved catheter's roll is the least-energy one: catheter_roll.packed_rolls.)"""
+        axis = tip_axis(self.catheter)
         wall = self.wall
         reference = anatomy_normal(axis, None if wall is None else wall.vertices_mm,
                                    None if wall is None else wall.faces, np.asarray(self.catheter.tip_mm))

@@ -33,6 +33,7 @@ from .preshape import PreshapeError
 from .scene import check_built_scene
 from .settings import Scene, resolve_integrator
 from .solver import Control, Stepper
+from .catheter_roll import packed_rolls
 from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
@@ -192,7 +193,7 @@ class Ensemble:
                                   allow_unstable_dt=sims[0].allow_unstable_dt, **self._solver_options)
         self.scheme = dict(self.solver.scheme)  # the push's (result.json: settling and step halving change θ)
         self.control = Control.create(self.model, active_coil=0, push_speed_mm_s=[s.push_speed_mm_s for s in sims])
-        rolls = [a.roll_reference() for a in self.anatomies]  # (each coil's roll: the wall's, turned with it)
+        rolls = packed_rolls(self.model, self.solver, self.anatomies, COIL_GAP_MM)  # (the wall's, or a bend's least)
         self.stepper = Stepper(self.solver, packed_state(self.model, gap_mm=COIL_GAP_MM, roll_references=rolls),
                                self.control, chunk=steps[0][2])
         for module in self.solver.kernel_modules:  # hashed and loaded (from the kernel cache) with the solver,

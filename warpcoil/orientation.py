@@ -63,6 +63,13 @@ def anatomy_normal(axis: np.ndarray, vertices_mm: np.ndarray | None, faces: np.n
     return direction
 
 
+def tip_axis(catheter) -> np.ndarray:
+    """A catheter's unit axis at its tip (a centerline's last piece, else its direction)."""
+    line = catheter.centerline_mm
+    axis = np.asarray(catheter.direction if line is None else np.subtract(line[-1], line[-2]), dtype=np.float64)
+    return axis / np.linalg.norm(axis)
+
+
 def turned(direction: np.ndarray, axis: np.ndarray, angle_deg: float) -> np.ndarray:
     """``direction`` turned by ``angle_deg`` about the unit ``axis`` (right-handed)."""
     a = np.radians(angle_deg)
