@@ -225,7 +225,10 @@ def test_cli_runs_an_assisted_scene_and_reports_the_device(tmp_path, device):
     if device == "balloon":
         inflation = [f for _, f in result["device"]["inflation_over_time"]]
         assert inflation[0] == 1.0 and inflation[-1] == 0.0  # deflated before the run ended
-        assert result["device"]["deflation_started_s"] is not None
+        start = result["device"]["deflation_started_s"]
+        assert start is not None
+        for time_s, value in result["device"]["inflation_over_time"]:  # each frame its own time's inflation
+            assert value == pytest.approx(min(1.0, max(0.0, 1.0 - (time_s - start) / 0.02)), abs=1e-9), time_s
 
 
 def test_the_balloon_deflates_with_the_clock_not_the_frames(tmp_path):

@@ -595,6 +595,8 @@ class Ensemble:
                     member.detach_steps += (member.detach_level - 1) * self.stepper.chunk
                 member.detach_level = 1
                 note_samples(member, snap)
+                if member.balloon is not None and member.deflate_from_s is not None:  # (the frame's own time's value)
+                    member.inflation = deflation(member.balloon, snap.time_s, member.deflate_from_s)
                 frame = measure_frame(self.model, self.solver, member, snap, energies, tuple(p[member.world] for p in push))
                 self._record(member, frame, on_frame)
                 self._advance_member(member, frame, started, snap)
