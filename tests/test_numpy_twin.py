@@ -5,21 +5,14 @@ steps, with the catheter, coil–coil contact and the wall.
 Energies are compared relative to the total energy (a component can be ~1e-29,
 pure rounding, when the state has none of it)."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 from test_contact import crossing_pair
 import pytest
 
 import warpcoil as wc
 
-ROOT = str(Path(__file__).resolve().parents[1])
-if ROOT not in sys.path:  # benchmarks/ is not part of the installed package
-    sys.path.insert(0, ROOT)
-
-from benchmarks.numpy_twin import NumpyTwin, contact_force_magnitude  # noqa: E402
-from warpcoil.kernels import contact  # noqa: E402
+from benchmarks.numpy_twin import NumpyTwin, contact_force_magnitude  # (the checkout's root: conftest.py)
+from warpcoil.kernels import contact
 from warpcoil.wall import sphere_wall  # noqa: E402
 
 D = 0.2921
