@@ -38,6 +38,7 @@ from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
+STALL_DRAG_FACTOR = 2.0  # the stall force is at least this × the coils' damping drag at the push speed
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
 
@@ -96,10 +97,12 @@ class Member:
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
         self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
-        # (at least contact.P0_uN, one node patch pressed to zero clearance: a coil with little or no pre-shape
-        # draws itself out with ~0 µN, and the damping drag of its free part alone stalled it)
+        # (at least STALL_DRAG_FACTOR × the damping drag of all its coils moving at the push speed: a coil with
+        # little or no pre-shape draws itself out with ~0 µN, and the drag of its free part alone stalled it)
+        drag_uN = (sim.damping_uN_per_mm * sim.mass_scale * float(self.coil_lengths_mm.sum())
+                   * (1.0 - math.exp(-sim.push_speed_mm_s / sim.damping_speed_mm_s)))
         self.stall_force_uN = (sim.stall_force_uN if sim.stall_force_uN is not None
-                               else max(sim.stall_force_ratio * self.self_deployment_force_uN, scene.contact.P0_uN))
+                               else max(sim.stall_force_ratio * self.self_deployment_force_uN, STALL_DRAG_FACTOR * drag_uN))
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -468,7 +471,8 @@ class Ensemble:
             return None
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
-                 f"{member.self_deployment_force_uN:.4g} µN, at least contact.P0_uN, = {member.stall_force_uN:.4g} µN")
+                 f"{member.self_deployment_force_uN:.4g} µN, at least {STALL_DRAG_FACTOR:g} × the coils' damping drag at "
+                 f"the push speed, = {member.stall_force_uN:.4g} µN")
         return (f"stalled: {where()}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")
