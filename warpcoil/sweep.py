@@ -300,8 +300,10 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         return
     with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
         cluster = LocalCluster(n_workers=workers or default_workers(device), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR,  # no dashboard; its health
+                               dashboard_address=None, silence_logs=logging.CRITICAL,  # no dashboard; its health
                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})  # routes on a free port
+        # (CRITICAL: a worker busy compiling kernels misses a heartbeat, which distributed logs as an ERROR with
+        # a traceback on the user's terminal though the sweep goes on; a member's own failure reaches the client)
     try:
         with Client(cluster) as client:
             yield client
