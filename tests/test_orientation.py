@@ -178,3 +178,26 @@ def test_a_curved_catheter_packs_the_coil_at_its_least_energy_roll():
     assert stored[0.0] == pytest.approx(16607.0, rel=0.01)
     assert stored[0.0] < stored[90.0] < stored[180.0]
     assert stored[180.0] == pytest.approx(22508.0, rel=0.01)
+
+
+def test_a_plans_explicit_perturbations_turn_with_the_scene(tmp_path):
+    """plan.perturbed_keys for an explicit catheter counts its azimuths from the direction the wall defines
+    (plan.explicit_reference): the turned scene's perturbed directions are the turned ones (they were
+    counted from the coordinate axes, a differently phased set)."""
+    import trimesh
+
+    from warpcoil.plan import explicit_reference, perturbed_keys
+    from warpcoil.settings import WallSpec
+
+    wall, turn = sac(), rotation(11)
+    tip, direction = np.array(catheter_tip(wall, 2)), np.array([0.0, 0.0, 1.0])
+    sets = []
+    for vertices, t, d, name in ((wall.vertices_mm, tip, direction, "a.stl"),
+                                 (wall.vertices_mm @ turn.T, turn @ tip, turn @ direction, "b.stl")):
+        trimesh.Trimesh(vertices, wall.faces, process=False).export(tmp_path / name)
+        scene = Scene(coils=(CoilSpec(),), wall=WallSpec(mesh=tmp_path / name),
+                      catheter=CatheterSpec(tip_mm=tuple(map(float, t)), direction=tuple(map(float, d))))
+        keys = perturbed_keys(scene.catheter, 4, 1.0, explicit_reference(scene))
+        sets.append(np.array([k["catheter.direction"] for k in keys]))
+    plain, turned = sets
+    assert np.abs(plain @ turn.T - turned).max() < 1e-6  # (the STL's float32 vertices)

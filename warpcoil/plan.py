@@ -27,9 +27,11 @@ import numpy as np
 from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder import outputs
 from .recorder.atomic import write_text_atomic
+from .orientation import anatomy_normal
 from .sac import neck_frame
 from .scene import SceneError, load_scene
 from .sweep import MAX_MEMBERS, Member, check_varies, run_members
+from .wall import load_wall
 
 DEVICES = ("none", "balloon", "stent")
 PLAN_KEYS = ("perturbations", "perturbation_deg", "top", "balloon", "stent", "option")
@@ -179,22 +181,26 @@ def _option(source: Path, document: dict, devices: dict, raw: dict, where: str, 
     return Option(name.strip(), device, keys)
 
 
-def tilted(direction: np.ndarray, angle_deg: float, toward_deg: float) -> np.ndarray:
+def tilted(direction: np.ndarray, angle_deg: float, toward_deg: float,
+           reference: np.ndarray | None = None) -> np.ndarray:
     """``direction`` (unit) tilted by ``angle_deg`` towards the azimuth ``toward_deg`` about it
-    (measured from e1 of its :func:`~warpcoil.sac.neck_frame`)."""
-    u, v, d = neck_frame(direction)
+    (measured from e1 of its :func:`~warpcoil.sac.neck_frame`: ``reference``, the direction the wall
+    defines, so the perturbations turn with the scene; without it the coordinate axes')."""
+    u, v, d = neck_frame(direction, reference)
     a, t = math.radians(angle_deg), math.radians(toward_deg)
     return math.cos(a) * d + math.sin(a) * (math.cos(t) * u + math.sin(t) * v)
 
 
-def perturbed_keys(catheter, count: int, angle_deg: float) -> list[dict]:
+def perturbed_keys(catheter, count: int, angle_deg: float, reference: np.ndarray | None = None) -> list[dict]:
     """``count`` catheter settings: the axis tilted by ``angle_deg`` towards evenly spaced
     azimuths about its nominal direction. ``placement = "neck"``: as angle_deg/azimuth_deg
-    (the nominal axis in the neck frame (e1, e2, n) is (sin a cos φ, sin a sin φ, cos a));
-    explicit: as the direction."""
+    (the nominal axis in the neck frame (e1, e2, n) is (sin a cos φ, sin a sin φ, cos a), which
+    turns with the wall); explicit: as the direction, the azimuths counted from ``reference`` (the
+    direction the wall defines normal to it: orientation.anatomy_normal; None: the coordinate axes')."""
     towards = [360.0 * k / count for k in range(count)]
     if catheter.placement != "neck":
-        return [{"catheter.direction": [round(float(x), 12) for x in tilted(catheter.direction, angle_deg, t)]}
+        return [{"catheter.direction": [round(float(x), 12)
+                                        for x in tilted(catheter.direction, angle_deg, t, reference)]}
                 for t in towards]
     a, phi = math.radians(catheter.angle_deg), math.radians(catheter.azimuth_deg)
     nominal = np.array([math.sin(a) * math.cos(phi), math.sin(a) * math.sin(phi), math.cos(a)])
@@ -206,6 +212,16 @@ def perturbed_keys(catheter, count: int, angle_deg: float) -> list[dict]:
     return keys
 
 
+def explicit_reference(scene) -> np.ndarray | None:
+    """For an explicit catheter in a wall, the direction normal to its axis the wall defines
+    (orientation.anatomy_normal), from which the perturbations' azimuths are counted; else None."""
+    if scene.catheter.placement == "neck" or scene.wall is None:
+        return None
+    wall = load_wall(scene.wall)
+    axis = np.asarray(scene.catheter.direction, dtype=np.float64)
+    return anatomy_normal(axis / np.linalg.norm(axis), wall.vertices_mm, wall.faces, np.asarray(scene.catheter.tip_mm))
+
+
 def plan_members(scene_path: Path, plan: Plan) -> tuple[list[Member], list[int]]:
     """The sweep's members (option × perturbation) and each member's option index (at most a
     sweep's MAX_MEMBERS, else PlanError)."""
@@ -215,8 +231,9 @@ def plan_members(scene_path: Path, plan: Plan) -> tuple[list[Member], list[int]]
                         "keys or --vary) or fewer perturbations")
     todo, owner = [], []
     for k, option in enumerate(plan.options):
-        catheter = load_scene(scene_path, option.keys).catheter
-        for p, tip in enumerate(perturbed_keys(catheter, plan.perturbations, plan.perturbation_deg)):
+        scene = load_scene(scene_path, option.keys)
+        for p, tip in enumerate(perturbed_keys(scene.catheter, plan.perturbations, plan.perturbation_deg,
+                                               explicit_reference(scene))):
             todo.append(Member(len(todo), {**option.keys, **tip}, label=f"{option.name} (tip {p + 1})"))
             owner.append(k)
     return todo, owner
