@@ -201,3 +201,19 @@ def test_a_plans_explicit_perturbations_turn_with_the_scene(tmp_path):
         sets.append(np.array([k["catheter.direction"] for k in keys]))
     plain, turned = sets
     assert np.abs(plain @ turn.T - turned).max() < 1e-6  # (the STL's float32 vertices)
+
+
+def test_a_coil_behind_another_in_a_curved_catheter_rolls_with_it():
+    """Two coils (5 and 20 mm) through the quarter arc: the second one's first director is the roll carried back
+    along the catheter, so roll_deg −8° and −4° turn it by 4° (projecting the tip's direction onto its first edge,
+    which lies round the bend, flipped it by ~140°)."""
+    directors = []
+    for roll in (-8.0, -4.0):
+        catheter = CatheterSpec(tip_mm=(0.0, 0.0, 0.0), centerline_mm=quarter_arc(), roll_deg=roll)
+        coils = tuple(CoilSpec(name=f"c{k}", wire_diameter_mm=D, length_mm=length, loop_diameter_mm=3.0, shape="helix",
+                               pitch_mm=0.6) for k, length in enumerate((5.0, 20.0)))
+        ensemble = Ensemble([Scene(coils=coils, catheter=catheter, output=OutputSettings(usd=False))])
+        first = int(ensemble.model.coil_first[1])
+        directors.append(ensemble.stepper.state.m1.numpy()[first])
+    turned_deg = np.degrees(np.arccos(np.clip(directors[0] @ directors[1], -1.0, 1.0)))
+    assert turned_deg == pytest.approx(4.0, abs=0.5)

@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 
 import dask
+import distributed  # noqa: F401  (its config defaults loaded before any dask.config.set here: leaving one that
+#                                  created the "distributed" table deleted the defaults with it)
 import pytest
 import trimesh
 from pxr import Usd, UsdGeom
@@ -218,6 +220,20 @@ def test_a_killed_workers_task_is_retried(tmp_path, single_runs, monkeypatch):
     assert marker.read_text().startswith("warpcoil-ensemble")  # the first try's worker died
     assert [m.result["status"] for m in todo] == ["completed", "completed"]
     _assert_equals_single_runs(tmp_path / "out", single_runs)
+
+
+def test_a_worker_that_dies_without_a_retry_is_said_in_plain_words(tmp_path, monkeypatch):
+    """No retry left (retries 0): the member is not run, and the sweep says a worker process died and what
+    usually kills one (the cluster's own log is silenced, and Dask's KilledWorker names only the task)."""
+    from warpcoil.sweep import SweepIncomplete
+
+    monkeypatch.setenv("WARPCOIL_TEST_KILL_MARKER", str(tmp_path / "killed"))
+    with dask.config.set({"distributed.worker.preload": [str(Path(__file__).with_name("dask_kill_once.py"))]}):
+        with pytest.raises(SweepIncomplete) as refused:
+            run_sweep(_scene(tmp_path), [("simulation.push_speed_mm_s", list(SPEEDS))], tmp_path / "out",
+                      workers=1, retries=0)
+    said = str(refused.value)
+    assert "a Dask worker process died running it 1 time(s) (out of memory" in said and "--resume" in said
 
 
 def test_scheduler_sweep_on_a_separately_started_cluster(tmp_path, single_runs):

@@ -38,7 +38,7 @@ from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
-STALL_DRAG_FACTOR = 2.0  # the stall force is at least this × the coils' damping drag at the push speed
+STALL_DRAG_FACTOR = 2.0  # the stall force is at least this × the pushed coil's damping drag at the push speed
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
 
@@ -97,12 +97,13 @@ class Member:
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
         self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
-        # (at least STALL_DRAG_FACTOR × the damping drag of all its coils moving at the push speed: a coil with
-        # little or no pre-shape draws itself out with ~0 µN, and the drag of its free part alone stalled it)
-        drag_uN = (sim.damping_uN_per_mm * sim.mass_scale * float(self.coil_lengths_mm.sum())
+        # (at least STALL_DRAG_FACTOR × the damping drag of the pushed coil moving at the push speed, per coil: a
+        # coil with little or no pre-shape draws itself out with ~0 µN, and the drag of its free part alone stalled it)
+        drag_uN = (sim.damping_uN_per_mm * sim.mass_scale * self.coil_lengths_mm
                    * (1.0 - math.exp(-sim.push_speed_mm_s / sim.damping_speed_mm_s)))
-        self.stall_force_uN = (sim.stall_force_uN if sim.stall_force_uN is not None
-                               else max(sim.stall_force_ratio * self.self_deployment_force_uN, STALL_DRAG_FACTOR * drag_uN))
+        self.stall_forces_uN = (np.full(len(self.coil_lengths_mm), sim.stall_force_uN) if sim.stall_force_uN is not None
+                                else np.maximum(sim.stall_force_ratio * self.self_deployment_force_uN,
+                                                STALL_DRAG_FACTOR * drag_uN))  # per coil, while it is pushed
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
         self.active = -1  # local index of the pushed coil
@@ -462,7 +463,8 @@ class Ensemble:
         if sac and packing > sim.stall_packing:
             return (f"stalled: {where()}: the coil in the sac fills more than stall_packing = {sim.stall_packing:g} of "
                     f"it, denser than coils can pack, so more coil could only pass through coil; {fix}")
-        if frame.push_force_mean_uN <= member.stall_force_uN:
+        stall_force_uN = float(member.stall_forces_uN[k])
+        if frame.push_force_mean_uN <= stall_force_uN:
             member.resisted_since_s = None
             return None
         if member.resisted_since_s is None:
@@ -471,8 +473,8 @@ class Ensemble:
             return None
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
-                 f"{member.self_deployment_force_uN:.4g} µN, at least {STALL_DRAG_FACTOR:g} × the coils' damping drag at "
-                 f"the push speed, = {member.stall_force_uN:.4g} µN")
+                 f"{member.self_deployment_force_uN:.4g} µN, at least {STALL_DRAG_FACTOR:g} × the pushed coil's damping drag at "
+                 f"the push speed, = {stall_force_uN:.4g} µN")
         return (f"stalled: {where()}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")

@@ -294,7 +294,7 @@ class Model:
             for c, f in enumerate(self.coil_first):  # a clamped coil starts untwisted at its clamp
                 if np.any(clamp_t[f] != 0.0) and np.any(clamp_d[f] != 0.0):
                     t0 = _unit(positions[f + 1] - positions[f])[None]
-                    first_directors[c] = _transport(clamp_d[f][None], clamp_t[f][None], t0)[0]
+                    first_directors[c] = transport(clamp_d[f][None], clamp_t[f][None], t0)[0]
         m1 = wp.zeros(self.node_count, dtype=wp.vec3d, device=self.device)
         wp.launch(integrate.transported_directors, self.coil_count, device=self.device, inputs=[
             self.array(positions, wp.vec3d), self.array(self.coil_first, wp.int32),
@@ -306,7 +306,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _transport(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def transport(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rows of ``v`` carried by the smallest rotation from unit ``a`` to unit ``b``
     (rod.py ``transport``), made unit and normal to ``b``."""
     k = np.cross(a, b)
@@ -564,7 +564,7 @@ def finalize_ensemble(builders: list[ModelBuilder], device: str | wp.context.Dev
         t0 = model.rest_positions[clamped + 1] - model.rest_positions[clamped]
         t0 /= np.linalg.norm(t0, axis=1)[:, None]
         director = np.zeros((n, 3))
-        director[clamped] = _transport(rest_m1[clamped], t0, clamp_t[clamped])
+        director[clamped] = transport(rest_m1[clamped], t0, clamp_t[clamped])
         model.clamp_director.assign(director)
     wp.launch(elastic.rest_strains, n, device=device, inputs=[
         model.array(model.rest_positions, wp.vec3d), model.array(rest_m1, wp.vec3d), model.has_next,

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from .kernels import integrate
-from .model import Model, default_director
+from .model import Model, default_director, transport
 from .orientation import normal_part
 
 ALL_OUT_MM = 1.0e9  # a pusher advance that puts every node past the tip (free space)
@@ -68,8 +68,10 @@ def packed_state(model: Model, gap_mm: float = 1.0, roll_references: list[np.nda
     the first coil's distal node at the tip (in each world, in its own
     catheter); directors carried along the catheter so each edge keeps its
     pre-shape frame orientation (MODEL.md, Step 2). ``roll_references`` (per world, a unit
-    vector or None): each coil's first director is that vector's part normal to its first edge
-    (the coil's roll about the catheter; anatomy.roll_reference), else the model's default."""
+    vector normal to the catheter at its tip, or None): each coil's first director is that vector
+    carried back along the catheter to the coil's first edge (:func:`carried_back`), its part normal
+    to that edge (the coil's roll about the catheter; catheter_roll.packed_rolls), else the model's
+    default."""
     lengths = model.host("arc_s")[model.coil_last]
     advance = np.zeros(model.coil_count)
     for w in range(model.world_count):
@@ -85,14 +87,36 @@ def packed_state(model: Model, gap_mm: float = 1.0, roll_references: list[np.nda
     if roll_references is not None and any(r is not None for r in roll_references):
         first = []
         coil_world = model.host("coil_world")
+        path, path_first, path_count = (model.host(k) for k in ("catheter_path", "catheter_first", "catheter_count"))
         for c, f in enumerate(model.coil_first):
             tangent = positions[f + 1] - positions[f]
             tangent = tangent / np.linalg.norm(tangent)
-            reference = roll_references[int(coil_world[c])]
+            w = int(coil_world[c])
+            reference = roll_references[w]
+            if reference is not None:  # (a coil behind another: its depth in the catheter, −advance)
+                start = int(path_first[w])
+                reference = carried_back(reference, path[start:start + int(path_count[w])], -float(advance[c]))
             director = None if reference is None else normal_part(reference, tangent)
             first.append(default_director(tangent) if director is None else director)
         first = np.stack(first)
     return _state(model, positions, model.directors_along(positions, first), advance)
+
+
+def carried_back(reference: np.ndarray, path_mm: np.ndarray, depth_mm: float) -> np.ndarray:
+    """``reference`` (normal to the catheter at its tip) carried by parallel transport back along the catheter
+    centerline ``path_mm`` (proximal → tip, as kernels/integrate.catheter_point reads it) to ``depth_mm``
+    behind the tip: unchanged along a straight catheter."""
+    d = np.asarray(reference, dtype=np.float64)
+    k = len(path_mm) - 1
+    ahead = path_mm[k] - path_mm[k - 1]
+    remaining = depth_mm - float(np.linalg.norm(ahead))
+    while k > 1 and remaining > 0.0:
+        k -= 1
+        behind = path_mm[k] - path_mm[k - 1]
+        d = transport(d[None], ahead[None] / np.linalg.norm(ahead), behind[None] / np.linalg.norm(behind))[0]
+        ahead = behind
+        remaining -= float(np.linalg.norm(behind))
+    return d
 
 
 def new_state_like(model: Model) -> State:

@@ -440,8 +440,12 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                 future.release()
     if failures:
         missing = sorted(k for batch, _ in failures for k in batch)
+        why = failures[0][1]
+        if type(why).__name__ == "KilledWorker":  # (its own text names only the task; the worker's log is silenced)
+            why = (f"a Dask worker process died running it {retries + 1} time(s) (out of memory, or a crash in native "
+                   "code; fewer --workers leave each more memory)")
         raise SweepIncomplete(f"{len(missing)} member(s) not run ({', '.join(todo[k].name for k in missing)}): "
-                              f"{failures[0][1]}; the others are written; rerun with --resume to finish")
+                              f"{why}; the others are written; rerun with --resume to finish")
     elapsed = time.perf_counter() - started
     statuses = [m.result["status"] for m in todo]
     resumed = sum(m.resumed for m in todo)
