@@ -192,9 +192,9 @@ class SimulationSettings:
       force with which a coil draws itself out into free space. Measured: a
       completed patient case peaks at 5×, a 5 mm helix pushed past a stent under
       the catheter tip completes at 56×, a loop 10× the sac holds 165–280×. The
-      stall force is at least twice the damping drag of all the coils moving at the
-      push speed (a coil with little or no pre-shape has a self-deployment force
-      near 0: its free part's damping drag alone stalled it).
+      stall force is at least twice the pushed coil's own damping drag at the push
+      speed (a coil with little or no pre-shape has a self-deployment force near 0:
+      its free part's damping drag alone stalled it).
     * stall_force_uN: optional (None: off): an absolute push force (µN) used
       instead of stall_force_ratio × the self-deployment force.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
