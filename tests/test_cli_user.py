@@ -615,7 +615,7 @@ def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force
     self_force = result["stored_energy_nJ"] / result["coil_length_mm"]  # nJ/mm = µN
     stall_force = 100.0 * self_force
     assert result["status"] == "jammed" and "stall_force_ratio = 100 ×" in result["reason"], result["reason"]
-    assert (f"self-deployment force {self_force:.4g} µN, at least 2 × the coils' damping drag at the push speed, "
+    assert (f"self-deployment force {self_force:.4g} µN, at least 2 × the pushed coil's damping drag at the push speed, "
             f"= {stall_force:.4g} µN") in result["reason"]
     assert out.startswith("jammed: stalled") and "stall_force_ratio" in out
     rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
