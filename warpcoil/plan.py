@@ -27,7 +27,7 @@ import numpy as np
 from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder import outputs
 from .recorder.atomic import write_text_atomic
-from .orientation import anatomy_normal
+from .orientation import anatomy_normal, tip_axis
 from .sac import neck_frame
 from .scene import SceneError, load_scene
 from .sweep import MAX_MEMBERS, Member, check_varies, run_members
@@ -218,8 +218,7 @@ def explicit_reference(scene) -> np.ndarray | None:
     if scene.catheter.placement == "neck" or scene.wall is None:
         return None
     wall = load_wall(scene.wall)
-    axis = np.asarray(scene.catheter.direction, dtype=np.float64)
-    return anatomy_normal(axis / np.linalg.norm(axis), wall.vertices_mm, wall.faces, np.asarray(scene.catheter.tip_mm))
+    return anatomy_normal(tip_axis(scene.catheter), wall.vertices_mm, wall.faces, np.asarray(scene.catheter.tip_mm))
 
 
 def plan_members(scene_path: Path, plan: Plan) -> tuple[list[Member], list[int]]:
