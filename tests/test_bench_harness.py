@@ -1,13 +1,14 @@
 """The benchmarks that time a run from inside (``benchmarks.outside_steps``,
 ``benchmarks.implicit_cost.timed_run``) wrap ``Stepper.run_chunk``: the wrapped run is the
 plain run (the same status and steps; a wrapper out of step with run_chunk's signature raised
-TypeError at the first chunk) and its parts add up to its whole."""
+TypeError at the first chunk) and its parts add up to its whole. ``benchmarks.tight_sac``'s
+reference run rests in the coil's pre-shape."""
 
 from dataclasses import replace
 
 import pytest
 
-from benchmarks import implicit_cost, outside_steps
+from benchmarks import implicit_cost, outside_steps, tight_sac
 from warpcoil.deploy import Deployment
 from warpcoil.scene import load_scene
 
@@ -41,3 +42,14 @@ def test_implicit_cost_timed_run_times_the_plain_run(scene_path):
     assert timed["steps"] == reference.steps
     assert 0.0 < timed["steps_s"] <= timed["cpu_s"]
     assert timed["frames_s"] == pytest.approx(timed["cpu_s"] - timed["steps_s"])
+
+
+def test_tight_sac_reference_rests_in_the_preshape():
+    """``benchmarks.tight_sac``'s premise: the coil's pre-shape fits the 3.2 mm sphere without
+    touching itself (0 nJ), and the reference (symplectic) step brings a perturbed deployment
+    to rest in it: no bend or twist left (< 0.1 nJ), no coil contact."""
+    found = tight_sac.main(scheme="reference", runs=1)
+    run = found["runs"][0]
+    assert run["status"] == "completed"
+    assert found["in_preshape"] == 1 and run["rest_bend_twist_nJ"] < 0.1
+    assert run["coil_contacts"] == 0
