@@ -305,6 +305,31 @@ def test_an_output_folder_that_is_not_writable_is_one_line(tmp_path):
     assert code == 2 and "is not writable" in one_line(err)
 
 
+def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path):
+    """Paths that pass the permission check as root but cannot be made: a name over the file
+    system's limit, and (where the machine has one) a folder in /proc; no folder is left."""
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "x" * 300)
+    assert code == 2 and "cannot be used (File name too long)" in one_line(err)
+    if Path("/proc/self").exists():
+        code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "/proc/warpcoil_out")
+        assert code == 2 and "/proc/warpcoil_out cannot be created" in one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.err", "log.out", "tiny.toml"]
+
+
+def test_a_frame_longer_than_the_time_limit_is_refused(tmp_path):
+    """The time limit is checked at frame ends: a frame longer than max_time_s (given, or the push
+    time + 2 s) would run past it and end `completed` where the limit should stop it: exit 2, the
+    key and a fix, no folder."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\nmax_time_s = 0.02"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "long", "--frame-interval", "0.05")
+    line = one_line(err)
+    assert code == 2 and "simulation.frame_interval_s = 0.05 s is longer than max_time_s = 0.02 s" in line
+    assert "fix: frame_interval_s = 0.002 or less" in line
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "long", "--frame-interval", "100")
+    assert code == 2 and "its default time limit, the push time + 2 s" in one_line(err)
+    assert not (tmp_path / "long").exists()
+
+
 def stepping_run(tmp_path: Path, folder: str):
     """A 20 mm run into ``folder``, returned once it steps (its first progress line): (process, stdout, stderr)."""
     path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 20.0", "push_speed_mm_s = 100.0":

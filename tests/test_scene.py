@@ -204,6 +204,7 @@ ERRORS = {
     "bool for number": (MINIMAL_COIL + "[contact]\nP0_uN = true\n", "contact.P0_uN", "must be a number"),
     "number for bool": (MINIMAL_COIL + "[output]\nusd = 1\n", "output.usd", "true or false"),
     "negative": (with_coil(length_mm="-3.0"), "coil[0].length_mm", "> 0"),
+    "coil in µm": (with_coil(length_mm="60000.0"), "coil[0].length_mm", "more than 20000"),
     "zero": (MINIMAL_COIL + "[simulation]\ndt_s = 0\n", "simulation.dt_s", "> 0"),
     "infinite": (MINIMAL_COIL + "[contact]\nc0_mm = inf\n", "contact.c0_mm", "finite"),
     "nan": (MINIMAL_COIL + "[simulation]\nmass_scale = nan\n", "simulation.mass_scale", "finite"),

@@ -84,6 +84,15 @@ def test_metres_without_units_is_refused(tmp_path: Path) -> None:
     assert "sac_m.stl" in str(caught.value) and "metres" in str(caught.value)
 
 
+@pytest.mark.parametrize("scale, units, fix", [(1.0, "m", 'remove units = "m"'), (1e3, "mm", "micrometres")])
+def test_a_wall_larger_than_any_vessel_is_refused(tmp_path: Path, scale: float, units: str, fix: str) -> None:
+    """A mesh in mm read as metres (a 4 m sac), or one in µm read as mm: refused, naming the fix."""
+    path = export(tmp_path, sphere().apply_scale(scale), "sac_big.stl")
+    with pytest.raises(WallError, match="larger than any vessel") as caught:
+        load(path, units=units)
+    assert "sac_big.stl" in str(caught.value) and fix in str(caught.value)
+
+
 def test_metres_with_units_are_scaled(tmp_path: Path) -> None:
     wall = load(export(tmp_path, sphere().apply_scale(1e-3)), units="m")
     assert wall.volume_mm3 == pytest.approx(sphere().volume, rel=1e-6)

@@ -88,6 +88,12 @@ class Member:
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
         push_time = float(self.coil_lengths_mm.sum() + len(self.coils)) / sim.push_speed_mm_s
         self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
+        if sim.frame_interval_s > self.max_time_s:  # (the limit is checked at frame ends: a longer frame passes it)
+            limit = (f"max_time_s = {self.max_time_s:g} s" if sim.max_time_s is not None
+                     else f"its default time limit, the push time + 2 s = {self.max_time_s:.3g} s")
+            raise SetupError(f"{scene.where}: simulation.frame_interval_s = {sim.frame_interval_s:g} s is longer than "
+                             f"{limit}: frames end where the limit is checked, so the run would go past it; fix: "
+                             f"frame_interval_s = {self.max_time_s / 10.0:.3g} or less (0.01 is the default)")
         self.mass_g = 1.0 / host["inv_mass"][self.nodes]
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)

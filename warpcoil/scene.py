@@ -144,6 +144,7 @@ def _existing_file(value: object, base: Path) -> Path:
     return path
 
 
+MAX_COIL_SEGMENTS = 20_000  # a coil with more (5.8 m at d 0.2921 mm) is a unit mistake; setup cost grows as its square
 CENTERLINE_DIRECTION_TOLERANCE_DEG = 1.0  # a direction given beside a centerline agrees with its last segment
 
 # --- schema ---------------------------------------------------------------------
@@ -291,7 +292,13 @@ class _Reader:
             raise self.error(f"{where}.{key}", f"a loop of {spec.loop_diameter_mm:g} mm is not wider than the coil's "
                              f"wire diameter d = {spec.wire_diameter_mm:g} mm: the coil cannot wind into it",
                              "give a loop_diameter_mm larger than wire_diameter_mm")
-        if round(spec.length_mm / spec.l0) >= 2:
+        segments = round(spec.length_mm / spec.l0)
+        if segments > MAX_COIL_SEGMENTS:
+            raise self.error(f"{where}.length_mm", f"length {spec.length_mm:g} mm holds {segments} segments of "
+                             f"{spec.l0:g} mm, more than {MAX_COIL_SEGMENTS} (the longest coils, ~600 mm, hold ~2 000 at "
+                             "d; setting up a coil grows with the square of its nodes)",
+                             "give length_mm in mm, or a longer segment_length_mm")
+        if segments >= 2:
             return spec
         key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
         given = "segment_length_mm" if "segment_length_mm" in value else "segment_length_mm, by default d"

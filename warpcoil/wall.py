@@ -23,6 +23,7 @@ from .settings import WallSpec
 TRIMESH_SUFFIXES = (".stl", ".obj", ".ply")
 VTK_SUFFIXES = (".vtk", ".vtp")
 MIN_DIAGONAL_MM = 0.5  # a sac with a smaller bounding-box diagonal was written in metres
+MAX_DIAGONAL_MM = 500.0  # a wall (sac and vessels) with a larger one, in mm, was written in mm read as m, or in µm
 
 
 class WallError(ValueError):
@@ -72,14 +73,22 @@ def load_wall(spec: WallSpec) -> WallMesh:
     if spec.units == "m":
         vertices = vertices * 1000.0
         notes.append("scaled from metres to mm")
-    else:
-        diagonal_mm = float(np.linalg.norm(np.ptp(vertices, axis=0)))
-        if diagonal_mm < MIN_DIAGONAL_MM:
-            raise _error(
-                path,
-                f"its bounding-box diagonal is {diagonal_mm:.3g}, too small for a sac in mm: it looks like metres",
-                'set [wall] units = "m" in the scene',
-            )
+    diagonal_mm = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    if spec.units != "m" and diagonal_mm < MIN_DIAGONAL_MM:
+        raise _error(
+            path,
+            f"its bounding-box diagonal is {diagonal_mm:.3g}, too small for a sac in mm: it looks like metres",
+            'set [wall] units = "m" in the scene',
+        )
+    if diagonal_mm > MAX_DIAGONAL_MM:
+        read_as = "read as metres (wall.units = \"m\")" if spec.units == "m" else "in mm"
+        raise _error(
+            path,
+            f"its bounding-box diagonal is {diagonal_mm:.3g} mm {read_as}, larger than any vessel "
+            f"(> {MAX_DIAGONAL_MM:g} mm)",
+            'remove units = "m" from [wall] if the mesh is in mm' if spec.units == "m"
+            else "scale the mesh to mm (it looks like micrometres)",
+        )
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     notes += _clean(mesh)
     notes += _orient(mesh, path)

@@ -35,6 +35,11 @@ class OutputFolderError(ValueError):
 def check_output_path(path: Path, option: str = "-o") -> None:
     """Refuse, before any work, an output path that is a file or cannot be created or written."""
     path = Path(path)
+    try:
+        path.exists()
+    except OSError as error:  # (a name too long)
+        raise OutputFolderError(f"{option} {path}: cannot be used ({error.strerror}); fix: choose another "
+                                "output folder") from None
     if path.exists() and not path.is_dir():
         raise OutputFolderError(f"{option} {path}: is an existing file, not a folder; fix: give a folder path "
                                 f"(it is created if missing), e.g. {option} {path.with_suffix('')}_out")
@@ -45,6 +50,20 @@ def check_output_path(path: Path, option: str = "-o") -> None:
     if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
         raise OutputFolderError(f"{option} {path}: {existing} is not writable; fix: choose a folder you can "
                                 "write to, or change its permissions")
+    if existing is not None and existing != path:  # (root passes os.access anywhere: try the first folder to create)
+        chain = [path, *path.parents]
+        _probe_folder(chain[chain.index(existing) - 1], path, option)
+
+
+def _probe_folder(folder: Path, path: Path, option: str) -> None:
+    """Create ``folder`` (missing, the first of ``path``'s) and remove it again; refuse where that fails
+    (a pseudo file system such as /proc, a name too long, a read-only mount)."""
+    try:
+        folder.mkdir()
+        folder.rmdir()
+    except OSError as error:
+        raise OutputFolderError(f"{option} {path}: {folder} cannot be created ({error.strerror}); fix: choose "
+                                "another output folder") from None
 
 
 def _pid_alive(pid: int) -> bool:
@@ -104,7 +123,11 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
     path = Path(path)
     check_output_path(path, option)
     created = not path.exists()
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputFolderError(f"{option} {path}: cannot be created ({error.strerror}); fix: choose another "
+                                "output folder") from None
     try:
         lock = _take_lock(path, option)
     except OutputFolderError:
