@@ -355,6 +355,33 @@ def test_ctrl_c_or_a_schedulers_sigterm_ends_the_run_as_interrupted(tmp_path, st
     assert (folder / "deployment.usdc").exists() and leftovers(folder) == []
 
 
+def test_ctrl_c_while_the_outputs_are_written_waits_for_them(tmp_path):
+    """The program, with its outputs' writer sending itself a Ctrl-C first (a user's Ctrl-C after the
+    last frame): the run's outputs are written all the same, its status and exit code are its own,
+    and it says it was interrupted."""
+    path = scene(tmp_path)
+    program = ("import os, signal, sys\n"
+               "from warpcoil.recorder import outputs\n"
+               "write_run = outputs.write_run\n"
+               "def interrupted(*args, **kwargs):\n"
+               "    os.kill(os.getpid(), signal.SIGINT)\n"
+               "    return write_run(*args, **kwargs)\n"
+               "outputs.write_run = interrupted\n"
+               "from warpcoil.cli import main\n"
+               f"sys.exit(main(['run', {str(path)!r}, '-o', 'late']))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env.setdefault("WARPCOIL_KERNEL_CACHE", str(ROOT / ".warp_cache"))
+    with (tmp_path / "late.out").open("w") as stdout, (tmp_path / "late.err").open("w") as stderr:
+        code = subprocess.run([sys.executable, "-c", program], stdout=stdout, stderr=stderr, cwd=tmp_path,
+                              env=env, timeout=600).returncode
+    err = (tmp_path / "late.err").read_text()
+    result = json.loads((tmp_path / "late" / "result.json").read_text())
+    assert code == 0 and result["status"] == "completed", err
+    assert "interrupted after the last frame: the outputs were written first" in err and "Traceback" not in err
+    assert (tmp_path / "late.out").read_text().startswith("completed: ")
+    assert (tmp_path / "late" / "centerline.csv").exists() and leftovers(tmp_path / "late") == []
+
+
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_ctrl_c_while_the_command_starts_is_one_line_not_a_traceback(tmp_path, stop):
     """The installed command (its entry point warpcoil_cli.main, as the console script calls it) stopped

@@ -99,6 +99,7 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     animation as they come, then the outputs, all in a hidden folder moved into ``out``
     at the end (recorder.folder.staged_outputs: a killed run leaves none); the exit code
     of its status."""
+    from .deploy import stop_between_frames
     from .progress import Progress
     from .recorder import outputs
     from .recorder.folder import staged_outputs
@@ -123,10 +124,13 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
 
         result = deployment.run(on_frame)
         progress.close()
-        for recorder in recorders:
-            recorder.close()
-        outputs.write_run(stage, scene, deployment.anatomy.wall, result,
-                          {"scene": str(scene.source), "warnings": warnings}, sac=deployment.anatomy.sac)
+        with stop_between_frames() as late:  # the run has ended: a first Ctrl-C waits for its outputs
+            for recorder in recorders:
+                recorder.close()
+            outputs.write_run(stage, scene, deployment.anatomy.wall, result,
+                              {"scene": str(scene.source), "warnings": warnings}, sac=deployment.anatomy.sac)
+    if late[0]:
+        print("warpcoil run: interrupted after the last frame: the outputs were written first", file=sys.stderr)
     print(f"{result.status}: {result.reason}")
     density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "

@@ -539,7 +539,7 @@ class Ensemble:
             raise RuntimeError("this deployment has run: its state is at the end of that run, and its results "
                                "are kept; build a new Deployment (or Ensemble) of the scene to run it again")
         self._ran = True
-        with _stop_on_interrupt() as interrupted:
+        with stop_between_frames() as interrupted:
             return self._run(on_frame, interrupted)
 
     def _interrupt(self, members: list[Member], started: float) -> None:
@@ -671,10 +671,11 @@ def stop_at_once() -> Iterator[None]:
 
 
 @contextmanager
-def _stop_on_interrupt() -> Iterator[list[bool]]:
+def stop_between_frames() -> Iterator[list[bool]]:
     """While a run steps, the first Ctrl-C (SIGINT) or SIGTERM only sets the yielded
     flag, which the run checks between frames (its outputs are then written, status
-    interrupted); a second one interrupts at once. Outside the main thread (where no
+    interrupted); a second one interrupts at once. (`run` holds it too while it writes the
+    outputs of a run that has ended.) Outside the main thread (where no
     handler can be set), and within stop_at_once, nothing changes."""
     flag = [False]
     if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is _raise_at_once:
