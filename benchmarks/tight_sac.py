@@ -1,7 +1,7 @@
 """Where a coil comes to rest in a tight sac, by scheme and frame interval: a 30 mm
 spherical coil of 2.5 mm loops (d 0.2921 mm, segments of d) pushed at 100 mm/s into a
 3.2 mm sphere, whose pre-shape fits it without touching itself, from catheters tilted
-3° at ``runs`` azimuths (tip offset 0.05 mm). A run "in the pre-shape" rests with bend +
+3° at ``runs`` azimuths (tip offset 0.05 mm). A run "in the pre-shape" completes and rests with bend +
 twist energy below 10 nJ; the others rest tangled (155–201 nJ, 18–19 coil contacts) (docs/FORMULATION.md, "the free release
 that comes to rest tangled": in a sac too).
 
@@ -72,7 +72,7 @@ def main(scheme: str = "gated_chord", frame_interval_s: float = 0.01, runs: int 
                          "rest_bend_twist_nJ": last.bend_nJ + last.twist_nJ, "coil_contacts": last.coil_contacts})
             print(f"run {k}: {result.status}, {result.steps} steps, bend + twist {rows[-1]['rest_bend_twist_nJ']:.1f} nJ, "
                   f"{last.coil_contacts} coil contacts", flush=True)
-    in_preshape = sum(row["rest_bend_twist_nJ"] < PRESHAPE_NJ for row in rows)
+    in_preshape = sum(row["status"] == "completed" and row["rest_bend_twist_nJ"] < PRESHAPE_NJ for row in rows)
     print(f"{scheme}, frames of {frame_interval_s} s: {in_preshape} of {runs} at rest in the pre-shape")
     return {"scheme": scheme, "frame_interval_s": frame_interval_s, "in_preshape": in_preshape, "runs": rows}
 

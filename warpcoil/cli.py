@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -99,7 +100,7 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     animation as they come, then the outputs, all in a hidden folder moved into ``out``
     at the end (recorder.folder.staged_outputs: a killed run leaves none); the exit code
     of its status."""
-    from .deploy import stop_between_frames
+    from .deploy import INTERRUPTED, stop_between_frames
     from .progress import Progress
     from .recorder import outputs
     from .recorder.folder import staged_outputs
@@ -123,8 +124,9 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
             progress.update(frame.deployed_length_mm, _force_text(frame))
 
         result = deployment.run(on_frame)
-        progress.close()
-        with stop_between_frames() as late:  # the run has ended: a first Ctrl-C waits for its outputs
+        # the run has ended: a first Ctrl-C waits for its outputs (after one that ended the run, the next stops at once)
+        with stop_between_frames() if result.status != INTERRUPTED else nullcontext([False]) as late:
+            progress.close()
             for recorder in recorders:
                 recorder.close()
             outputs.write_run(stage, scene, deployment.anatomy.wall, result,
@@ -136,7 +138,7 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
           f"{result.steps} {result.scheme['integrator']} steps of {result.dt_s:.3g} s"
           f"{f' (then {result.settle_dt_s:.3g} s)' if result.settle_dt_s else ''} in {result.wall_time_s:.1f} s wall time -> {out}")
-    return EXIT_FOR_STATUS[result.status]
+    return EXIT_INTERRUPTED if late[0] else EXIT_FOR_STATUS[result.status]
 
 
 def _coils(args: argparse.Namespace) -> int:

@@ -38,6 +38,15 @@ from .state import State, new_state_like, packed_state
 
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
+DEFAULT_SETTLE_TIME_S = 2.0  # the default time limit: the push time (every coil out) and this
+
+
+def time_limit_s(sim, coil_lengths_mm) -> float:
+    """The run's simulated time limit (s): ``max_time_s``, or the push time of coils of these
+    lengths (mm, each with COIL_GAP_MM) + DEFAULT_SETTLE_TIME_S."""
+    if sim.max_time_s is not None:
+        return sim.max_time_s
+    return float(np.sum(coil_lengths_mm) + COIL_GAP_MM * len(coil_lengths_mm)) / sim.push_speed_mm_s + DEFAULT_SETTLE_TIME_S
 STALL_DRAG_FACTOR = 2.0  # the stall force is at least this × the pushed coil's damping drag at the push speed
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
@@ -86,14 +95,7 @@ class Member:
         self.wire_areas_mm2 = np.array([math.pi * (c.wire_diameter_mm / 2.0) ** 2 for c in scene.coils])
         self.stored_energy_nJ = stored_energy_nJ
         self.pusher_work_nJ, self.last_advance_mm = 0.0, 0.0
-        push_time = float(self.coil_lengths_mm.sum() + len(self.coils)) / sim.push_speed_mm_s
-        self.max_time_s = sim.max_time_s if sim.max_time_s is not None else push_time + 2.0
-        if sim.frame_interval_s > self.max_time_s:  # (the limit is checked at frame ends: a longer frame passes it)
-            limit = (f"max_time_s = {self.max_time_s:g} s" if sim.max_time_s is not None
-                     else f"its default time limit, the push time + 2 s = {self.max_time_s:.3g} s")
-            raise SetupError(f"{scene.where}: simulation.frame_interval_s = {sim.frame_interval_s:g} s is longer than "
-                             f"{limit}: frames end where the limit is checked, so the run would go past it; fix: "
-                             f"frame_interval_s = {self.max_time_s / 10.0:.3g} or less (0.01 is the default)")
+        self.max_time_s = time_limit_s(sim, self.coil_lengths_mm)
         self.mass_g = 1.0 / host["inv_mass"][self.nodes]
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
@@ -743,6 +745,15 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
                              f"{sim.frame_interval_s:g} s is shorter than two of the run's steps ({dt:.3g} s each): a "
                              "frame is a whole, even number of steps, and the implicit step's settling splits frames "
                              f"(it would not end); fix: frame_interval_s = {_rounded_up(2.0 * dt):g} or more")
+        limit_s = time_limit_s(sim, [arc[model.coil_last[c]] for c in model.world_coils(w)])
+        if sim.frame_interval_s > limit_s:  # (the limit is checked at frame ends: a frame runs whole past it)
+            limit = (f"max_time_s = {limit_s:g} s" if sim.max_time_s is not None
+                     else f"its default time limit, the push time + {DEFAULT_SETTLE_TIME_S:g} s = {limit_s:.3g} s")
+            shortest = _rounded_up(2.0 * dt)  # (the shortest frame, two steps)
+            fits = (f"frame_interval_s = {max(limit_s / 10.0, shortest):.3g} or less" if shortest <= limit_s
+                    else f"max_time_s = {shortest:g} or more")
+            raise SetupError(f"{scene.where}: simulation.frame_interval_s = {sim.frame_interval_s:g} s is longer than "
+                             f"{limit}: the limit is checked at frame ends, so the run would go past it; fix: {fits}")
         steps.append((dt, contact_linear_onset(model, onset_dt, model.world_nodes(w)),
                       max(2, 2 * round(sim.frame_interval_s / dt / 2)), sim.integrator, settle_dt, push_time,
                       sim.implicit_scheme if sim.integrator == "implicit" else ""))

@@ -286,7 +286,7 @@ class _Reader:
 
     def checked_coil(self, spec: CoilSpec, value: dict[str, Any], where: str) -> CoilSpec:
         """``spec``, refused when its loops are no wider than its wire (it cannot wind) or its length
-        holds fewer than two segments (n = round(L / l0))."""
+        holds fewer than two segments or more than MAX_COIL_SEGMENTS (n = round(L / l0))."""
         if spec.shape != "file" and spec.loop_diameter_mm <= spec.wire_diameter_mm:
             key = "loop_diameter_mm" if "loop_diameter_mm" in value else "wire_diameter_mm"
             raise self.error(f"{where}.{key}", f"a loop of {spec.loop_diameter_mm:g} mm is not wider than the coil's "
@@ -294,10 +294,11 @@ class _Reader:
                              "give a loop_diameter_mm larger than wire_diameter_mm")
         segments = round(spec.length_mm / spec.l0)
         if segments > MAX_COIL_SEGMENTS:
-            raise self.error(f"{where}.length_mm", f"length {spec.length_mm:g} mm holds {segments} segments of "
-                             f"{spec.l0:g} mm, more than {MAX_COIL_SEGMENTS} (the longest coils, ~600 mm, hold ~2 000 at "
-                             "d; setting up a coil grows with the square of its nodes)",
-                             "give length_mm in mm, or a longer segment_length_mm")
+            key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
+            raise self.error(f"{where}.{key}", f"length {spec.length_mm:g} mm holds {segments} segments of "
+                             f"{spec.l0:g} mm, more than {MAX_COIL_SEGMENTS} (the catalogue's longest coil, 500 mm, holds "
+                             "~1 700 at d; setting up a coil grows with the square of its nodes)",
+                             "give length_mm and segment_length_mm in mm, or a longer segment_length_mm")
         if segments >= 2:
             return spec
         key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"

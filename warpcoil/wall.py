@@ -73,7 +73,7 @@ def load_wall(spec: WallSpec) -> WallMesh:
     if spec.units == "m":
         vertices = vertices * 1000.0
         notes.append("scaled from metres to mm")
-    diagonal_mm = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    diagonal_mm = float(np.linalg.norm(np.ptp(vertices[np.unique(faces)], axis=0)))  # (of the surface's points)
     if spec.units != "m" and diagonal_mm < MIN_DIAGONAL_MM:
         raise _error(
             path,
@@ -87,7 +87,7 @@ def load_wall(spec: WallSpec) -> WallMesh:
             f"its bounding-box diagonal is {diagonal_mm:.3g} mm {read_as}, larger than any vessel "
             f"(> {MAX_DIAGONAL_MM:g} mm)",
             'remove units = "m" from [wall] if the mesh is in mm' if spec.units == "m"
-            else "scale the mesh to mm (it looks like micrometres)",
+            else "scale the mesh to mm if it is in another unit (µm?), or crop it to the sac and its vessels",
         )
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     notes += _clean(mesh)

@@ -50,20 +50,36 @@ def check_output_path(path: Path, option: str = "-o") -> None:
     if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
         raise OutputFolderError(f"{option} {path}: {existing} is not writable; fix: choose a folder you can "
                                 "write to, or change its permissions")
-    if existing is not None and existing != path:  # (root passes os.access anywhere: try the first folder to create)
-        chain = [path, *path.parents]
-        _probe_folder(chain[chain.index(existing) - 1], path, option)
+    if existing is None or existing == path:
+        return
+    missing = [p for p in (path, *path.parents) if p not in (existing, *existing.parents)][::-1]  # outermost first
+    try:
+        longest = os.pathconf(existing, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        longest = 255
+    for folder in missing:
+        if len(os.fsencode(folder.name)) > longest:
+            raise OutputFolderError(f"{option} {path}: the name {folder.name[:20]}… is longer than the file system "
+                                    f"allows ({longest} bytes); fix: choose a shorter output folder name")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:  # (root passes os.access anywhere: try the first to create)
+        _probe_folder(missing[0], path, option)
 
 
 def _probe_folder(folder: Path, path: Path, option: str) -> None:
-    """Create ``folder`` (missing, the first of ``path``'s) and remove it again; refuse where that fails
-    (a pseudo file system such as /proc, a name too long, a read-only mount)."""
+    """Create ``folder`` (missing, the first of ``path``'s) and remove it again; refuse where it cannot
+    be made (a pseudo file system such as /proc or /sys, a read-only mount). One made meanwhile by
+    another run passes, and is left to it."""
     try:
         folder.mkdir()
-        folder.rmdir()
+    except FileExistsError:
+        return
     except OSError as error:
         raise OutputFolderError(f"{option} {path}: {folder} cannot be created ({error.strerror}); fix: choose "
                                 "another output folder") from None
+    try:
+        folder.rmdir()
+    except OSError:
+        pass  # (another run's folder is in it by now)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -123,9 +139,15 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
     path = Path(path)
     check_output_path(path, option)
     created = not path.exists()
+    made = [p for p in (path, *path.parents) if not p.exists()]  # (innermost first)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
+        for folder in made:  # the parents this call made, and no others
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
         raise OutputFolderError(f"{option} {path}: cannot be created ({error.strerror}); fix: choose another "
                                 "output folder") from None
     try:
