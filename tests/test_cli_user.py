@@ -54,10 +54,16 @@ def scene(tmp_path: Path, text: str = SPHERE, name: str = "tiny.toml", **replace
     return path
 
 
-def cli(tmp_path: Path, *args: str, wait: bool = True, log: str = "log"):
-    """``warpcoil ARGS`` with stdout and stderr in files under tmp_path; (exit code, stdout, stderr)."""
+def program_env() -> dict[str, str]:
+    """The environment a test runs the program in: this checkout first on the path, the shared kernel cache."""
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     env.setdefault("WARPCOIL_KERNEL_CACHE", str(ROOT / ".warp_cache"))
+    return env
+
+
+def cli(tmp_path: Path, *args: str, wait: bool = True, log: str = "log"):
+    """``warpcoil ARGS`` with stdout and stderr in files under tmp_path; (exit code, stdout, stderr)."""
+    env = program_env()
     out, err = tmp_path / f"{log}.out", tmp_path / f"{log}.err"
     with out.open("w") as stdout, err.open("w") as stderr:
         process = subprocess.Popen([sys.executable, "-m", "warpcoil.cli", *args], stdout=stdout, stderr=stderr,
@@ -371,11 +377,9 @@ def test_ctrl_c_while_the_outputs_are_written_waits_for_them(tmp_path):
                "outputs.write_run = interrupted\n"
                "from warpcoil.cli import main\n"
                f"sys.exit(main(['run', {str(path)!r}, '-o', 'late']))\n")
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    env.setdefault("WARPCOIL_KERNEL_CACHE", str(ROOT / ".warp_cache"))
     with (tmp_path / "late.out").open("w") as stdout, (tmp_path / "late.err").open("w") as stderr:
         code = subprocess.run([sys.executable, "-c", program], stdout=stdout, stderr=stderr, cwd=tmp_path,
-                              env=env, timeout=600).returncode
+                              env=program_env(), timeout=600).returncode
     err = (tmp_path / "late.err").read_text()
     result = json.loads((tmp_path / "late" / "result.json").read_text())
     assert code == 130 and result["status"] == "completed", err

@@ -31,7 +31,7 @@ from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THET
 from .preflight import SetupError, preflight
 from .preshape import PreshapeError
 from .scene import check_built_scene
-from .settings import Scene, resolve_integrator
+from .settings import Scene, SimulationSettings, resolve_integrator
 from .solver import Control, Stepper
 from .catheter_roll import packed_rolls
 from .state import State, new_state_like, packed_state
@@ -39,17 +39,19 @@ from .state import State, new_state_like, packed_state
 COMPLETED, JAMMED, TIMEOUT, FAILED, INTERRUPTED = "completed", "jammed", "timeout", "failed", "interrupted"
 COIL_GAP_MM = 1.0  # the coils sit this far apart in the catheter
 DEFAULT_SETTLE_TIME_S = 2.0  # the default time limit: the push time (every coil out) and this
-
-
-def time_limit_s(sim, coil_lengths_mm) -> float:
-    """The run's simulated time limit (s): ``max_time_s``, or the push time of coils of these
-    lengths (mm, each with COIL_GAP_MM) + DEFAULT_SETTLE_TIME_S."""
-    if sim.max_time_s is not None:
-        return sim.max_time_s
-    return float(np.sum(coil_lengths_mm) + COIL_GAP_MM * len(coil_lengths_mm)) / sim.push_speed_mm_s + DEFAULT_SETTLE_TIME_S
 STALL_DRAG_FACTOR = 2.0  # the stall force is at least this × the pushed coil's damping drag at the push speed
 MAX_STEP_HALVINGS = 3  # an unstable frame is redone with half the step, at most this often
 REST_SPEED_MM_S = 0.25  # rms node speed below which the coils count as at rest (default tolerance)
+
+
+def push_time_s(sim: SimulationSettings, coil_lengths_mm: Sequence[float]) -> float:
+    """Time (s) to push out coils of these lengths (mm), each with COIL_GAP_MM, at the push speed."""
+    return float(sum(length + COIL_GAP_MM for length in coil_lengths_mm)) / sim.push_speed_mm_s
+
+
+def time_limit_s(sim: SimulationSettings, coil_lengths_mm: Sequence[float]) -> float:
+    """The run's simulated time limit (s): ``max_time_s``, or the push time + DEFAULT_SETTLE_TIME_S."""
+    return sim.max_time_s if sim.max_time_s is not None else push_time_s(sim, coil_lengths_mm) + DEFAULT_SETTLE_TIME_S
 
 
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
@@ -725,15 +727,14 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
     for w, scene in enumerate(scenes):
         sim = resolve_integrator(scene).simulation
         explicit_dt = sim.dt_safety * bounds[w].dt_s
+        lengths_mm = [arc[model.coil_last[c]] for c in model.world_coils(w)]
         settle_dt, push_time = 0.0, 0.0
         if sim.integrator == "implicit":
             dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
             onset_dt = explicit_dt
             if sim.dt_s is None:
                 settle_dt = settle_step_s(dt, sim.frame_interval_s, settle_step_scale(scene.coils))
-            coils = model.world_coils(w)
-            push_time = float(sum(arc[model.coil_last[c]] + COIL_GAP_MM for c in range(coils.start, coils.stop))
-                              ) / sim.push_speed_mm_s
+            push_time = push_time_s(sim, lengths_mm)
             # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
             # ends first
             push_time += max(0.0, DETACH_WHIP_S - COIL_GAP_MM / sim.push_speed_mm_s)
@@ -745,7 +746,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
                              f"{sim.frame_interval_s:g} s is shorter than two of the run's steps ({dt:.3g} s each): a "
                              "frame is a whole, even number of steps, and the implicit step's settling splits frames "
                              f"(it would not end); fix: frame_interval_s = {_rounded_up(2.0 * dt):g} or more")
-        limit_s = time_limit_s(sim, [arc[model.coil_last[c]] for c in model.world_coils(w)])
+        limit_s = time_limit_s(sim, lengths_mm)
         if sim.frame_interval_s > limit_s:  # (the limit is checked at frame ends: a frame runs whole past it)
             limit = (f"max_time_s = {limit_s:g} s" if sim.max_time_s is not None
                      else f"its default time limit, the push time + {DEFAULT_SETTLE_TIME_S:g} s = {limit_s:.3g} s")

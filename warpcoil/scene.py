@@ -293,15 +293,14 @@ class _Reader:
                              f"wire diameter d = {spec.wire_diameter_mm:g} mm: the coil cannot wind into it",
                              "give a loop_diameter_mm larger than wire_diameter_mm")
         segments = round(spec.length_mm / spec.l0)
+        key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
         if segments > MAX_COIL_SEGMENTS:
-            key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
             raise self.error(f"{where}.{key}", f"length {spec.length_mm:g} mm holds {segments} segments of "
                              f"{spec.l0:g} mm, more than {MAX_COIL_SEGMENTS} (the catalogue's longest coil, 500 mm, holds "
                              "~1 700 at d; setting up a coil grows with the square of its nodes)",
                              "give length_mm and segment_length_mm in mm, or a longer segment_length_mm")
         if segments >= 2:
             return spec
-        key = "segment_length_mm" if "segment_length_mm" in value else "length_mm"
         given = "segment_length_mm" if "segment_length_mm" in value else "segment_length_mm, by default d"
         raise self.error(f"{where}.{key}", f"length {spec.length_mm:g} mm holds fewer than two segments of "
                          f"{spec.l0:g} mm ({given})", "use a longer coil (length_mm) or a shorter segment_length_mm")

@@ -36,11 +36,11 @@ def check_output_path(path: Path, option: str = "-o") -> None:
     """Refuse, before any work, an output path that is a file or cannot be created or written."""
     path = Path(path)
     try:
-        path.exists()
+        exists = path.exists()
     except OSError as error:  # (a name too long)
         raise OutputFolderError(f"{option} {path}: cannot be used ({error.strerror}); fix: choose another "
                                 "output folder") from None
-    if path.exists() and not path.is_dir():
+    if exists and not path.is_dir():
         raise OutputFolderError(f"{option} {path}: is an existing file, not a folder; fix: give a folder path "
                                 f"(it is created if missing), e.g. {option} {path.with_suffix('')}_out")
     existing = next((p for p in (path, *path.parents) if p.exists()), None)
@@ -52,7 +52,8 @@ def check_output_path(path: Path, option: str = "-o") -> None:
                                 "write to, or change its permissions")
     if existing is None or existing == path:
         return
-    missing = [p for p in (path, *path.parents) if p not in (existing, *existing.parents)][::-1]  # outermost first
+    chain = [path, *path.parents]
+    missing = chain[:chain.index(existing)][::-1]  # outermost first
     try:
         longest = os.pathconf(existing, "PC_NAME_MAX")
     except (OSError, ValueError):
@@ -138,8 +139,8 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
     created that is still empty is removed again."""
     path = Path(path)
     check_output_path(path, option)
-    created = not path.exists()
     made = [p for p in (path, *path.parents) if not p.exists()]  # (innermost first)
+    created = bool(made)  # (path is then the first of them)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
