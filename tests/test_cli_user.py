@@ -61,13 +61,14 @@ def program_env() -> dict[str, str]:
     return env
 
 
-def cli(tmp_path: Path, *args: str, wait: bool = True, log: str = "log"):
-    """``warpcoil ARGS`` with stdout and stderr in files under tmp_path; (exit code, stdout, stderr)."""
+def cli(tmp_path: Path, *args: str, wait: bool = True, log: str = "log", group: bool = False):
+    """``warpcoil ARGS`` with stdout and stderr in files under tmp_path; (exit code, stdout, stderr).
+    ``group``: in a process group of its own (a terminal's Ctrl-C signals the whole group: os.killpg)."""
     env = program_env()
     out, err = tmp_path / f"{log}.out", tmp_path / f"{log}.err"
     with out.open("w") as stdout, err.open("w") as stderr:
         process = subprocess.Popen([sys.executable, "-m", "warpcoil.cli", *args], stdout=stdout, stderr=stderr,
-                                   cwd=tmp_path, env=env)
+                                   cwd=tmp_path, env=env, start_new_session=group)
         if not wait:
             return process, out, err
         code = process.wait(timeout=600)
@@ -335,6 +336,7 @@ def test_a_frame_longer_than_the_time_limit_is_refused(tmp_path):
     assert "fix: frame_interval_s = " in line and line.endswith(" or less")
     code, _, err = cli(tmp_path, "run", str(scene(tmp_path)), "-o", "long", "--frame-interval", "100")
     assert code == 2 and "its default time limit, the push time + 2 s" in one_line(err)
+    assert one_line(err).startswith("warpcoil run: --frame-interval 100: ")  # the flag's value, not the file's
     assert not (tmp_path / "long").exists()
 
 
@@ -412,20 +414,24 @@ def test_ctrl_c_while_the_command_starts_is_one_line_not_a_traceback(tmp_path, s
     assert not (tmp_path / "started").exists() or leftovers(tmp_path / "started") == []
 
 
-@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM, "terminal"])
 def test_a_stopped_sweep_ends_interrupted_and_resumes(tmp_path, stop):
     """A sweep stopped once its first member is written: exit 130 with one line, no traceback and no
     lock left in its folder (SIGTERM killed it with 143, no word and the lock left: Python's default
-    action); `--resume` then completes it."""
+    action); `--resume` then completes it. "terminal": a Ctrl-C at a terminal, which signals the whole
+    process group, the Dask worker processes too (each printed its traceback)."""
     path = scene(tmp_path, **{"length_mm = 4.0": "length_mm = 20.0", "push_speed_mm_s = 100.0":
                               "push_speed_mm_s = 20.0"})
     args = ("sweep", str(path), "--vary", "coil.length_mm=20,21,22,23,24,25", "--workers", "1", "-o", "sw")
-    process, out, err = cli(tmp_path, *args, wait=False)
+    process, out, err = cli(tmp_path, *args, wait=False, group=stop == "terminal")
     deadline = time.monotonic() + 300
     while not (tmp_path / "sw" / "member_000" / "result.json").exists() and time.monotonic() < deadline:
         assert process.poll() is None, err.read_text()
         time.sleep(0.2)
-    process.send_signal(stop)
+    if stop == "terminal":
+        os.killpg(process.pid, signal.SIGINT)
+    else:
+        process.send_signal(stop)
     assert process.wait(timeout=120) == 130
     assert "Traceback" not in err.read_text() and "warpcoil sweep: interrupted" in err.read_text()
     assert not list((tmp_path / "sw").glob(".*lock*"))
@@ -748,6 +754,21 @@ def test_a_sweep_whose_tip_is_outside_is_refused_before_stepping(tmp_path):
     code, _, err = cli(tmp_path, "sweep", str(path), "--vary", "simulation.push_speed_mm_s=100,150", "-o", "never")
     assert code == 2
     assert "catheter.tip [0, 0, -2] mm is 0.25 mm outside the lumen" in one_line(err)
+    assert not (tmp_path / "never").exists()
+
+
+def test_a_sweep_error_names_the_member_and_its_varied_value(tmp_path):
+    """The key a member's error names may hold a --vary value (not the file's), or follow from one
+    (a tip outside a varied sphere): the line names the member and its values."""
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "coil.length_mm=4,-5", "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith("warpcoil sweep: member_001 (coil.length_mm=-5): ")
+    assert "coil[0].length_mm" in line and "fix:" in line
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "wall.sphere_diameter_mm=4,0.5",
+                       "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith("warpcoil sweep: member_001 (wall.sphere_diameter_mm=0.5): ")
+    assert "catheter.tip" in line and "outside the lumen" in line
     assert not (tmp_path / "never").exists()
 
 

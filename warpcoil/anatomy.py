@@ -112,11 +112,12 @@ def _devices(scene: Scene, wall: WallMesh | None) -> tuple[tuple | None, tuple |
     return balloon, stent
 
 
-def resolve_anatomies(scenes: Sequence[Scene]) -> list[Anatomy]:
+def resolve_anatomies(scenes: Sequence[Scene], shared: dict[tuple, tuple] | None = None) -> list[Anatomy]:
     """:func:`resolve_anatomy` for each scene; scenes with the same wall, neck and
     device share one wall mesh, sac and device (read, cut and fitted once, one BVH
-    on the device); each places its own catheter."""
-    shared: dict[tuple, tuple] = {}
+    on the device); each places its own catheter. ``shared``: those already read by
+    earlier calls (filled in), for scenes resolved one at a time."""
+    shared = {} if shared is None else shared
     anatomies = []
     for scene in scenes:
         key = (repr(scene.wall), repr(scene.neck), repr(scene.balloon), repr(scene.stent))

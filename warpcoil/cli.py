@@ -12,7 +12,6 @@ import argparse
 import math
 import sys
 from contextlib import nullcontext
-from dataclasses import replace
 from pathlib import Path
 
 EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
@@ -70,16 +69,16 @@ def _run(args: argparse.Namespace) -> int:
     try:
         check_output_path(out)
         device = _device(args.device)
-        scene = load_scene(args.scene)
-        if args.frame_interval is not None:
-            scene = replace(scene, simulation=replace(scene.simulation, frame_interval_s=args.frame_interval))
+        scene = load_scene(args.scene, {} if args.frame_interval is None else
+                           {"simulation.frame_interval_s": args.frame_interval})
         try:
             deployment = Deployment(scene, device)
         except UnstableStepError as error:
             raise SceneError(f"{scene.source}: simulation.dt_s: {error}") from None
         warnings = preflight(scene, deployment.anatomy, device, deployment.members[0].step_bound_s)
     except (SceneError, WallError, PreshapeError, SetupError, OutputFolderError) as error:
-        print(f"warpcoil run: {error}", file=sys.stderr)
+        given = args.frame_interval is not None and "frame_interval_s" in str(error)  # the flag's value, not the file's
+        print(f"warpcoil run: {f'--frame-interval {args.frame_interval:g}: ' if given else ''}{error}", file=sys.stderr)
         return 2
     wall = deployment.anatomy.wall
     for note in (wall.notes if wall is not None else ()):

@@ -32,14 +32,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_models, resolve_anatomies,
-                     world_bounds)
-from .preflight import preflight
+                     world_bounds, world_steps)
+from .preflight import SetupError, preflight
+from .preshape import PreshapeError
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
-from .scene import INTEGRATOR_KEYS, load_scene
+from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
+from .solver import UnstableStepError
 from .sweep_task import MemberOutput, make_task, named_files, run_task
+from .wall import WallError
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
 NAMING_INTEGRATOR = tuple(f"simulation.{key}" for key in INTEGRATOR_KEYS)  # member keys that choose the integrator
@@ -202,11 +205,27 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
+def member_values(member: Member) -> str:
+    """The member's values as a line names them (its label, or key=value for each varied key)."""
+    return member.label if member.label is not None else \
+        " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in member.values.items())
+
+
+@contextlib.contextmanager
+def naming_member(member: Member) -> Iterator[None]:
+    """A member's scene, wall or set-up error prefixed with the member and its values: the key it names
+    may hold a value the file does not (given by --vary or a plan option), or follow from one (a catheter
+    outside a varied sphere)."""
+    try:
+        yield
+    except (SceneError, WallError, PreshapeError, SetupError, UnstableStepError) as error:
+        raise type(error)(f"{member.name} ({member_values(member)}): {error}") from None
+
+
 def member_line(member: Member) -> str:
     """One line on a finished member: its values, status, packing and time."""
     r = member.result
-    values = member.label if member.label is not None else \
-        " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in member.values.items())
+    values = member_values(member)
     packing = r.get("packing_density")
     facts = [r["status"], f"packing {100 * packing:.1f} %" if packing is not None else "no sac",
              f"{r.get('steps')} steps", f"{r.get('wall_time_s', 0.0):.1f} s"]
@@ -298,7 +317,8 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         finally:
             client.close()
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    preload = [*dask.config.get("distributed.worker.preload", []), "warpcoil.sweep_task"]  # (its dask_setup)
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries, "distributed.worker.preload": preload}):
         cluster = LocalCluster(n_workers=workers or default_workers(device), threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.CRITICAL,  # no dashboard; its health
                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})  # routes on a free port
@@ -361,7 +381,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     a complete result (:func:`complete_result`) are not rerun. Raises
     SweepIncomplete (after writing every member that finished) when a task still
     fails."""
-    scenes = [load_scene(scene_path, m.values) for m in todo]  # every member checked before anything is written
+    scenes = []
+    for member in todo:  # every member checked before anything is written
+        with naming_member(member):
+            scenes.append(load_scene(scene_path, member.values))
     named_files: dict[Path, bytes] = {}  # (each file the scenes name read once)
     fingerprints = [scene_fingerprint(scene, named_files) for scene in scenes]  # as the scene gives it (before the
     scenes, unified = one_integrator(scene_path, todo, scenes)  # integrator the sweep's members share)
@@ -390,13 +413,20 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             raise SweepError(f"--resume: {out} holds {', '.join(foreign[:3])}{', …' if len(foreign) > 3 else ''}, "
                              f"which this sweep of {len(todo)} members does not have: another sweep's; {REPLACE_HINT}")
     pending = [m.index for m in todo if m.result is None]
-    anatomies = resolve_anatomies([scenes[k] for k in pending])  # walls and necks checked before any worker starts
-    models = host_models([scenes[k] for k in pending], anatomies, "cpu")  # step bounds and groups, host-side
-    # each member's warnings, as `warpcoil run` would give them (a catheter outside the lumen: SetupError before any
-    # step); kept in its result.json, and said once each before the members run and in the summary
-    member_warnings = {k: list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu",
-                                                                 world_bounds(model)[0].dt_s)))
-                       for k, anatomy, model in zip(pending, anatomies, models)}
+    # walls and necks checked before any worker starts, and each member's warnings as `warpcoil run` would give
+    # them (a catheter outside the lumen: SetupError before any step); kept in its result.json, and said once each
+    # before the members run and in the summary
+    shared: dict[tuple, tuple] = {}  # (scenes with one wall share it)
+    anatomies, models, member_warnings = [], [], {}
+    for k in pending:
+        with naming_member(todo[k]):
+            anatomy = resolve_anatomies([scenes[k]], shared)[0]
+            model = host_models([scenes[k]], [anatomy], "cpu")[0]  # step bounds and groups, host-side
+            world_steps(model, [scenes[k]])  # (its frame against its step and time limit)
+            member_warnings[k] = list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu",
+                                                                        world_bounds(model)[0].dt_s)))
+        anatomies.append(anatomy)
+        models.append(model)
     stored = [w for m in todo if m.resumed for w in m.result.get("warnings", [])]
     warnings = list(dict.fromkeys(unified + [w for k in pending for w in member_warnings[k]] + stored))
     if isinstance(progress, SweepProgress):

@@ -11,7 +11,9 @@ run's), and returns their bytes. The client writes the member folders.
 from __future__ import annotations
 
 import json
+import signal
 import tempfile
+import threading
 from dataclasses import dataclass, fields, is_dataclass, replace
 from pathlib import Path
 
@@ -138,3 +140,11 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
             files = {p.name: p.read_bytes() for p in sorted(folders[k].iterdir()) if p.name != RESULT_JSON}
             outputs.append(MemberOutput(task.indices[k], json.loads((folders[k] / RESULT_JSON).read_text()), files))
         return outputs
+
+
+def dask_setup(worker) -> None:
+    """Dask worker preload of the sweep's own local cluster (sweep.dask_client): its worker processes
+    ignore Ctrl-C (SIGINT), which a terminal sends to the whole process group; the sweep ends them
+    itself when it is interrupted, so a Ctrl-C prints one line, not each worker's traceback."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
