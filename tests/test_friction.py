@@ -33,6 +33,18 @@ def test_incline_slides_above_with_the_coulomb_acceleration():
     assert acceleration == pytest.approx(reference, rel=1e-2)
 
 
+@pytest.mark.parametrize("implicit", [False, True])
+@pytest.mark.parametrize("segment_d", [2.0, 3.0])
+def test_friction_takes_the_load_of_the_contact_samples(segment_d, implicit):
+    """Segments above 1.5 d meet the wall at contact samples too (a node's own law weighs 1/K): the
+    friction on the incline is μ times the whole load, nodes' and samples' (from the nodes' own load
+    alone it would slide at g (sin θ − μ cos θ / K)), on either step."""
+    acceleration, reference, _, _ = vf.incline_motion(0.3, 2.0, steps=6000, implicit=implicit, segment_d=segment_d)
+    assert acceleration == pytest.approx(reference, rel=1e-3)
+    _, _, creep, _ = vf.incline_motion(0.3, 0.8, steps=6000, implicit=implicit, segment_d=segment_d)
+    assert creep == pytest.approx(0.8 * wc.ContactSettings().friction_speed_mm_s, rel=1e-2)
+
+
 def test_capstan_slips_at_the_exponential_tension_ratio():
     ratio, reference = vf.capstan_slip_ratio(0.3, 0.5 * math.pi)
     assert ratio == pytest.approx(reference, rel=2e-2)

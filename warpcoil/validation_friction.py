@@ -86,17 +86,19 @@ def straight_coils(positions: list[np.ndarray], segment_mm: float = REFERENCE_D_
 
 # --- inclined plane ---------------------------------------------------------------
 def rod_on_floor(mu: float, g_mm_s2: np.ndarray, nodes: int = 11,
-                 v_reg_mm_s: float = ContactSettings.friction_speed_mm_s):
+                 v_reg_mm_s: float = ContactSettings.friction_speed_mm_s, segment_d: float = 1.0):
     """A straight, undamped coil piece along x on the floor (friction μ) under the body
-    acceleration ``g_mm_s2`` (mm/s²): the model and its level positions at contact
+    acceleration ``g_mm_s2`` (mm/s²), segments of ``segment_d`` · d (above 1.5 d the wall acts at
+    contact samples between the nodes too): the model and its level positions at contact
     equilibrium (every node at the gap where the law carries an interior node's weight;
-    an end node has half the mass and half the contact share)."""
+    an end node has half the mass and half the contact share; at samples the law per length is kept)."""
     d = REFERENCE_D_MM
-    rest = _straight(nodes, d)
+    rest = _straight(nodes, segment_d * d)
     builder = ModelBuilder(settings=SimulationSettings(damping_uN_per_mm=0.0),
                            contact=ContactSettings(P0_uN=P0_UN, friction_wall=mu, friction_speed_mm_s=v_reg_mm_s),
                            wall=_floor())
-    builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * d), rest)
+    builder.add_coil(CoilSpec(wire_diameter_mm=d, length_mm=(nodes - 1) * segment_d * d,
+                              segment_length_mm=segment_d * d), rest)
     builder.body_acceleration(g_mm_s2)
     model = builder.finalize()
     interior_mass = float(1.0 / model.inv_mass.numpy()[nodes // 2])
@@ -128,14 +130,18 @@ def _chunk(solver: Solver, explicit_steps: int) -> int:
 
 def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: int = 20_000,
                    nodes: int = 11, v_reg_mm_s: float = ContactSettings.friction_speed_mm_s,
-                   implicit: bool = False, scheme: str = "gated_chord") -> tuple[float, float, float]:
+                   implicit: bool = False, scheme: str = "gated_chord", segment_d: float = 1.0
+                   ) -> tuple[float, float, float]:
     """A straight coil piece on the floor under a body acceleration g tilted by θ
-    (tan θ = tan_ratio · μ), starting at rest at its contact equilibrium, for ``steps``
-    of the reference's step (``implicit``: the implicit step in ``scheme``, :func:`_solver`). Returns
-    (fitted acceleration over the second half, mm/s²; analytic g (sin θ − μ cos θ)
-    or 0 when it sticks; mean speed over the second half, mm/s; largest mean speed, mm/s)."""
+    (tan θ = tan_ratio · μ), segments of ``segment_d`` · d (:func:`rod_on_floor`), starting at rest
+    at its contact equilibrium, for ``steps`` of the reference's step at segments of d (its step grows
+    as the segment squared: the same simulated time at any ``segment_d``; ``implicit``: the implicit step
+    in ``scheme``, :func:`_solver`). Returns (fitted acceleration over the second half, mm/s²; analytic
+    g (sin θ − μ cos θ) or 0 when it sticks; mean speed over the second half, mm/s; largest mean speed, mm/s)."""
     theta = math.atan(tan_ratio * mu)
-    model, x = rod_on_floor(mu, g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]), nodes, v_reg_mm_s)
+    steps = round(steps / segment_d ** 2)
+    model, x = rod_on_floor(mu, g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]), nodes, v_reg_mm_s,
+                            segment_d)
     solver = _solver(model, implicit, coil_contact=False, scheme=scheme)
     chunk = _chunk(solver, 200)
     stepper = Stepper(solver, state_from_positions(model, x), Control.create(model), chunk=chunk)
@@ -151,6 +157,9 @@ def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: 
 
 
 def incline_cases(mu: float = 0.3, implicit: bool = False) -> list[CaseResult]:
+    """Stick (creep) and slide on the incline at segments of d, then at 2 d and 3 d, where the wall acts
+    at contact samples between the nodes (a node's own law weighs 1/K: friction taken from the node's
+    own load alone would slide at g (sin θ − μ cos θ / K))."""
     rows = []
     v_reg = ContactSettings().friction_speed_mm_s
     label = _label(implicit)
@@ -160,6 +169,13 @@ def incline_cases(mu: float = 0.3, implicit: bool = False) -> list[CaseResult]:
     for ratio in (1.2, 2.0):
         acceleration, reference, _, _ = incline_motion(mu, ratio, implicit=implicit)
         rows.append(_row(f"{label} incline tanθ = {ratio}μ: slide accel. (mm/s²)", reference, acceleration, 1e-2))
+    for segment_d in (2.0, 3.0):
+        _, _, creep, _ = incline_motion(mu, 0.8, implicit=implicit, segment_d=segment_d)
+        rows.append(_row(f"{label} incline tanθ = 0.8μ, segments {segment_d:g} d (wall at contact samples): "
+                         "sticks, creep (mm/s)", 0.8 * v_reg, creep, 1e-2))
+        acceleration, reference, _, _ = incline_motion(mu, 2.0, implicit=implicit, segment_d=segment_d)
+        rows.append(_row(f"{label} incline tanθ = 2μ, segments {segment_d:g} d (wall at contact samples): "
+                         "slide accel. (mm/s²)", reference, acceleration, 1e-2))
     return rows
 
 
