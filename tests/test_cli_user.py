@@ -458,6 +458,21 @@ def test_a_folder_of_the_other_kind_is_refused(tmp_path):
     assert [p.name for p in run_folder.iterdir()] == ["result.json"]
 
 
+def test_overwrite_clears_every_commands_outputs(tmp_path):
+    """`sweep --overwrite` into a plan's folder kept plan.md, plan.csv and plan.png beside the new
+    members, describing deployments that were gone: --overwrite clears every command's outputs."""
+    folder = tmp_path / "planned"
+    (folder / "member_000").mkdir(parents=True)
+    (folder / "member_000" / "result.json").write_text("{}")
+    for name in ("plan.md", "plan.csv", "plan.png", "summary.csv", "summary.md"):
+        (folder / name).write_text("old\n")
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "coil.length_mm=4,5", "--workers", "1",
+                       "--overwrite", "-o", "planned")
+    assert code == 0, err
+    assert sorted(p.name for p in folder.iterdir()) == ["member_000", "member_001", "summary.csv", "summary.md"]
+    assert "old" not in (folder / "summary.md").read_text()
+
+
 def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
     """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
     outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite
@@ -486,6 +501,7 @@ def test_bench_help_names_all_four_kinds(tmp_path):
     (("ensemble", "--device", "gpu7"), "--device gpu7"),
     (("stress", "--device", "cpu"), "applies to `bench ensemble` only"),
     (("ensemble", "--repeats", "5"), "--repeats does not apply"),
+    (("steps", "--repeats", "0"), "--repeats 0: "),  # (ran, its timing table inf, its JSON a bare Infinity)
 ])
 def test_bench_refuses_options_it_cannot_use_in_one_line(tmp_path, args, said):
     """A bad device, a device for a CPU benchmark or repeats for the ensemble: one line, exit 2, no folder."""
@@ -493,6 +509,17 @@ def test_bench_refuses_options_it_cannot_use_in_one_line(tmp_path, args, said):
     assert code == 2
     assert said in one_line(err) and "fix:" in err
     assert not (tmp_path / "report").exists()
+
+
+def test_bench_refuses_an_output_path_it_cannot_use_in_one_line(tmp_path):
+    """`bench -o` naming a file, or as root a folder that cannot be made, ended in a traceback (exit 1)."""
+    (tmp_path / "afile").write_text("mine\n")
+    code, _, err = cli(tmp_path, "bench", "steps", "--quick", "-o", "afile")
+    assert code == 2 and "afile" in one_line(err) and "fix:" in err
+    assert (tmp_path / "afile").read_text() == "mine\n"
+    if Path("/proc/self").exists():
+        code, _, err = cli(tmp_path, "bench", "steps", "--quick", "-o", "/proc/warpcoil_bench")
+        assert code == 2 and "/proc/warpcoil_bench" in one_line(err)
 
 
 def test_cuda_asked_for_without_a_driver_is_said_once(tmp_path):

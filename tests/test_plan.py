@@ -97,6 +97,18 @@ def test_options_tied_on_every_criterion_share_a_rank():
     assert ranked[0].tied_with == (1,) and ranked[1].tied_with == (0,) and ranked[2].tied_with == ()
 
 
+def test_push_forces_below_the_push_readings_accuracy_tie():
+    """Two options equal but for push forces of ~29 against ~0 µN (0.029 mN) ranked 1 and 2 on that
+    alone: forces closer than the implicit step's push-force accuracy (PUSH_FORCE_RESOLUTION_MN) tie;
+    a difference of 1 mN still decides."""
+    options = _options(peak_push_force_mN=[[0.029, 0.030], [0.0, 0.001]])
+    assert [r.rank for r in rank(options)] == [1, 1]
+    options = _options(peak_push_force_mN=[[2.0, 2.05], [1.0, 1.02]])
+    ranked = rank(options)
+    assert [(r.index, r.rank) for r in ranked] == [(1, 1), (0, 2)]
+    assert ranked[1].beaten_by == (1, "peak push force (largest frame mean)")
+
+
 def test_occlusion_grade_ranks_before_neck_coverage_and_is_skipped_when_absent():
     grades = {"modified_raymond_roy_class": [[raymond_roy_number("III")] * 2, [raymond_roy_number("I")] * 2]}
     coverage = {"neck_coverage_percent": [[50.0, 50.0], [10.0, 10.0]]}

@@ -77,6 +77,29 @@ def test_closed_icosphere_loads_unchanged(tmp_path: Path) -> None:
     assert len(wall.vertices_mm) == len(sphere().vertices)  # STL's per-triangle copies merged
 
 
+@pytest.mark.parametrize("offset_mm", [8.0, 1.5])  # beside the sac, inside it
+def test_separate_bodies_are_counted_and_warned_about(tmp_path: Path, offset_mm: float) -> None:
+    """A lumen is one closed body: a second one (beside the sac or inside it) is counted, each with its
+    signed volume, and the run's preflight warns that the sac volume counts them all (it was silent)."""
+    from types import SimpleNamespace
+
+    from warpcoil.preflight import check_wall_bodies
+    from warpcoil.settings import Scene
+
+    small = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    small.apply_translation((offset_mm, 0.0, 0.0))
+    wall = load(export(tmp_path, trimesh.util.concatenate([sphere(), small])))
+    assert len(wall.body_volumes_mm3) == 2
+    assert wall.body_volumes_mm3 == pytest.approx((sphere().volume, small.volume), rel=1e-5)  # (STL: float32)
+    assert wall.volume_mm3 == pytest.approx(sum(wall.body_volumes_mm3), rel=1e-9)
+    scene = Scene(coils=())
+    warning, = check_wall_bodies(scene, SimpleNamespace(wall=wall))
+    assert "2 separate closed bodies" in warning and "fix: keep only the lumen surface" in warning
+    single = load(export(tmp_path, sphere(), "one.stl"))
+    assert single.body_volumes_mm3 == pytest.approx((sphere().volume,), rel=1e-5) and check_wall_bodies(
+        scene, SimpleNamespace(wall=single)) == []
+
+
 def test_metres_without_units_is_refused(tmp_path: Path) -> None:
     path = export(tmp_path, sphere().apply_scale(1e-3), "sac_m.stl")
     with pytest.raises(WallError, match='units = "m"') as caught:

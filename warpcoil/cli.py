@@ -86,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
     for warning in warnings:
         print(f"warpcoil run: warning: {warning}", file=sys.stderr)
     try:
-        with claimed_folder(out, outputs.RUN_OUTPUTS + outputs.SWEEP_OUTPUTS + outputs.PLAN_OUTPUTS, args.overwrite,
+        with claimed_folder(out, outputs.ALL_OUTPUTS, args.overwrite,
                             folder_pattern=outputs.MEMBER_FOLDERS):  # (a sweep's or plan's folder is no run's)
             return _deploy_into(out, scene, deployment, args, warnings)
     except OutputFolderError as error:
@@ -181,7 +181,7 @@ def _sweep(args: argparse.Namespace) -> int:
         if args.resume:  # keeps the member folders (the complete ones are not rerun) and, until the resumed
             claim = resumed_folder(out)  # sweep is checked, the summary (sweep.run_members)
         else:
-            claim = claimed_folder(out, outputs.SWEEP_OUTPUTS + outputs.RUN_OUTPUTS, args.overwrite,
+            claim = claimed_folder(out, outputs.ALL_OUTPUTS, args.overwrite,
                                    folder_pattern=outputs.MEMBER_FOLDERS)
         with claim:
             todo = run_sweep(Path(args.scene), varies, out, args.device, progress, args.scheduler, args.workers,
@@ -241,9 +241,8 @@ def _plan(args: argparse.Namespace) -> int:
             _device(args.device)
         plan = read_plan(Path(args.scene), [parse_vary(v) for v in args.vary or []])
         progress.start(len(plan.options) * plan.perturbations)
-        names = outputs.PLAN_OUTPUTS + outputs.SWEEP_OUTPUTS
         claim = resumed_folder(out) if args.resume else \
-            claimed_folder(out, names + outputs.RUN_OUTPUTS, args.overwrite, folder_pattern=outputs.MEMBER_FOLDERS)
+            claimed_folder(out, outputs.ALL_OUTPUTS, args.overwrite, folder_pattern=outputs.MEMBER_FOLDERS)
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
                               args.resume, args.retries)
@@ -278,6 +277,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from .preflight import SetupError
+    from .recorder.folder import OutputFolderError, claimed_folder
 
     ensemble = args.kind == "ensemble"
     refused = None
@@ -286,6 +286,8 @@ def _bench(args: argparse.Namespace) -> int:
                    "fix: leave --device out")
     elif args.repeats is not None and ensemble:
         refused = "--repeats does not apply to `bench ensemble` (it times each size once); fix: leave --repeats out"
+    elif args.repeats is not None and args.repeats < 1:
+        refused = f"--repeats {args.repeats}: the timing runs per setting (median reported); fix: give 1 or more"
     try:
         device = _device(args.device)
     except SetupError as error:
@@ -293,9 +295,17 @@ def _bench(args: argparse.Namespace) -> int:
     if refused:
         print(f"warpcoil bench: {refused}", file=sys.stderr)
         return 2
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    if ensemble:
+    try:  # (a report replaces the same benchmark's last one in the folder)
+        with claimed_folder(Path(args.output), (), overwrite=True) as out:
+            return _bench_into(out, args, device)
+    except OutputFolderError as error:
+        print(f"warpcoil bench: {error}", file=sys.stderr)
+        return 2
+
+
+def _bench_into(out: Path, args: argparse.Namespace, device) -> int:
+    """The benchmark ``args.kind`` into the claimed folder ``out``; its exit code."""
+    if args.kind == "ensemble":
         from .bench.ensemble import main as ensemble_main
 
         return ensemble_main(out, quick=args.quick, repeats=1, device=device)

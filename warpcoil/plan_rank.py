@@ -78,6 +78,12 @@ def _deployed(result: dict) -> float | None:
     return None if deployed is None or not total else 100.0 * deployed / total
 
 
+# push forces closer than this (mN) tie: the implicit default reads the push force within 0.25 F0 of the finest
+# reference (F0 = the stored energy per mm, 0.9–2 mN for the shipped coils; docs/FORMULATION.md), so tens of µN
+# (an option deploying into free space against one barely touching) are not told apart
+PUSH_FORCE_RESOLUTION_MN = 0.25
+
+
 @dataclass(frozen=True)
 class Criterion:
     """One ranking criterion: how to read it from a result.json, which way is better,
@@ -104,8 +110,8 @@ CRITERIA = (
               0.5, _occlusion),
     Criterion("neck_coverage_percent", "neck coverage", "%", False, 2.0, _neck_coverage),
     Criterion("packing_density_percent", "packing density in the sac", "%", False, 1.0, _packing),
-    Criterion("peak_push_force_mN", "peak push force (largest frame mean)", "mN", True, 0.0, _push_force,
-              relative=0.1),
+    Criterion("peak_push_force_mN", "peak push force (largest frame mean)", "mN", True, PUSH_FORCE_RESOLUTION_MN,
+              _push_force, relative=0.1),
 )
 
 

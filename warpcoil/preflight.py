@@ -182,6 +182,21 @@ def _sac_centre_mm(anatomy) -> np.ndarray:
     return np.asarray(trimesh.Trimesh(wall.vertices_mm, wall.faces, process=False).center_mass)
 
 
+def check_wall_bodies(scene: Scene, anatomy) -> list[str]:
+    """A warning when the wall mesh holds more than one separate closed body (a lumen is one): the
+    sac volume, and so the packing density, counts them all, and a body inside the lumen, wound as
+    read, reads as outside it rather than as an obstacle."""
+    wall = anatomy.wall
+    volumes = wall.body_volumes_mm3 if wall is not None else ()
+    if len(volumes) < 2:
+        return []
+    shown = ", ".join(f"{v:.3g}" for v in volumes[:4]) + (", …" if len(volumes) > 4 else "")
+    return [f"{scene.where}: wall.mesh {wall.source}: the surface has {len(volumes)} separate closed bodies "
+            f"(signed volumes {shown} mm³) where a lumen is one: the sac volume and packing density count them all, "
+            "and a body inside the lumen reads as outside it; fix: keep only the lumen surface in the file (in a "
+            "mesh editor: separate by loose parts, delete the others)"]
+
+
 def check_capacity(scene: Scene, sac_volume_mm3: float | None) -> list[str]:
     """Warnings for coils that cannot fit: volume over MAX_PACKING of the sac, a loop
     over MAX_LOOP_OVER_SAC × the sac's equivalent-sphere diameter."""
@@ -296,6 +311,7 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     check_balloon(scene, anatomy)
     notes = [f"{scene.where}: {note}" for note in scene.notes]
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
-    return (notes + check_sac_side(scene, anatomy) + check_catheter(scene, anatomy, device)
+    return (notes + check_wall_bodies(scene, anatomy) + check_sac_side(scene, anatomy)
+            + check_catheter(scene, anatomy, device)
             + check_capacity(scene, anatomy.sac_volume_mm3)
             + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))

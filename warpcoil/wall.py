@@ -43,6 +43,7 @@ class WallMesh:
     volume_mm3: float
     notes: tuple[str, ...]  # what intake changed, for the run log
     source: Path | None
+    body_volumes_mm3: tuple[float, ...] = ()  # a read mesh's separate closed bodies' signed volumes (mm³), largest first
 
 
 def sphere_wall(
@@ -103,7 +104,18 @@ def load_wall(spec: WallSpec) -> WallMesh:
         volume_mm3=float(mesh.volume),
         notes=tuple(notes),
         source=path,
+        body_volumes_mm3=body_volumes_mm3(mesh),
     )
+
+
+def body_volumes_mm3(mesh: trimesh.Trimesh) -> tuple[float, ...]:
+    """Signed volume (mm³) of each separate body (faces joined by shared edges) of the closed
+    ``mesh``, largest magnitude first: a lumen is one."""
+    body = component_labels(mesh.face_adjacency, len(mesh.faces))
+    v = mesh.vertices[mesh.faces]
+    signed = np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])) / 6.0
+    volumes = np.bincount(np.unique(body, return_inverse=True)[1], weights=signed)
+    return tuple(float(x) for x in volumes[np.argsort(-np.abs(volumes))])
 
 
 # --- readers ----------------------------------------------------------------------

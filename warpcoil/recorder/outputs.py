@@ -34,6 +34,7 @@ RUN_OUTPUTS = (RESULT_JSON, CENTERLINE_CSV, TIMESERIES_CSV, DEPLOYMENT_USD, SUMM
                ANIMATION_GIF, POROUS_VTI)  # every file a run may write (recorder.folder clears exactly these)
 SWEEP_OUTPUTS = ("summary.csv", "summary.md")  # a sweep's (and a plan's) beside its member_NNN folders
 PLAN_OUTPUTS = ("plan.md", "plan.csv", "plan.png")  # and a plan's
+ALL_OUTPUTS = RUN_OUTPUTS + SWEEP_OUTPUTS + PLAN_OUTPUTS  # what --overwrite clears, whichever command wrote them
 MEMBER_FOLDERS = r"member_\d+"
 
 
