@@ -288,3 +288,21 @@ def test_how_often_frames_are_taken_does_not_change_the_run():
     assert len(common) >= 8 and len(fine) > len(common)
     for t in common:
         assert np.array_equal(fine[t], coarse[t]), t
+
+
+def test_the_runs_push_force_is_read_over_the_frames_that_pushed():
+    """A coil that draws itself out of the catheter reads a tensile (< 0) frame mean throughout; its
+    largest frame mean read 0.0 from the first record and the settling frames, which push nothing."""
+    from warpcoil.measure import push_summary
+
+    def frame(deployed_mm: float, mean: float, peak: float, rms: float):
+        return types.SimpleNamespace(deployed_length_mm=deployed_mm, push_force_mean_uN=mean, push_force_peak_uN=peak,
+                                     push_force_rms_uN=rms)
+
+    frames = [frame(0.0, 0.0, 0.0, 0.0), frame(1.0, -350.0, -20.0, 400.0), frame(2.0, -300.0, -10.0, 300.0),
+              frame(2.0, 0.0, 0.0, 0.0)]
+    summary = push_summary(frames)
+    assert summary["push_force_mean_max_uN"] == -300.0 and summary["push_force_peak_uN"] == -10.0
+    assert summary["push_force_rms_uN"] == pytest.approx(math.sqrt((400.0**2 + 300.0**2) / 2.0))
+    assert push_summary(frames[:1]) == {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0,
+                                        "push_force_rms_uN": 0.0}

@@ -3,12 +3,14 @@ its rule, the settled state against the finest-step settle, and captured-graph s
 that change no result."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from test_implicit import implicit_scene
 
+import warpcoil as wc
 from warpcoil.deploy import Deployment
 from warpcoil.implicit import (IMPLICIT_SETTLE_DT_MAX_S, IMPLICIT_SETTLE_DT_S, IMPLICIT_SETTLE_THETA, GATED_CHORD,
                                SETTLE_ADVANCE_PER_C0, SETTLE_STALL_S, settle_finest_level, settle_level, settle_stalled)
@@ -16,6 +18,7 @@ from warpcoil.state import new_state_like
 from warpcoil.validation_settle import settle_cases
 
 C0_MM = 0.02921
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("frame_s", [0.004, 0.005, 0.01, 0.02])
@@ -38,7 +41,7 @@ def test_the_settled_state_is_at_rest_within_the_chaotic_spread_of_the_finest_st
     that a 0.01° catheter turn makes, no wall gap after the push deeper than the finest-step
     run's deepest, at rest."""
     rows = settle_cases()
-    assert len(rows) == 3
+    assert len(rows) == 5  # (and the stiff coil's two)
     for row in rows:
         assert row.passed, (row.case, row.reference, row.result, row.error)
 
@@ -169,9 +172,10 @@ def test_segments_below_d_scale_the_settling_bounds_by_a_power_of_l0_over_d():
 
     from warpcoil.implicit import SETTLE_FINE_EXPONENT, settle_step_scale, settle_step_s
 
-    d = 0.3
-    assert settle_step_scale([Coil(l0=d, d=d), Coil(l0=2 * d, d=d)]) == 1.0
-    assert settle_step_scale([Coil(l0=d, d=d), Coil(l0=0.5 * d, d=d)]) == pytest.approx(0.5**SETTLE_FINE_EXPONENT)
+    d, sim = 0.3, wc.SimulationSettings()
+    assert settle_step_scale([Coil(l0=d, d=d, EI=3e3), Coil(l0=2 * d, d=d, EI=3e3)], sim) == 1.0
+    assert settle_step_scale([Coil(l0=d, d=d, EI=3e3), Coil(l0=0.5 * d, d=d, EI=3e3)], sim) == pytest.approx(
+        0.5**SETTLE_FINE_EXPONENT)
     frame_s = 0.01
     for scale in (1.0, 0.5**SETTLE_FINE_EXPONENT, (2 / 3) ** SETTLE_FINE_EXPONENT):
         assert settle_step_s(1e-5, frame_s, scale) <= scale * IMPLICIT_SETTLE_DT_S * (1 + 1e-12)
@@ -230,3 +234,48 @@ def test_a_released_coil_with_segments_below_d_settles_without_gaining_energy(mo
     assert status == "completed" and rise < 0.1 * released, (status, rise, released)
     status, rise, released = _fine_loop_released(monkeypatch, tmp_path, 0)  # the unscaled bounds: the failure
     assert status != "completed" or rise > released, (status, rise, released)
+
+
+def test_stiff_coils_scale_the_settling_bounds_by_their_relaxation_rate():
+    """λ = EI v_d / (c d⁴) above SETTLE_RELAXATION_MAX_PER_S scales the bounds by the limit over λ (with
+    the fine segments' factor, which is λ's own l0 dependence); every shipped scene's coils and every
+    catalogue line stay at 1 (their runs unchanged); without damping nothing is scaled."""
+    import glob
+    from dataclasses import replace as changed
+
+    from warpcoil.catalog import catalogue
+    from warpcoil.coil import CoilSpec
+    from warpcoil.implicit import SETTLE_RELAXATION_MAX_PER_S, settle_relaxation_per_s, settle_step_scale
+    from warpcoil.scene import load_scene
+
+    sim = wc.SimulationSettings()
+    stiff = CoilSpec(wire_diameter_mm=0.2921, bending_stiffness_uN_mm2=3e4, loop_diameter_mm=3.0, length_mm=50.0)
+    rate = settle_relaxation_per_s(stiff, sim)
+    assert rate == pytest.approx(3e4 * 20.0 / (10.0 * 0.2921**4))
+    assert settle_step_scale([stiff], sim) == pytest.approx(SETTLE_RELAXATION_MAX_PER_S / rate)
+    fine = changed(stiff, segment_length_mm=0.5 * 0.2921)
+    assert settle_step_scale([fine], sim) == pytest.approx(0.5**4 * SETTLE_RELAXATION_MAX_PER_S / rate)
+    assert settle_step_scale([stiff], changed(sim, damping_uN_per_mm=0.0)) == 1.0
+    assert settle_step_scale([stiff], changed(sim, damping_uN_per_mm=20.0)) == pytest.approx(
+        2.0 * SETTLE_RELAXATION_MAX_PER_S / rate)
+    for path in glob.glob(str(ROOT / "scenes" / "*.toml")):
+        scene = load_scene(path)
+        assert settle_step_scale(scene.coils, scene.simulation) == 1.0, path
+    for line in catalogue().values():
+        for loop_mm, length_cm in line.sizes or ((line.loop_range_mm[0], line.length_range_cm[0]),):
+            spec, _ = line.spec(f"{loop_mm:g}x{length_cm:g}")
+            assert settle_step_scale([spec], sim) == 1.0, line.family
+
+
+def test_a_released_stiff_coil_settles_without_gaining_energy(monkeypatch):
+    """Nothing drives a released coil: its energy only falls. At the unscaled settling bounds a coil at
+    10 × its derived stiffness gained thousands of nJ in a frame, pressed on the wall at tens of mN; at the
+    bounds scaled by its relaxation rate it settles with no rise above 1 nJ and wall forces of its bends."""
+    import warpcoil.implicit as implicit
+    from warpcoil.validation_settle import stiff_coil_released
+
+    status, rise, force_uN, _ = stiff_coil_released()
+    assert status == "completed" and rise < 1.0 and force_uN < 3e3, (status, rise, force_uN)
+    monkeypatch.setattr(implicit, "SETTLE_RELAXATION_MAX_PER_S", math.inf)  # unscaled: the failure
+    status, rise, force_uN, _ = stiff_coil_released()
+    assert rise > 100.0 and force_uN > 1e4, (status, rise, force_uN)

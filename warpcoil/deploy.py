@@ -123,7 +123,7 @@ class Member:
         self.steps = 0
         self.settle_steps = 0  # steps taken at the settling steps (Ensemble._settle_chunk)
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
-        self.settle_scale = settle_step_scale(scene.coils)  # on its settling steps' bounds (segments below d)
+        self.settle_scale = settle_step_scale(scene.coils, scene.simulation)  # on its settling bounds (fine, stiff)
         self.sample_centre_mm = math.inf  # its contact samples' smallest wall centre distance (measure.note_samples)
         self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
         self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
@@ -733,7 +733,7 @@ def world_steps(model: Model, scenes: Sequence[Scene], bounds: list | None = Non
             dt = sim.dt_s if sim.dt_s is not None else implicit_step_s(model, sim.push_speed_mm_s)
             onset_dt = explicit_dt
             if sim.dt_s is None:
-                settle_dt = settle_step_s(dt, sim.frame_interval_s, settle_step_scale(scene.coils))
+                settle_dt = settle_step_s(dt, sim.frame_interval_s, settle_step_scale(scene.coils, sim))
             push_time = push_time_s(sim, lengths_mm)
             # the last coil's release is COIL_GAP_MM / speed before that: its whip (the detachment frames)
             # ends first

@@ -62,7 +62,7 @@ from .kernels import implicit as kernels
 from .kernels import node_theta
 from .kernels import elastic
 from .model import Model
-from .settings import DEFAULT_DT_SAFETY, DEFAULT_IMPLICIT_SCHEME
+from .settings import DEFAULT_DT_SAFETY, DEFAULT_IMPLICIT_SCHEME, SimulationSettings
 from .solver import Control, Solver, contact_linear_onset
 from .state import State
 from .wall_field import GRAD_TOLERANCE
@@ -89,6 +89,15 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # it comes to rest as the reference does (0.61 against 0.62 s) (docs/FORMULATION.md "Implicit step: the settling
 # step of fine segments")
 SETTLE_FINE_EXPONENT = 4
+# ... and for coils stiffer than the shipped ones: × SETTLE_RELAXATION_MAX_PER_S / λ where a coil's
+# λ = EI v_d / (c d⁴) (settle_relaxation_per_s) is above it. (l0/d)⁴ is λ's own dependence on the segment
+# (a bend's force constant EI/l0³ against a node's low-speed damping c l0 / v_d), so one rule keeps λ · step
+# where it was measured. A 50 mm spherical coil of d 0.2921 mm at 10 × its derived EI (3e4 µN·mm², λ 8.2e6/s)
+# gained up to +9 098 nJ in a frame after its release at the unscaled bounds (a 183 mN wall force, node centres
+# 0.31 mm past the wall), at 5 × (λ 4.1e6) 47 rises of up to 90 nJ; at the scaled bounds none, settling in
+# fewer steps. The shipped patient coils (d 0.381 mm, EI 1.72e4: λ 1.64e6) and every catalogue line lie at or
+# below the limit: their runs are unchanged (docs/FORMULATION.md "Implicit step: the settling step of stiff coils")
+SETTLE_RELAXATION_MAX_PER_S = 1.65e6
 # ... but not for a member whose kinetic energy stops falling: a 6 mm framing coil in C0001 ran a
 # steady oscillation at 2.5 ms (kinetic 0.031 nJ from 2.8 s to the 6 s timeout) and came to rest
 # at ≤ 2 ms. A member whose frame kinetic energy fell by less than SETTLE_STALL_DROP over the last
@@ -210,10 +219,24 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
     return min(IMPLICIT_ADVANCE_PER_C0 * model.contact.c0_mm / max(push_speed_mm_s, 1e-9), IMPLICIT_DT_MAX_S)
 
 
-def settle_step_scale(coils) -> float:
-    """Factor (≤ 1) on the settling steps' bounds for these coils (CoilParams): (l0/d)^SETTLE_FINE_EXPONENT of
-    the coil whose segments are finest relative to its wire, where that is below l0 = d; else 1."""
-    return min([1.0] + [(c.l0 / c.d) ** SETTLE_FINE_EXPONENT for c in coils if c.l0 < c.d * (1.0 - 1e-9)])
+def settle_relaxation_per_s(coil, sim: SimulationSettings) -> float:
+    """λ = EI v_d / (c d⁴) (1/s) of a coil (CoilSpec) in ``sim``'s damping (c = damping_uN_per_mm,
+    v_d = damping_speed_mm_s): the rate at which the damping relaxes a bend over segments of d; 0
+    without damping (no relaxation to scale by: its bounds stay those of l0)."""
+    if sim.damping_uN_per_mm <= 0.0:
+        return 0.0
+    return coil.EI * sim.damping_speed_mm_s / (sim.damping_uN_per_mm * coil.d ** 4)
+
+
+def settle_step_scale(coils, sim: SimulationSettings) -> float:
+    """Factor (≤ 1) on the settling steps' bounds for these coils (CoilSpec) in ``sim``'s damping: the
+    smallest over the coils of (l0/d)^SETTLE_FINE_EXPONENT where l0 < d, times SETTLE_RELAXATION_MAX_PER_S /
+    λ where a coil's λ (settle_relaxation_per_s) is above it; 1 for the shipped coils."""
+    def stiff(coil) -> float:
+        rate = settle_relaxation_per_s(coil, sim)
+        return SETTLE_RELAXATION_MAX_PER_S / rate if rate > SETTLE_RELAXATION_MAX_PER_S else 1.0
+
+    return min([1.0] + [min(1.0, c.l0 / c.d * (1.0 + 1e-9)) ** SETTLE_FINE_EXPONENT * stiff(c) for c in coils])
 
 
 def settle_step_s(push_dt_s: float, frame_interval_s: float, scale: float = 1.0) -> float:

@@ -230,9 +230,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
         min_coil_gap_mm=coil_gap,
         max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-        push_force_peak_uN=max(f.push_force_peak_uN for f in frames),
-        push_force_mean_max_uN=max(f.push_force_mean_uN for f in frames),
-        push_force_rms_uN=_run_rms(frames),
+        **push_summary(frames),
         stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
         final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
         regions=regions, occlusion=occlusion_of_regions(regions, member.scene.regions.occlusion_threshold),
@@ -301,10 +299,19 @@ def regional_densities(model: Model, member: Measured, x: np.ndarray, free: np.n
     return {k: float(v) for k, v in asdict(density).items()}
 
 
-def _run_rms(frames: list[Frame]) -> float:
-    """RMS push force (µN) over the frames in which the pusher pushed (the deployed
-    length grew; each frame spans the same simulated time, so this is the RMS over
-    that time)."""
-    pushed = [f.push_force_rms_uN for f, before in zip(frames[1:], frames) if
-              f.deployed_length_mm > before.deployed_length_mm]
-    return float(np.sqrt(np.mean(np.square(pushed)))) if pushed else 0.0
+def pushed_frames(frames: list[Frame]) -> list[Frame]:
+    """The frames in which the pusher pushed (the deployed length grew): the others (the
+    first record, settling, a member held) read no push force, a 0 that is no reading."""
+    return [f for f, before in zip(frames[1:], frames) if f.deployed_length_mm > before.deployed_length_mm]
+
+
+def push_summary(frames: list[Frame]) -> dict[str, float]:
+    """The run's push force (µN) over the frames in which the pusher pushed: the largest single-step
+    and frame-mean values (signed: a coil that draws itself out reads below 0 throughout) and the RMS
+    (each frame spans the same simulated time, so over that time); 0 where none pushed."""
+    pushed = pushed_frames(frames)
+    if not pushed:
+        return {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0, "push_force_rms_uN": 0.0}
+    return {"push_force_peak_uN": max(f.push_force_peak_uN for f in pushed),
+            "push_force_mean_max_uN": max(f.push_force_mean_uN for f in pushed),
+            "push_force_rms_uN": float(np.sqrt(np.mean(np.square([f.push_force_rms_uN for f in pushed]))))}
