@@ -874,6 +874,19 @@ def test_a_preshape_that_cannot_be_made_names_its_file_and_coil(tmp_path):
     assert not (tmp_path / "ps").exists() or leftovers(tmp_path / "ps") == []
 
 
+def test_validate_runs_each_named_case_once(tmp_path):
+    """`validate contact contact` ran the case twice ("10 passed"), and `wall_field` was the only name
+    with an underscore (`wall-field` unknown): each case runs once, and either spelling names it."""
+    from warpcoil.validation import contact_law
+
+    rows = len(contact_law())
+    code, out, err = cli(tmp_path, "validate", "contact", "contact", "contact")
+    assert code == 0, err
+    assert out.rstrip().endswith(f"{rows} passed, 0 failed")
+    code, _, err = cli(tmp_path, "validate", "wall-feld")
+    assert code == 2 and "unknown case(s) wall-feld" in one_line(err) and "wall-field" in err
+
+
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_a_stop_ends_validate_not_only_the_case_that_runs(tmp_path, stop):
     """`warpcoil validate` (every case, minutes) stopped 8 s in: the whole command ends (exit 130,

@@ -246,9 +246,26 @@ def test_plan_errors_name_the_option_and_key(tmp_path):
     scene.write_text(SCENE.replace('catheter.depth_mm = 1.0', 'catheter.depth_mm = 1.0\nplan.perturbations = 4'))
     with pytest.raises(PlanError, match=r"plan\.option\[0\].*plan\.perturbations: is a setting of the plan"):
         read_plan(scene)
+    scene.write_text(SCENE.replace("catheter.depth_mm = -0.3\ncatheter.angle_deg = 20.0", "catheter.depth_mm = 1"))
+    with pytest.raises(PlanError, match=r"plan\.option\[1\]: \(tip below the neck, tilted\) is the treatment of "
+                                        r"plan\.option\[0\] \(tip deep in the sac\).*fix"):
+        read_plan(scene)  # (1 and 1.0: one value)
     scene.write_text(SCENE.split("[[plan.option]]")[0])  # (--vary gives the options)
     with pytest.raises(PlanError, match=r"plan\.perturbations: is a setting of the plan"):
         read_plan(scene, [("plan.perturbations", [2, 3])])
+
+
+def test_an_options_tip_outside_the_lumen_names_the_option_and_a_depth_that_fits(tmp_path):
+    """A depth past the far wall: refused before any run (exit 2, one line, no folder), naming the option
+    and its perturbation (not a member folder that never exists) and, as the fix, a smaller depth (the
+    hint suggested 0.5 whatever the depth that failed)."""
+    out = tmp_path / "out"
+    code, _, stderr = _plan(tmp_path, SCENE.replace("catheter.depth_mm = 1.0", "catheter.depth_mm = 4.0"), out)
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, stderr
+    assert lines[0].startswith("warpcoil plan: option tip deep in the sac (tip 1): ")
+    assert "catheter.depth_mm = 4 puts the tip at" in lines[0] and "less than 4 mm" in lines[0]
+    assert not out.exists()
 
 
 def test_a_scene_device_is_reported_as_every_options_device(tmp_path):

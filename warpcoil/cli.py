@@ -263,12 +263,13 @@ def _plan(args: argparse.Namespace) -> int:
 def _validate(args: argparse.Namespace) -> int:
     from . import validation
 
-    unknown = sorted(set(args.cases) - set(validation.CASES))
+    cases = list(dict.fromkeys(name.replace("_", "-") for name in args.cases))  # each once; wall_field = wall-field
+    unknown = [name for name in cases if name not in validation.CASES]
     if unknown:
         print(f"warpcoil validate: unknown case(s) {', '.join(unknown)}; choose from {', '.join(validation.CASES)}",
               file=sys.stderr)
         return 2
-    rows = validation.run(args.cases or None)
+    rows = validation.run(cases or None)
     print(validation.format_table(rows))
     failed = [r for r in rows if not r.passed]
     print(f"\n{len(rows) - len(failed)} passed, {len(failed)} failed")

@@ -127,6 +127,12 @@ def read_plan(scene_path: Path, varies: list[tuple[str, list]] | None = None) ->
     for k, name in enumerate(names):
         if names.index(name) != k:
             raise _error(source, _at(where[k], "name"), f"{name!r} names two options", "give each option its own name")
+    treatments = [(o.device, o.keys) for o in options]  # (0 and 0.0 are one value)
+    for k, treatment in enumerate(treatments):
+        if treatments.index(treatment) != k:
+            j = treatments.index(treatment)
+            raise _error(source, where[k], f"({names[k]}) is the treatment of {where[j]} ({names[j]}): the same "
+                         "device and scene keys, run twice to tie", "change one of them, or remove it")
     if len(options) < 2:
         raise _error(source, where[0], "a plan compares options, and there is one",
                      "add at least one more [[plan.option]] (or --vary value)")

@@ -93,7 +93,10 @@ def check_catheter(scene: Scene, anatomy, device=None) -> list[str]:
         if catheter.placement == "neck":
             raise SetupError(
                 f"{scene.where}: catheter.depth_mm = {catheter.depth_mm:g} puts the tip at {_vec(tip)} mm, "
-                f"{-depth:.3g} mm outside the lumen; fix: give a depth that stays inside the sac (e.g. 0.5)")
+                f"{-depth:.3g} mm outside the lumen; fix: give a depth that stays inside the sac ("
+                + (f"less than {catheter.depth_mm:g} mm: the sac is shallower there along the neck normal"
+                   if catheter.depth_mm > 0.0 else "above 0 mm: 0 is the neck's centroid, below it the parent vessel")
+                + ", or check neck.sac_point_mm picks the sac's side)")
         raise SetupError(
             f"{scene.where}: catheter.tip {_vec(tip)} mm is {-depth:.3g} mm outside the lumen (the wall spans "
             f"{_vec(low)} to {_vec(high)} mm); fix: move catheter.tip inside the wall, a little inside the sac")

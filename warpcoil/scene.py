@@ -455,6 +455,9 @@ class _Reader:
             stent=self.section(document, "stent", _STENT, StentSpec) if "stent" in document else None,
             source=self.source,
         )
+        if "regions" in document and "neck" not in document:  # (its settings, checked, would change nothing)
+            raise self.error("regions", "the regional densities are measured from the neck, and there is no [neck]",
+                             "add a [neck] table (docs/SCENES.md), or remove [regions]")
         return resolve_integrator(scene)
 
 

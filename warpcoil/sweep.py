@@ -219,7 +219,8 @@ def naming_member(member: Member) -> Iterator[None]:
     try:
         yield
     except (SceneError, WallError, PreshapeError, SetupError, UnstableStepError) as error:
-        raise type(error)(f"{member.name} ({member_values(member)}): {error}") from None
+        which = f"option {member.label}" if member.label is not None else f"{member.name} ({member_values(member)})"
+        raise type(error)(f"{which}: {error}") from None
 
 
 def member_line(member: Member) -> str:

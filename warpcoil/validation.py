@@ -961,9 +961,7 @@ CASES = {
     "contact-share": contact_share,
     "contact-samples": contact_samples,
     "regions": regions,
-
-
-    "wall_field": wall_field_cases,
+    "wall-field": wall_field_cases,
     "porous": porous_cases,
     "energy3d": energy_3d_cases,
     "timestep": timestep_convergence,
