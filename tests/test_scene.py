@@ -244,6 +244,8 @@ ERRORS = {
     "porous voxel": (MINIMAL_COIL + "[output]\nporous_voxel_mm = 0\n", "output.porous_voxel_mm", "> 0"),
     "occlusion threshold in %": (MINIMAL_COIL + "[regions]\nocclusion_threshold = 31\n",
                                  "regions.occlusion_threshold", "(0, 1]"),
+    "size without a product": (with_coil(size='"3 x 6"'), "coil[0].product",
+                               "`warpcoil coils` lists them"),
     "regions without a neck": (MINIMAL_COIL + "[regions]\nvoxel_mm = 0.05\n", "regions", "there is no [neck]"),
 }
 

@@ -314,8 +314,8 @@ def from_file(path: str | Path, length_mm: float, segment_length_mm: float) -> n
     curve_mm = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
     if abs(length_mm - curve_mm) > 0.01 * curve_mm:
         raise PreshapeError(
-            f"{path}: the centerline is {curve_mm:.4g} mm long but the coil length is {length_mm:g} mm "
-            "(more than 1 % apart); give the coil's catalogue length or a centerline of that length"
+            f"file {path}: the centerline is {curve_mm:.4g} mm long but the coil length is {length_mm:g} mm "
+            f"(more than 1 % apart); fix: length_mm = {curve_mm:.4g}, or a centerline {length_mm:g} mm long"
         )
     return resample_equal_arc(points, _segment_count(length_mm, segment_length_mm, str(path)))
 

@@ -325,7 +325,9 @@ class _Reader:
         for key, example in (("product", '"Axium Prime 3D"'), ("size", '"6 x 20" (loop mm x length cm)')):
             if key not in value:
                 raise self.error(f"{where}.{key}", "product and size go together; this one is missing",
-                                 f"add {key} = {example}")
+                                 f"add {key} = a catalogue line's (`warpcoil coils` lists them), e.g. {example}, "
+                                 "or describe the coil by its own keys (loop_diameter_mm, length_mm) without "
+                                 f"{'size' if key == 'product' else 'product'}")
         try:
             line = find_line(values.pop("product"))
         except CatalogueError as bad:
