@@ -883,8 +883,11 @@ def test_validate_runs_each_named_case_once(tmp_path):
     code, out, err = cli(tmp_path, "validate", "contact", "contact", "contact")
     assert code == 0, err
     assert out.rstrip().endswith(f"{rows} passed, 0 failed")
-    code, _, err = cli(tmp_path, "validate", "wall-feld")
-    assert code == 2 and "unknown case(s) wall-feld" in one_line(err) and "wall-field" in err
+    code, _, err = cli(tmp_path, "validate", "wall_feld")
+    assert code == 2 and "unknown case(s) wall_feld;" in one_line(err) and "wall-field" in err  # (as typed)
+    from warpcoil.validation import run
+
+    assert [r.case for r in run(["wall_field"])] == [r.case for r in run(["wall-field"])]
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])

@@ -299,10 +299,10 @@ def test_the_runs_push_force_is_read_over_the_frames_that_pushed():
         return types.SimpleNamespace(deployed_length_mm=deployed_mm, push_force_mean_uN=mean, push_force_peak_uN=peak,
                                      push_force_rms_uN=rms)
 
-    frames = [frame(0.0, 0.0, 0.0, 0.0), frame(1.0, -350.0, -20.0, 400.0), frame(2.0, -300.0, -10.0, 300.0),
-              frame(2.0, 0.0, 0.0, 0.0)]
+    frames = [frame(0.0, 0.0, 0.0, 0.0), frame(1.0, -350.0, 20.0, 400.0), frame(2.0, -300.0, 10.0, 300.0),
+              frame(2.0, 0.0, 0.0, 0.0), frame(2.0, 0.0, 50.0, 60.0)]  # (the last: ringing once nothing is pushed)
     summary = push_summary(frames)
-    assert summary["push_force_mean_max_uN"] == -300.0 and summary["push_force_peak_uN"] == -10.0
+    assert summary["push_force_mean_max_uN"] == -300.0 and summary["push_force_peak_uN"] == 20.0
     assert summary["push_force_rms_uN"] == pytest.approx(math.sqrt((400.0**2 + 300.0**2) / 2.0))
     assert push_summary(frames[:1]) == {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0,
                                         "push_force_rms_uN": 0.0}

@@ -39,9 +39,10 @@ def test_friction_takes_the_load_of_the_contact_samples(segment_d, implicit):
     """Segments above 1.5 d meet the wall at contact samples too (a node's own law weighs 1/K): the
     friction on the incline is μ times the whole load, nodes' and samples' (from the nodes' own load
     alone it would slide at g (sin θ − μ cos θ / K)), on either step."""
-    acceleration, reference, _, _ = vf.incline_motion(0.3, 2.0, steps=6000, implicit=implicit, segment_d=segment_d)
+    acceleration, reference, _, _ = vf.incline_motion(0.3, 2.0, implicit=implicit, segment_d=segment_d,
+                                                      duration_s=0.065)  # (6 000 steps at segments of d)
     assert acceleration == pytest.approx(reference, rel=1e-3)
-    _, _, creep, _ = vf.incline_motion(0.3, 0.8, steps=6000, implicit=implicit, segment_d=segment_d)
+    _, _, creep, _ = vf.incline_motion(0.3, 0.8, implicit=implicit, segment_d=segment_d, duration_s=0.065)
     assert creep == pytest.approx(0.8 * wc.ContactSettings().friction_speed_mm_s, rel=1e-2)
 
 

@@ -263,7 +263,7 @@ def test_an_options_tip_outside_the_lumen_names_the_option_and_a_depth_that_fits
     code, _, stderr = _plan(tmp_path, SCENE.replace("catheter.depth_mm = 1.0", "catheter.depth_mm = 4.0"), out)
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1, stderr
-    assert lines[0].startswith("warpcoil plan: option tip deep in the sac (tip 1): ")
+    assert lines[0].startswith('warpcoil plan: option "tip deep in the sac (tip 1)": ')
     assert "catheter.depth_mm = 4 puts the tip at" in lines[0] and "less than 4 mm" in lines[0]
     assert not out.exists()
 

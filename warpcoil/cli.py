@@ -77,7 +77,8 @@ def _run(args: argparse.Namespace) -> int:
             raise SceneError(f"{scene.source}: simulation.dt_s: {error}") from None
         warnings = preflight(scene, deployment.anatomy, device, deployment.members[0].step_bound_s)
     except (SceneError, WallError, PreshapeError, SetupError, OutputFolderError) as error:
-        given = args.frame_interval is not None and "frame_interval_s" in str(error)  # the flag's value, not the file's
+        given = args.frame_interval is not None and str(error).startswith(  # the flag's value, not the file's
+            f"{Path(args.scene).expanduser().resolve()}: simulation.frame_interval_s")
         print(f"warpcoil run: {f'--frame-interval {args.frame_interval:g}: ' if given else ''}{error}", file=sys.stderr)
         return 2
     wall = deployment.anatomy.wall
@@ -154,14 +155,9 @@ def _coils(args: argparse.Namespace) -> int:
 
 def _sweep(args: argparse.Namespace) -> int:
     from .model import EnsembleError
-    from .preflight import SetupError
-    from .preshape import PreshapeError
     from .recorder import outputs
     from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
-    from .scene import SceneError
-    from .solver import UnstableStepError
-    from .sweep import SweepError, SweepIncomplete, SweepProgress, members, parse_vary, run_sweep
-    from .wall import WallError
+    from .sweep import SCENE_ERRORS, SweepError, SweepIncomplete, SweepProgress, members, parse_vary, run_sweep
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
     progress = SweepProgress(quiet=args.quiet)
@@ -186,8 +182,7 @@ def _sweep(args: argparse.Namespace) -> int:
         with claim:
             todo = run_sweep(Path(args.scene), varies, out, args.device, progress, args.scheduler, args.workers,
                              args.usd, args.resume, args.retries)
-    except (SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError, SetupError,
-            OutputFolderError) as error:
+    except (SweepError, *SCENE_ERRORS, EnsembleError, OutputFolderError) as error:
         progress.close(failed=True)
         print(f"warpcoil sweep: {error}", file=sys.stderr)
         return 2
@@ -221,14 +216,9 @@ def _check_options(args: argparse.Namespace) -> None:
 def _plan(args: argparse.Namespace) -> int:
     from .model import EnsembleError
     from .plan import PlanError, read_plan, run_plan
-    from .preflight import SetupError
-    from .preshape import PreshapeError
     from .recorder import outputs
     from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
-    from .scene import SceneError
-    from .solver import UnstableStepError
-    from .sweep import SweepError, SweepIncomplete, SweepProgress, parse_vary
-    from .wall import WallError
+    from .sweep import SCENE_ERRORS, SweepError, SweepIncomplete, SweepProgress, parse_vary
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_plan"
     progress = SweepProgress(quiet=args.quiet, command="plan")
@@ -246,8 +236,7 @@ def _plan(args: argparse.Namespace) -> int:
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
                               args.resume, args.retries)
-    except (PlanError, SweepError, SceneError, WallError, PreshapeError, UnstableStepError, EnsembleError,
-            SetupError, OutputFolderError) as error:
+    except (PlanError, SweepError, *SCENE_ERRORS, EnsembleError, OutputFolderError) as error:
         progress.close(failed=True)
         print(f"warpcoil plan: {error}", file=sys.stderr)
         return 2
@@ -263,13 +252,12 @@ def _plan(args: argparse.Namespace) -> int:
 def _validate(args: argparse.Namespace) -> int:
     from . import validation
 
-    cases = list(dict.fromkeys(name.replace("_", "-") for name in args.cases))  # each once; wall_field = wall-field
-    unknown = [name for name in cases if name not in validation.CASES]
+    unknown = [name for name in args.cases if validation.case_name(name) not in validation.CASES]
     if unknown:
         print(f"warpcoil validate: unknown case(s) {', '.join(unknown)}; choose from {', '.join(validation.CASES)}",
               file=sys.stderr)
         return 2
-    rows = validation.run(cases or None)
+    rows = validation.run(args.cases or None)
     print(validation.format_table(rows))
     failed = [r for r in rows if not r.passed]
     print(f"\n{len(rows) - len(failed)} passed, {len(failed)} failed")

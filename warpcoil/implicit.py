@@ -90,9 +90,10 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 # step of fine segments")
 SETTLE_FINE_EXPONENT = 4
 # ... and for coils stiffer than the shipped ones: × SETTLE_RELAXATION_MAX_PER_S / λ where a coil's
-# λ = EI v_d / (c d⁴) (settle_relaxation_per_s) is above it. (l0/d)⁴ is λ's own dependence on the segment
-# (a bend's force constant EI/l0³ against a node's low-speed damping c l0 / v_d), so one rule keeps λ · step
-# where it was measured. A 50 mm spherical coil of d 0.2921 mm at 10 × its derived EI (3e4 µN·mm², λ 8.2e6/s)
+# λ = EI v_d / (c d⁴) (settle_relaxation_per_s) is above it (a bend's force constant EI/l0³ against a node's
+# low-speed damping c l0 / v_d, at l0 = d; (l0/d)⁴ is its own dependence on the segment). Lower damping
+# scales the bounds down too: the seed case at c 1 / 0.2 µN/mm took 3 476 / 5 312 steps against 3 570 / 3 754
+# unscaled, completing and coming to rest sooner (1.5 against 2.8 s at 0.2; the twenty-third session's review). A 50 mm spherical coil of d 0.2921 mm at 10 × its derived EI (3e4 µN·mm², λ 8.2e6/s)
 # gained up to +9 098 nJ in a frame after its release at the unscaled bounds (a 183 mN wall force, node centres
 # 0.31 mm past the wall), at 5 × (λ 4.1e6) 47 rises of up to 90 nJ; at the scaled bounds none, settling in
 # fewer steps. The shipped patient coils (d 0.381 mm, EI 1.72e4: λ 1.64e6) and every catalogue line lie at or
@@ -220,18 +221,21 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
 
 
 def settle_relaxation_per_s(coil, sim: SimulationSettings) -> float:
-    """λ = EI v_d / (c d⁴) (1/s) of a coil (CoilSpec) in ``sim``'s damping (c = damping_uN_per_mm,
-    v_d = damping_speed_mm_s): the rate at which the damping relaxes a bend over segments of d; 0
-    without damping (no relaxation to scale by: its bounds stay those of l0)."""
-    if sim.damping_uN_per_mm <= 0.0:
+    """λ = EI v_d / (c d⁴) (1/s) of a coil (CoilSpec) in ``sim``'s damping (c = damping_uN_per_mm ×
+    mass_scale, as the model damps, v_d = damping_speed_mm_s): the rate at which the damping relaxes a bend
+    over segments of d; 0 without damping (no relaxation to scale by: its bounds stay those of l0)."""
+    damping = sim.damping_uN_per_mm * sim.mass_scale
+    if damping <= 0.0:
         return 0.0
-    return coil.EI * sim.damping_speed_mm_s / (sim.damping_uN_per_mm * coil.d ** 4)
+    return coil.EI * sim.damping_speed_mm_s / (damping * coil.d ** 4)
 
 
 def settle_step_scale(coils, sim: SimulationSettings) -> float:
     """Factor (≤ 1) on the settling steps' bounds for these coils (CoilSpec) in ``sim``'s damping: the
     smallest over the coils of (l0/d)^SETTLE_FINE_EXPONENT where l0 < d, times SETTLE_RELAXATION_MAX_PER_S /
-    λ where a coil's λ (settle_relaxation_per_s) is above it; 1 for the shipped coils."""
+    λ where a coil's λ (settle_relaxation_per_s, at segments of d) is above it; 1 for the shipped coils. The
+    two factors multiply: the fine segments' was measured at the derived stiffness, and λ at l0 > d is not
+    reduced (both conservative)."""
     def stiff(coil) -> float:
         rate = settle_relaxation_per_s(coil, sim)
         return SETTLE_RELAXATION_MAX_PER_S / rate if rate > SETTLE_RELAXATION_MAX_PER_S else 1.0

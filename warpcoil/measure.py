@@ -306,9 +306,10 @@ def pushed_frames(frames: list[Frame]) -> list[Frame]:
 
 
 def push_summary(frames: list[Frame]) -> dict[str, float]:
-    """The run's push force (µN) over the frames in which the pusher pushed: the largest single-step
-    and frame-mean values (signed: a coil that draws itself out reads below 0 throughout) and the RMS
-    (each frame spans the same simulated time, so over that time); 0 where none pushed."""
+    """The run's push force (µN) over the frames in which the pusher pushed: the largest compressive
+    single-step value (≥ 0), the largest frame mean (signed: a coil that draws itself out reads below 0
+    throughout) and the RMS (each frame spans the same simulated time, so over that time); 0 where none
+    pushed."""
     pushed = pushed_frames(frames)
     if not pushed:
         return {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0, "push_force_rms_uN": 0.0}

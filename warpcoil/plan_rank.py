@@ -78,9 +78,10 @@ def _deployed(result: dict) -> float | None:
     return None if deployed is None or not total else 100.0 * deployed / total
 
 
-# push forces closer than this (mN) tie: the implicit default reads the push force within 0.25 F0 of the finest
-# reference (F0 = the stored energy per mm, 0.9–2 mN for the shipped coils; docs/FORMULATION.md), so tens of µN
-# (an option deploying into free space against one barely touching) are not told apart
+# push forces closer than this fixed threshold (mN) tie: the implicit default reads the push force within
+# 0.25 F0 of the finest reference on the seed case (F0 = the stored energy per mm, 0.9–2 mN for the shipped
+# coils; stiffer coils read worse, SCENES.md), so differences of tens of µN (an option deploying into free
+# space against one barely touching) are no finding; 0.25 mN is 0.12–0.28 F0 of the shipped coils
 PUSH_FORCE_RESOLUTION_MN = 0.25
 
 

@@ -58,6 +58,7 @@ class SweepIncomplete(RuntimeError):
     """Some ensembles failed after their retries; the other members are written."""
 
 
+SCENE_ERRORS = (SceneError, WallError, PreshapeError, SetupError, UnstableStepError)  # a scene that cannot run
 MAX_MEMBERS = 20_000  # a sweep's members (more is most likely a mistyped step: 10:30:0.0001 is 200 001)
 
 
@@ -218,8 +219,8 @@ def naming_member(member: Member) -> Iterator[None]:
     outside a varied sphere)."""
     try:
         yield
-    except (SceneError, WallError, PreshapeError, SetupError, UnstableStepError) as error:
-        which = f"option {member.label}" if member.label is not None else f"{member.name} ({member_values(member)})"
+    except SCENE_ERRORS as error:
+        which = f'option "{member.label}"' if member.label is not None else f"{member.name} ({member_values(member)})"
         raise type(error)(f"{which}: {error}") from None
 
 
@@ -318,7 +319,9 @@ def dask_client(scheduler: str | None, workers: int | None, device: str | None, 
         finally:
             client.close()
         return
-    preload = [*dask.config.get("distributed.worker.preload", []), "warpcoil.sweep_task"]  # (its dask_setup)
+    preload = dask.config.get("distributed.worker.preload", None) or []  # (a user's: a list, or one name)
+    preload = [preload] if isinstance(preload, str) else list(preload)
+    preload.append("warpcoil.sweep_task")  # (its dask_setup)
     with dask.config.set({"distributed.scheduler.allowed-failures": retries, "distributed.worker.preload": preload}):
         cluster = LocalCluster(n_workers=workers or default_workers(device), threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.CRITICAL,  # no dashboard; its health
@@ -488,5 +491,5 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     return todo
 
 
-__all__ = ["Member", "SweepError", "SweepIncomplete", "SweepProgress", "complete_result", "parse_vary", "run_members",
+__all__ = ["Member", "SCENE_ERRORS", "SweepError", "SweepIncomplete", "SweepProgress", "complete_result", "parse_vary", "run_members",
            "run_sweep"]

@@ -982,10 +982,15 @@ CASES = {
 DEFAULT_CASES = list(CASES)
 
 
+def case_name(name: str) -> str:
+    """A case's name in CASES as a user may spell it (wall_field: wall-field)."""
+    return name.replace("_", "-")
+
+
 def run(names: list[str] | None = None) -> list[CaseResult]:
-    """The named cases (default: DEFAULT_CASES)."""
+    """The named cases (default: DEFAULT_CASES), each once."""
     rows: list[CaseResult] = []
-    for name in names or DEFAULT_CASES:
+    for name in dict.fromkeys(case_name(n) for n in names or DEFAULT_CASES):
         rows.extend(CASES[name]())
     return rows
 

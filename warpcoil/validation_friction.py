@@ -30,6 +30,7 @@ IMPLICIT_CAPSTAN_TOLERANCE = 2e-2
 # between the slip checks; as a per-node change after the solve: 0.10 / 0.06)
 IMPLICIT_CAPSTAN_CONVERGENCE = 1e-2
 E_MINUS_1 = math.e - 1.0
+INCLINE_S = 0.2  # simulated time of the incline rows at segments of 2 d and 3 d (s; a slide of ~10 mm at 2μ)
 
 
 def _law_uN(h_mm: np.ndarray, c0_mm: float) -> np.ndarray:
@@ -130,23 +131,23 @@ def _chunk(solver: Solver, explicit_steps: int) -> int:
 
 def incline_motion(mu: float, tan_ratio: float, g_mm_s2: float = 2000.0, steps: int = 20_000,
                    nodes: int = 11, v_reg_mm_s: float = ContactSettings.friction_speed_mm_s,
-                   implicit: bool = False, scheme: str = "gated_chord", segment_d: float = 1.0
-                   ) -> tuple[float, float, float]:
+                   implicit: bool = False, scheme: str = "gated_chord", segment_d: float = 1.0,
+                   duration_s: float | None = None) -> tuple[float, float, float]:
     """A straight coil piece on the floor under a body acceleration g tilted by θ
     (tan θ = tan_ratio · μ), segments of ``segment_d`` · d (:func:`rod_on_floor`), starting at rest
-    at its contact equilibrium, for ``steps`` of the reference's step at segments of d (its step grows
-    as the segment squared: the same simulated time at any ``segment_d``; ``implicit``: the implicit step
-    in ``scheme``, :func:`_solver`). Returns (fitted acceleration over the second half, mm/s²; analytic
-    g (sin θ − μ cos θ) or 0 when it sticks; mean speed over the second half, mm/s; largest mean speed, mm/s)."""
+    at its contact equilibrium, for ``steps`` of the reference's step, or (``duration_s``) that simulated
+    time in chunks of 200 of them (``implicit``: the implicit step in ``scheme``, :func:`_solver`). Returns
+    (fitted acceleration over the second half, mm/s²; analytic g (sin θ − μ cos θ) or 0 when it sticks;
+    mean speed over the second half, mm/s; largest mean speed, mm/s)."""
     theta = math.atan(tan_ratio * mu)
-    steps = round(steps / segment_d ** 2)
     model, x = rod_on_floor(mu, g_mm_s2 * np.array([math.sin(theta), 0.0, -math.cos(theta)]), nodes, v_reg_mm_s,
                             segment_d)
     solver = _solver(model, implicit, coil_contact=False, scheme=scheme)
     chunk = _chunk(solver, 200)
     stepper = Stepper(solver, state_from_positions(model, x), Control.create(model), chunk=chunk)
+    chunks = steps // 200 if duration_s is None else math.ceil(duration_s / (chunk * solver.dt_s))
     times, speeds = [], []
-    for _ in range(steps // 200):
+    for _ in range(chunks):
         state = stepper.run_chunk()
         times.append(state.time_s)
         speeds.append(float(state.v.numpy()[:, 0].mean()))
@@ -169,11 +170,12 @@ def incline_cases(mu: float = 0.3, implicit: bool = False) -> list[CaseResult]:
     for ratio in (1.2, 2.0):
         acceleration, reference, _, _ = incline_motion(mu, ratio, implicit=implicit)
         rows.append(_row(f"{label} incline tanθ = {ratio}μ: slide accel. (mm/s²)", reference, acceleration, 1e-2))
-    for segment_d in (2.0, 3.0):
-        _, _, creep, _ = incline_motion(mu, 0.8, implicit=implicit, segment_d=segment_d)
+    for segment_d in (2.0, 3.0):  # (0.2 s: the d rows' time; the reference's step is contact-bound, ~1.5–1.9 × d's)
+        _, _, creep, _ = incline_motion(mu, 0.8, implicit=implicit, segment_d=segment_d, duration_s=INCLINE_S)
         rows.append(_row(f"{label} incline tanθ = 0.8μ, segments {segment_d:g} d (wall at contact samples): "
                          "sticks, creep (mm/s)", 0.8 * v_reg, creep, 1e-2))
-        acceleration, reference, _, _ = incline_motion(mu, 2.0, implicit=implicit, segment_d=segment_d)
+        acceleration, reference, _, _ = incline_motion(mu, 2.0, implicit=implicit, segment_d=segment_d,
+                                                       duration_s=INCLINE_S)
         rows.append(_row(f"{label} incline tanθ = 2μ, segments {segment_d:g} d (wall at contact samples): "
                          "slide accel. (mm/s²)", reference, acceleration, 1e-2))
     return rows
