@@ -276,8 +276,8 @@ def test_a_released_stiff_coil_settles_without_gaining_energy(monkeypatch):
     import warpcoil.implicit as implicit
     from warpcoil.validation_settle import stiff_coil_released
 
-    status, rise, force_uN, _ = stiff_coil_released()
+    status, rise, force_uN = stiff_coil_released()
     assert status == "completed" and rise < 1.0 and force_uN < 3e3, (status, rise, force_uN)
     monkeypatch.setattr(implicit, "SETTLE_RELAXATION_MAX_PER_S", math.inf)  # unscaled: the failure
-    status, rise, force_uN, _ = stiff_coil_released()
+    status, rise, force_uN = stiff_coil_released()
     assert rise > 100.0 and force_uN > 1e4, (status, rise, force_uN)

@@ -91,13 +91,14 @@ IMPLICIT_SETTLE_DT_MAX_S = 2.5e-3
 SETTLE_FINE_EXPONENT = 4
 # ... and for coils stiffer than the shipped ones: × SETTLE_RELAXATION_MAX_PER_S / λ where a coil's
 # λ = EI v_d / (c d⁴) (settle_relaxation_per_s) is above it (a bend's force constant EI/l0³ against a node's
-# low-speed damping c l0 / v_d, at l0 = d; (l0/d)⁴ is its own dependence on the segment). Lower damping
-# scales the bounds down too: the seed case at c 1 / 0.2 µN/mm took 3 476 / 5 312 steps against 3 570 / 3 754
-# unscaled, completing and coming to rest sooner (1.5 against 2.8 s at 0.2; the twenty-third session's review). A 50 mm spherical coil of d 0.2921 mm at 10 × its derived EI (3e4 µN·mm², λ 8.2e6/s)
-# gained up to +9 098 nJ in a frame after its release at the unscaled bounds (a 183 mN wall force, node centres
-# 0.31 mm past the wall), at 5 × (λ 4.1e6) 47 rises of up to 90 nJ; at the scaled bounds none, settling in
-# fewer steps. The shipped patient coils (d 0.381 mm, EI 1.72e4: λ 1.64e6) and every catalogue line lie at or
-# below the limit: their runs are unchanged (docs/FORMULATION.md "Implicit step: the settling step of stiff coils")
+# low-speed damping c l0 / v_d, at l0 = d; (l0/d)⁴ is its own dependence on the segment). A 50 mm spherical
+# coil of d 0.2921 mm at 10 × its derived EI (3e4 µN·mm², λ 8.2e6/s) gained up to +9 098 nJ in a frame after
+# its release at the unscaled bounds (a 183 mN wall force, node centres 0.31 mm past the wall), at 5 × (λ 4.1e6)
+# 47 rises of up to 90 nJ; at the scaled bounds none, settling in fewer steps. The shipped patient coils
+# (d 0.381 mm, EI 1.72e4: λ 1.64e6) and every catalogue line lie at or below the limit: their runs are
+# unchanged. Lower damping scales the bounds down too: the seed case at c 1 / 0.2 µN/mm took 3 476 / 5 312
+# steps against 3 570 / 3 754 unscaled, completing and coming to rest sooner (1.5 against 2.8 s at 0.2; the
+# twenty-third session's review) (docs/FORMULATION.md "Implicit step: the settling step of stiff coils")
 SETTLE_RELAXATION_MAX_PER_S = 1.65e6
 # ... but not for a member whose kinetic energy stops falling: a 6 mm framing coil in C0001 ran a
 # steady oscillation at 2.5 ms (kinetic 0.031 nJ from 2.8 s to the 6 s timeout) and came to rest

@@ -426,9 +426,9 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
         with naming_member(todo[k]):
             anatomy = resolve_anatomies([scenes[k]], shared)[0]
             model = host_models([scenes[k]], [anatomy], "cpu")[0]  # step bounds and groups, host-side
-            world_steps(model, [scenes[k]])  # (its frame against its step and time limit)
-            member_warnings[k] = list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu",
-                                                                        world_bounds(model)[0].dt_s)))
+            bounds = world_bounds(model)
+            world_steps(model, [scenes[k]], bounds)  # (its frame against its step and time limit)
+            member_warnings[k] = list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu", bounds[0].dt_s)))
         anatomies.append(anatomy)
         models.append(model)
     stored = [w for m in todo if m.resumed for w in m.result.get("warnings", [])]

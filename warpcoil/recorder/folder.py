@@ -32,6 +32,16 @@ class OutputFolderError(ValueError):
     """An output folder that cannot be used; the message names it and the fix."""
 
 
+def _missing_folders(path: Path) -> list[Path]:
+    """``path`` and its parents that do not exist yet, innermost first, up to the first that does."""
+    missing = []
+    for folder in (path, *path.parents):
+        if folder.exists():
+            break
+        missing.append(folder)
+    return missing
+
+
 def check_output_path(path: Path, option: str = "-o") -> None:
     """Refuse, before any work, an output path that is a file or cannot be created or written."""
     path = Path(path)
@@ -43,27 +53,27 @@ def check_output_path(path: Path, option: str = "-o") -> None:
     if exists and not path.is_dir():
         raise OutputFolderError(f"{option} {path}: is an existing file, not a folder; fix: give a folder path "
                                 f"(it is created if missing), e.g. {option} {path.with_suffix('')}_out")
-    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    missing = _missing_folders(path)
+    chain = [path, *path.parents]
+    existing = chain[len(missing)] if len(missing) < len(chain) else None
     if existing is not None and not existing.is_dir():
         raise OutputFolderError(f"{option} {path}: {existing} is a file, so the folder cannot be created; fix: "
                                 "choose another output folder")
     if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
         raise OutputFolderError(f"{option} {path}: {existing} is not writable; fix: choose a folder you can "
                                 "write to, or change its permissions")
-    if existing is None or existing == path:
+    if existing is None or not missing:
         return
-    chain = [path, *path.parents]
-    missing = chain[:chain.index(existing)][::-1]  # outermost first
     try:
         longest = os.pathconf(existing, "PC_NAME_MAX")
     except (OSError, ValueError):
         longest = 255
-    for folder in missing:
+    for folder in reversed(missing):  # (outermost first: the first of them too long is named)
         if len(os.fsencode(folder.name)) > longest:
             raise OutputFolderError(f"{option} {path}: the name {folder.name[:20]}… is longer than the file system "
                                     f"allows ({longest} bytes); fix: choose a shorter output folder name")
     if hasattr(os, "geteuid") and os.geteuid() == 0:  # (root passes os.access anywhere: try the first to create)
-        _probe_folder(missing[0], path, option)
+        _probe_folder(missing[-1], path, option)
 
 
 def _probe_folder(folder: Path, path: Path, option: str) -> None:
@@ -139,7 +149,7 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
     created that is still empty is removed again."""
     path = Path(path)
     check_output_path(path, option)
-    made = [p for p in (path, *path.parents) if not p.exists()]  # (innermost first)
+    made = _missing_folders(path)  # (innermost first)
     created = bool(made)  # (path is then the first of them)
     try:
         path.mkdir(parents=True, exist_ok=True)
