@@ -1,11 +1,16 @@
-"""Where a coil comes to rest in an ordinary confined deployment, by step: the derived 18-system coil
-(d 0.381 mm, primary wire 0.0762 mm, 3 mm spherical pre-shape, 50 mm) pushed at 50 mm/s into a 4 mm
-sphere, at the implicit default push step, at a half and a quarter of it (``dt_s``), and on the symplectic
-reference. Its pre-shape fits the sphere: the reference comes to rest in it (bend + twist ~0 nJ); the
-implicit default rests stressed (docs/FORMULATION.md "In ordinary sacs too").
+"""Where a coil comes to rest in an ordinary confined deployment, by step and by integrator, in two cases:
 
-    python -m benchmarks.confined_shape              # default, half, quarter (~10 s)
-    python -m benchmarks.confined_shape --reference  # and the reference (~1 min more)
+* ``sphere18``: the derived 18-system coil (d 0.381 mm, primary wire 0.0762 mm, 3 mm spherical pre-shape,
+  50 mm) pushed at 50 mm/s into a 4 mm sphere;
+* ``seed``: the shipped seed case (scenes/seed_sphere.toml: 60 mm, d 0.2921 mm, into a 3.5 mm sphere).
+
+Each at the implicit default push step, at a half and a quarter of it (``dt_s``), and on the symplectic
+reference. Both pre-shapes fit their spheres: the reference comes to rest in them (bend + twist < 1 nJ);
+the implicit step rests stressed, the 18-system coil only at its default step, the seed case at every one
+of the three (docs/FORMULATION.md "In ordinary sacs too").
+
+    python -m benchmarks.confined_shape              # default, half, quarter (~15 s)
+    python -m benchmarks.confined_shape --reference  # and the reference (~1.5 min more)
 
 Prints a line per run; ``--out FILE`` writes them as JSON.
 """
@@ -20,7 +25,7 @@ from pathlib import Path
 from warpcoil.deploy import Deployment
 from warpcoil.scene import load_scene
 
-SCENE = """
+SPHERE18_SCENE = """
 [wall]
 sphere_diameter_mm = 4.0
 [catheter]
@@ -39,6 +44,8 @@ usd = false
 png = false
 tube_mesh = false
 """
+SEED_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "seed_sphere.toml"
+CASES = ("sphere18", "seed")
 STEP_FRACTIONS = (1.0, 0.5, 0.25)  # of the implicit default push step
 
 
@@ -50,31 +57,43 @@ def run(path: Path, overrides: dict) -> dict:
             "min_coil_gap_mm": result.frames[-1].min_coil_gap_mm}
 
 
-def main(reference: bool = False) -> list[dict]:
-    """The runs: the implicit step at each of STEP_FRACTIONS of its push step, then (``reference``) the
-    symplectic reference."""
+def case_rows(case: str, path: Path, reference: bool) -> list[dict]:
+    """The runs of one case: the implicit step at each of STEP_FRACTIONS of its push step, then
+    (``reference``) the symplectic reference."""
+    rows, push_dt_s = [], None
+    for fraction in STEP_FRACTIONS:
+        keys = {"simulation.integrator": "implicit"}
+        if fraction != 1.0:
+            keys["simulation.dt_s"] = fraction * push_dt_s
+        rows.append({"case": case, "run": f"implicit, {fraction:g} × the push step", **run(path, keys)})
+        push_dt_s = push_dt_s or rows[0]["dt_s"]
+    if reference:
+        rows.append({"case": case, "run": "reference (symplectic)",
+                     **run(path, {"simulation.integrator": "symplectic"})})
+    return rows
+
+
+def main(reference: bool = False, cases: tuple[str, ...] = CASES) -> list[dict]:
+    """The runs of each case in ``cases`` (CASES), one line each."""
     rows = []
     with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "confined_shape.toml"
-        path.write_text(SCENE)
-        push_dt_s = None
-        for fraction in STEP_FRACTIONS:
-            keys = {} if fraction == 1.0 else {"simulation.dt_s": fraction * push_dt_s}
-            rows.append({"run": f"implicit, {fraction:g} × the push step", **run(path, keys)})
-            push_dt_s = push_dt_s or rows[0]["dt_s"]
-        if reference:
-            rows.append({"run": "reference (symplectic)", **run(path, {"simulation.integrator": "symplectic"})})
+        sphere18 = Path(folder) / "confined_shape.toml"
+        sphere18.write_text(SPHERE18_SCENE)
+        for case in cases:
+            rows += case_rows(case, sphere18 if case == "sphere18" else SEED_SCENE, reference)
     for row in rows:
-        print(f"{row['run']}: {row['status']}, {row['steps']} steps of {row['dt_s']:.3g} s, resting bend + twist "
-              f"{row['rest_bend_twist_nJ']:.1f} nJ, smallest coil gap {row['min_coil_gap_mm']:.4f} mm", flush=True)
+        print(f"{row['case']}, {row['run']}: {row['status']}, {row['steps']} steps of {row['dt_s']:.3g} s, resting "
+              f"bend + twist {row['rest_bend_twist_nJ']:.1f} nJ, smallest coil gap {row['min_coil_gap_mm']:.4f} mm",
+              flush=True)
     return rows
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--reference", action="store_true", help="also run the symplectic reference")
+    parser.add_argument("--case", choices=CASES, action="append", help="only this case (repeatable; default both)")
     parser.add_argument("--out", help="write the runs as JSON to this file")
     args = parser.parse_args()
-    found = main(args.reference)
+    found = main(args.reference, tuple(args.case) if args.case else CASES)
     if args.out:
         Path(args.out).write_text(json.dumps(found, indent=1))
