@@ -191,6 +191,7 @@ class Shape:
     tip_track: np.ndarray  # (k, 3) distal tip at fixed deployed lengths over the first loop
     push_mean_uN: float = 0.0  # push force averaged over the frames of the push (µN; not in the error)
     self_deployment_uN: float = 0.0  # F0: the coil's stored energy per mm (µN), the push force's scale
+    rest_bend_twist_nJ: float = 0.0  # bend + twist energy at rest (nJ; not in the error: the resting state is chaotic)
 
 
 def _coverage(x: np.ndarray, radius_mm: float, spacing_mm: float) -> float:
@@ -237,7 +238,7 @@ def deploy_shape(scene, loop_length_mm: float, sac_radius_mm: float,
     track = np.stack([np.interp(grid, track_len, np.asarray(track_x)[:, k]) for k in range(3)], axis=1)
     shape = Shape(float(np.sqrt(((x - x.mean(0)) ** 2).sum(1).mean())), float(np.linalg.norm(x, axis=1).mean()),
                   _coverage(x, sac_radius_mm, D / 2), track, float(np.mean(push)) if push else 0.0,
-                  deployment.members[0].self_deployment_force_uN)
+                  deployment.members[0].self_deployment_force_uN, result.final_bend_nJ + result.final_twist_nJ)
     return shape, result.steps, ratio[0]
 
 
@@ -279,6 +280,8 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
                                                                          math.cos(math.radians(0.01)))))
     (spread_shape, spread_steps, _), spread_t = timed(lambda: deploy_shape(turned, loop_mm, sac_radius), 1)
     floor, spread_detail = shape_error(spread_shape, reference, loop_mm)
+    spread_detail += (f"; at rest bend + twist {spread_shape.rest_bend_twist_nJ:.1f} nJ "
+                      f"(finest {reference.rest_bend_twist_nJ:.1f})")
     rows = [Row(case, "finest, catheter turned 0.01° (the chaotic spread)", False, spread_steps, spread_t, floor,
                 spread_detail, not_default="the reference setting", floor=floor)]
     settings = {
@@ -336,7 +339,8 @@ def deployment_rows(quick: bool, repeats: int) -> list[Row]:
         rows.append(Row(case, label, label.startswith("default"), steps, t, error,
                         f"{detail}; kinetic/elastic ≤ {ke_ratio:.3g}; push mean {shape.push_mean_uN:.0f} µN "
                         f"(finest {reference.push_mean_uN:.0f}; error {push_error:.2f} F0, F0 "
-                        f"{reference.self_deployment_uN:.0f} µN)", not_default=not_default, floor=floor,
+                        f"{reference.self_deployment_uN:.0f} µN); at rest bend + twist {shape.rest_bend_twist_nJ:.1f} nJ "
+                        f"(finest {reference.rest_bend_twist_nJ:.1f})", not_default=not_default, floor=floor,
                         implicit_default=label.startswith(IMPLICIT_DEFAULT_ROW)))
     return rows
 
