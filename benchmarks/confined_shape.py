@@ -5,12 +5,15 @@
 * ``seed``: the shipped seed case (scenes/seed_sphere.toml: 60 mm, d 0.2921 mm, into a 3.5 mm sphere).
 
 Each at the implicit default push step, at a half and a quarter of it (``dt_s``), and on the symplectic
-reference. Both pre-shapes fit their spheres: the reference comes to rest in them (bend + twist < 1 nJ);
-the implicit step rests stressed, the 18-system coil only at its default step, the seed case at every one
-of the three (docs/FORMULATION.md "In ordinary sacs too").
+reference; with ``--tilts N``, each integrator again from N catheters tilted TILT_DEG (azimuths 2πk/N),
+counting the runs that rest in the pre-shape (bend + twist < PRESHAPE_NJ). Both pre-shapes fit their
+spheres. The seed case's rest is bistable (0.1 or ~158 nJ, its last quarter trapped): the reference reaches
+either by its step and tilt, the implicit step the stressed state at every step from its default down to
+3e-5 s and every tilt tried (docs/FORMULATION.md "In ordinary sacs too").
 
     python -m benchmarks.confined_shape              # default, half, quarter (~15 s)
     python -m benchmarks.confined_shape --reference  # and the reference (~1.5 min more)
+    python -m benchmarks.confined_shape --case seed --tilts 8 --reference  # the basins' counts (~2.5 min)
 
 Prints a line per run; ``--out FILE`` writes them as JSON.
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import tempfile
 from pathlib import Path
 
@@ -47,6 +51,8 @@ tube_mesh = false
 SEED_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "seed_sphere.toml"
 CASES = ("sphere18", "seed")
 STEP_FRACTIONS = (1.0, 0.5, 0.25)  # of the implicit default push step
+TILT_DEG = 2.0  # the catheters of --tilts
+PRESHAPE_NJ = 5.0  # bend + twist at rest below this (nJ): in the pre-shape
 
 
 def run(path: Path, overrides: dict) -> dict:
@@ -73,18 +79,40 @@ def case_rows(case: str, path: Path, reference: bool) -> list[dict]:
     return rows
 
 
-def main(reference: bool = False, cases: tuple[str, ...] = CASES) -> list[dict]:
-    """The runs of each case in ``cases`` (CASES), one line each."""
+def tilted_rows(case: str, path: Path, tilts: int, reference: bool) -> list[dict]:
+    """The implicit default (and, ``reference``, the reference) from ``tilts`` catheters turned TILT_DEG about
+    the scene's at azimuths 2πk/tilts (the scene's catheter along z)."""
+    rows = []
+    for integrator in ("implicit", "symplectic") if reference else ("implicit",):
+        for k in range(tilts):
+            a, tilt = 2.0 * math.pi * k / tilts, math.radians(TILT_DEG)
+            direction = [math.sin(tilt) * math.cos(a), math.sin(tilt) * math.sin(a), math.cos(tilt)]
+            rows.append({"case": case, "run": f"{integrator}, catheter tilted {TILT_DEG:g}° at {math.degrees(a):.0f}°",
+                         **run(path, {"simulation.integrator": integrator, "catheter.direction": direction})})
+    return rows
+
+
+def main(reference: bool = False, cases: tuple[str, ...] = CASES, tilts: int = 0) -> list[dict]:
+    """The runs of each case in ``cases`` (CASES), one line each; ``tilts`` > 0: from tilted catheters instead
+    of at the three steps, with a count of the runs in the pre-shape per integrator."""
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         sphere18 = Path(folder) / "confined_shape.toml"
         sphere18.write_text(SPHERE18_SCENE)
         for case in cases:
-            rows += case_rows(case, sphere18 if case == "sphere18" else SEED_SCENE, reference)
+            path = sphere18 if case == "sphere18" else SEED_SCENE
+            rows += tilted_rows(case, path, tilts, reference) if tilts else case_rows(case, path, reference)
     for row in rows:
         print(f"{row['case']}, {row['run']}: {row['status']}, {row['steps']} steps of {row['dt_s']:.3g} s, resting "
               f"bend + twist {row['rest_bend_twist_nJ']:.1f} nJ, smallest coil gap {row['min_coil_gap_mm']:.4f} mm",
               flush=True)
+    if tilts:
+        for case in cases:
+            for integrator in ("implicit", "symplectic"):
+                mine = [r for r in rows if r["case"] == case and r["run"].startswith(integrator)]
+                if mine:
+                    print(f"{case}, {integrator}: {sum(r['rest_bend_twist_nJ'] < PRESHAPE_NJ for r in mine)} of "
+                          f"{len(mine)} runs rest in the pre-shape (bend + twist < {PRESHAPE_NJ:g} nJ)", flush=True)
     return rows
 
 
@@ -92,8 +120,10 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--reference", action="store_true", help="also run the symplectic reference")
     parser.add_argument("--case", choices=CASES, action="append", help="only this case (repeatable; default both)")
+    parser.add_argument("--tilts", type=int, default=0, metavar="N",
+                        help=f"instead of the steps: N catheters tilted {TILT_DEG:g}° (at the default step)")
     parser.add_argument("--out", help="write the runs as JSON to this file")
     args = parser.parse_args()
-    found = main(args.reference, tuple(args.case) if args.case else CASES)
+    found = main(args.reference, tuple(args.case) if args.case else CASES, args.tilts)
     if args.out:
         Path(args.out).write_text(json.dumps(found, indent=1))
