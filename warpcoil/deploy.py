@@ -26,7 +26,8 @@ from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, note_samples, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble, voronoi_lengths
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
-                       make_solver, scheme_options, SETTLE_REFINE_MAX, settle_finest_level, settle_level, settle_stalled,
+                       make_solver, scheme_options, SETTLE_REFINE_MAX, SETTLE_RISE_REFINE_MAX, settle_energy_rose,
+                       settle_finest_level, settle_level, settle_stalled,
                        settle_step_s, settle_step_scale)
 from .preflight import SetupError, preflight
 from .preshape import PreshapeError
@@ -125,7 +126,7 @@ class Member:
         self.settle_level = 0  # its settling step: frame / (2 settle_level) (0: not settling)
         self.settle_scale = settle_step_scale(scene.coils, scene.simulation)  # on its settling bounds (fine, stiff)
         self.sample_centre_mm = math.inf  # its contact samples' smallest wall centre distance (measure.note_samples)
-        self.settle_refine = 0  # how often its kinetic energy stalled: 1 the finest step from then on, each more half
+        self.settle_refine = 0  # how often its kinetic energy stalled or rose: 1 the finest step from then on, each more half
         self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
         self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
@@ -328,6 +329,56 @@ class Ensemble:
 
         self._by_level(live, lambda m: m.settle_level, run_level)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
+
+    @staticmethod
+    def _energy_rise_nJ(member: Member, energies: dict[str, np.ndarray]) -> float | None:
+        """The rise of the member's kinetic + elastic energy (nJ) over the frame just run, where it is
+        past implicit.settle_energy_rose's tolerance and nothing drives the coil (every coil out, no
+        deflating balloon); else None."""
+        if member.active >= 0 or (member.inflation or 0.0) > 0.0:
+            return None
+        last = member.frames[-1]
+        before = last.kinetic_nJ + last.bend_nJ + last.twist_nJ + last.stretch_nJ
+        after = float(sum(e[member.world] for e in energies.values()))
+        return after - before if settle_energy_rose(before, after) else None
+
+    def _energy_rose(self, member: Member, energies: dict[str, np.ndarray]) -> bool:
+        """Whether a settling frame raised the member's energy (:meth:`_energy_rise_nJ`) while a finer
+        settling step is left to redo it at (SETTLE_RISE_REFINE_MAX)."""
+        return member.settle_refine < SETTLE_RISE_REFINE_MAX and self._energy_rise_nJ(member, energies) is not None
+
+    def _rises_as_problems(self, running: list[Member], energies: dict[str, np.ndarray],
+                           problems: list[str | None]) -> None:
+        """Outside the settling step (a member's last coil out before it starts, or a run that settles
+        at its own step: it gave ``dt_s`` or halved it): a frame in which a member's energy rose
+        (:meth:`_energy_rise_nJ`) is a problem, redone at half the step like an unstable one, while
+        halvings are left (MAX_STEP_HALVINGS)."""
+        if len(self.step_reductions) >= MAX_STEP_HALVINGS:
+            return
+        for m in running:
+            rise = self._energy_rise_nJ(m, energies) if problems[m.world] is None else None
+            if rise is not None:
+                problems[m.world] = self.solver.unstable_reason(
+                    f"kinetic + elastic energy rose {rise:.3g} nJ in a frame with nothing driving the coil",
+                    self.stepper.state.time_s)
+
+    def _settle_again(self, risen: list[Member], running: list[Member], snapshot: State) -> None:
+        """Redo the settling frame of each member in ``risen`` from its start (``snapshot``) at half
+        its step (one more settle_refine), the others held at the frame's end; the failed
+        frame's steps are dropped, as :meth:`_halve_step` drops them."""
+        frame_s = self.members[0].scene.simulation.frame_interval_s
+        for m in risen:
+            m.settle_steps -= 2 * m.settle_level
+            finest = settle_finest_level(frame_s, m.settle_scale)
+            m.settle_refine += 1
+            while finest * 2 ** (m.settle_refine - 1) <= m.settle_level and m.settle_refine < SETTLE_RISE_REFINE_MAX:
+                m.settle_refine += 1  # (a level at least twice the failed frame's)
+            m.settle_stall_from = len(m.settle_kinetic_nJ)
+            self._restore(m, snapshot)
+        self._run_only(risen)
+        self.stepper.state.time_s = snapshot.time_s
+        self._settle_chunk(risen)
+        self._run_only(running)
 
     def _deflating(self, live: list[Member]) -> Callable[[float], None] | None:
         """For Stepper.run_chunk: while a member's balloon deflates, its inflation set before
@@ -590,6 +641,17 @@ class Ensemble:
                 budgets[m.world] = m.energy_budget_nJ(snap.advance[m.coils.start:m.coils.stop], snap.free[m.nodes],
                                                       push.mean_uN[m.world])
             energies, problems = self.solver.world_health(state, budgets, snap.wall_distance)
+            while settling:  # a frame that gained energy is redone at half the step (implicit.SETTLE_RISE_NJ)
+                risen = [m for m in running if problems[m.world] is None and self._energy_rose(m, energies)]
+                if not risen:
+                    break
+                self._settle_again(risen, running, snapshot)
+                state = self.stepper.state
+                push = self.solver.take_push_force()
+                snap = take_snapshot(self.solver, state, self.control.running)
+                energies, problems = self.solver.world_health(state, budgets, snap.wall_distance)
+            if not settling and self.integrator == "implicit":  # (a coil out before the settling step, or none)
+                self._rises_as_problems(running, energies, problems)
             unstable = [m for m in running if problems[m.world] is not None]
             if unstable and single:
                 member = unstable[0]
