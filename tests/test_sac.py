@@ -335,3 +335,46 @@ def test_a_sac_side_that_only_the_pieces_sizes_tell_is_refused_against_the_tip_o
                                         'direction = [0.0, 0.0, 1.0]\n[[coil]]\nwire_diameter_mm = 0.3\n'
                                         'loop_diameter_mm = 3\nlength_mm = 5\n')
     assert resolve_anatomies([load_scene(tmp_path / "stub.toml")])[0].sac_volume_mm3 > 200.0
+
+
+@pytest.mark.parametrize("height_mm", [1.2, 0.3])
+def test_a_coarse_wall_is_cut_on_its_contour(height_mm):
+    """The cut gives whole faces to a side: on a wall whose faces are long next to the ostium (an 80-face
+    icosphere, edges 1.3 mm across a 4.4 mm ostium; a CAD mesh's slivers) they are split first, and the
+    sac is the polyhedron's part above the plane (its exact volume: the convex hull of the vertices above
+    and the plane's crossings of the edges). Unsplit, this wall was refused ("leaves a single piece")."""
+    from scipy.spatial import ConvexHull
+
+    sphere = trimesh.creation.icosphere(subdivisions=1, radius=2.5)
+    wall = WallMesh(np.asarray(sphere.vertices, float), np.asarray(sphere.faces, np.int32), float(sphere.volume),
+                    (), None)
+    v, f = wall.vertices_mm, wall.faces
+    edges = np.unique(np.sort(np.stack((f, np.roll(f, -1, 1)), 2).reshape(-1, 2), 1), axis=0)
+    z = v[:, 2] - height_mm
+    crossing = edges[(z[edges[:, 0]] >= 0) != (z[edges[:, 1]] >= 0)]
+    t = z[crossing[:, 0]] / (z[crossing[:, 0]] - z[crossing[:, 1]])
+    points = np.vstack((v[z >= 0], v[crossing[:, 0]] + t[:, None] * (v[crossing[:, 1]] - v[crossing[:, 0]])))
+    neck = neck_from_plane([0.0, 0.0, height_mm], [0.0, 0.0, 1.0], wall, sac_side_point_mm=[0.0, 0.0, height_mm + 0.3])
+    assert sac_from_neck(wall, neck).volume_mm3 == pytest.approx(ConvexHull(points).volume, rel=5e-3)
+
+
+def test_a_fan_of_slivers_is_no_vessel_cap():
+    """A vessel cap is a flat disc around a hub: a flat fan of 12 slivers 4 mm long spanning 2° (0.25 mm², a
+    CAD mesh's hub where a tube meets a dome) spans 0.56 mm as a disc, not its 8 mm reach; a full fan of 1 mm
+    radius is a cap."""
+    from warpcoil.sac import _caps
+
+    def fan(radius_mm: float, span_rad: float, offset: int) -> tuple[np.ndarray, np.ndarray]:
+        angles = np.linspace(0.0, span_rad, 13)[: 12 if span_rad >= 2 * math.pi else 13]
+        rim = np.column_stack((radius_mm * np.cos(angles), radius_mm * np.sin(angles), np.zeros(len(angles))))
+        count = len(rim)
+        ring = [(0, 1 + k, 1 + (k + 1) % count) for k in range(count if span_rad >= 2 * math.pi else count - 1)]
+        return np.vstack(([0.0, 0.0, 0.0], rim)), np.asarray(ring) + offset
+
+    disc_v, disc_f = fan(1.0, 2 * math.pi, 0)
+    sliver_v, sliver_f = fan(4.0, math.radians(2.0), len(disc_v))
+    sliver_v += [10.0, 0.0, 0.0]
+    wall = WallMesh(np.vstack((disc_v, sliver_v)), np.vstack((disc_f, sliver_f)).astype(np.int32), 0.0, (), None)
+    cap_of_face, areas, hubs = _caps(wall, 1.0)
+    assert list(hubs) == [0] and areas[0] == pytest.approx(12 * 0.5 * math.sin(2 * math.pi / 12))
+    assert (cap_of_face[: len(disc_f)] == 0).all() and (cap_of_face[len(disc_f):] == -1).all()
