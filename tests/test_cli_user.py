@@ -474,6 +474,25 @@ def test_overwrite_clears_every_commands_outputs(tmp_path):
     assert "old" not in (folder / "summary.md").read_text()
 
 
+@pytest.mark.parametrize("command, bad", [
+    ("sweep", ("--vary", "coil.length_mm=4,-5")),  # a member's value
+    ("sweep", ("--vary", "coil.lenght_mm=4,5")),  # a key
+    ("plan", ("--vary", "simulation.frame_interval_s=0.01,0.00001")),  # a run's pre-run check (frame < 2 steps)
+])
+def test_overwrite_keeps_the_earlier_outputs_when_the_input_is_bad(tmp_path, command, bad):
+    """`sweep --overwrite` and `plan --overwrite` deleted the earlier results before the input was checked:
+    a bad input left the folder empty (exit 2). They are cleared only once every member is checked."""
+    folder = tmp_path / "earlier"
+    (folder / "member_000").mkdir(parents=True)
+    (folder / "member_000" / "result.json").write_text('{"old": 1}')
+    (folder / "summary.md").write_text("old\n")
+    code, _, err = cli(tmp_path, command, str(scene(tmp_path)), *bad, "--workers", "1", "--overwrite",
+                       "-o", "earlier")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in folder.iterdir()) == ["member_000", "summary.md"]
+    assert (folder / "member_000" / "result.json").read_text() == '{"old": 1}'
+
+
 def test_a_killed_run_leaves_no_outputs_and_the_next_run_takes_its_folder(tmp_path):
     """SIGKILL while stepping (no chance to write anything): the folder holds none of the run's
     outputs, only its hidden working folder and lock, and the next run into it needs no --overwrite

@@ -156,7 +156,7 @@ def _coils(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     from .model import EnsembleError
     from .recorder import outputs
-    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, clear_outputs, resumed_folder
     from .sweep import SCENE_ERRORS, SweepError, SweepIncomplete, SweepProgress, members, parse_vary, run_sweep
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_sweep"
@@ -176,12 +176,13 @@ def _sweep(args: argparse.Namespace) -> int:
         progress.start(len(members(varies)))
         if args.resume:  # keeps the member folders (the complete ones are not rerun) and, until the resumed
             claim = resumed_folder(out)  # sweep is checked, the summary (sweep.run_members)
-        else:
+        else:  # (--overwrite clears the earlier outputs once every member is checked: a bad input keeps them)
             claim = claimed_folder(out, outputs.ALL_OUTPUTS, args.overwrite,
-                                   folder_pattern=outputs.MEMBER_FOLDERS)
+                                   folder_pattern=outputs.MEMBER_FOLDERS, clear=False)
         with claim:
             todo = run_sweep(Path(args.scene), varies, out, args.device, progress, args.scheduler, args.workers,
-                             args.usd, args.resume, args.retries)
+                             args.usd, args.resume, args.retries, checked=None if args.resume else lambda:
+                             clear_outputs(out, outputs.ALL_OUTPUTS, outputs.MEMBER_FOLDERS))
     except (SweepError, *SCENE_ERRORS, EnsembleError, OutputFolderError) as error:
         progress.close(failed=True)
         print(f"warpcoil sweep: {error}", file=sys.stderr)
@@ -217,7 +218,7 @@ def _plan(args: argparse.Namespace) -> int:
     from .model import EnsembleError
     from .plan import PlanError, read_plan, run_plan
     from .recorder import outputs
-    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, resumed_folder
+    from .recorder.folder import OutputFolderError, check_output_path, claimed_folder, clear_outputs, resumed_folder
     from .sweep import SCENE_ERRORS, SweepError, SweepIncomplete, SweepProgress, parse_vary
 
     out = Path(args.output) if args.output else Path("out") / f"{Path(args.scene).stem}_plan"
@@ -231,11 +232,12 @@ def _plan(args: argparse.Namespace) -> int:
             _device(args.device)
         plan = read_plan(Path(args.scene), [parse_vary(v) for v in args.vary or []])
         progress.start(len(plan.options) * plan.perturbations)
-        claim = resumed_folder(out) if args.resume else \
-            claimed_folder(out, outputs.ALL_OUTPUTS, args.overwrite, folder_pattern=outputs.MEMBER_FOLDERS)
+        claim = resumed_folder(out) if args.resume else claimed_folder(  # (cleared once every run is checked)
+            out, outputs.ALL_OUTPUTS, args.overwrite, folder_pattern=outputs.MEMBER_FOLDERS, clear=False)
         with claim:
             result = run_plan(Path(args.scene), plan, out, args.device, progress, args.scheduler, args.workers,
-                              args.resume, args.retries)
+                              args.resume, args.retries, checked=None if args.resume else lambda:
+                              clear_outputs(out, outputs.ALL_OUTPUTS, outputs.MEMBER_FOLDERS))
     except (PlanError, SweepError, *SCENE_ERRORS, EnsembleError, OutputFolderError) as error:
         progress.close(failed=True)
         print(f"warpcoil plan: {error}", file=sys.stderr)

@@ -256,12 +256,14 @@ class PlanResult:
 
 def run_plan(scene_path: Path, plan: Plan, out: Path, device: str | None = None,
              progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
-             workers: int | None = None, resume: bool = False, retries: int = 2) -> PlanResult:
+             workers: int | None = None, resume: bool = False, retries: int = 2,
+             checked: Callable[[], None] | None = None) -> PlanResult:
     """Deploy every option × perturbation as one sweep, rank the options, write plan.md,
     plan.csv and plan.png into ``out``."""
     started = time.perf_counter()
     todo, owner = plan_members(scene_path, plan)
     run_members(scene_path, todo, out, device, progress, scheduler, workers, resume=resume, retries=retries,
+                checked=checked,
                 title="Plan", stale_names=outputs.PLAN_OUTPUTS)
     stats, usable = [], []
     for k in range(len(plan.options)):

@@ -361,21 +361,24 @@ def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) ->
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
               progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
-              workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2
-              ) -> list[Member]:
+              workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
+              checked: Callable[[], None] | None = None) -> list[Member]:
     """Deploy every member of the Cartesian product of ``varies`` (:func:`run_members`)."""
-    return run_members(scene_path, members(varies), out, device, progress, scheduler, workers, usd, resume, retries)
+    return run_members(scene_path, members(varies), out, device, progress, scheduler, workers, usd, resume, retries,
+                       checked=checked)
 
 
 def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | None = None,
                 progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
                 workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
-                title: str = "Sweep", stale_names: tuple[str, ...] = ()) -> list[Member]:
+                title: str = "Sweep", stale_names: tuple[str, ...] = (),
+                checked: Callable[[], None] | None = None) -> list[Member]:
     """Deploy every member (``todo``: indices 0…n−1, each with the scene keys it sets) on
     Dask; write their folders as they come back, then the summary (headed ``title`` of
     the scene; ``stale_names``: other files of ``out`` that only this run may leave, removed
     with the old summary once every member is checked). ``progress(member)`` after each
-    finished (or resumed) member.
+    finished (or resumed) member. ``checked()``: called once every member is checked, before
+    anything is written (`--overwrite` clears the folder there: a bad input keeps it).
 
     Members that can share an ensemble are grouped (deploy.ensemble_groups) and
     each group is split into one task per worker thread (a CPU launch runs on one
@@ -436,6 +439,8 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     if isinstance(progress, SweepProgress):
         for warning in warnings:
             progress.warn(warning)
+    if checked is not None:
+        checked()
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("summary.csv", "summary.md", *stale_names):  # a summary is only ever of this sweep
         (out / stale).unlink(missing_ok=True)

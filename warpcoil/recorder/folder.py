@@ -140,13 +140,28 @@ def previous_outputs(folder: Path, names: Iterable[str], folder_pattern: str | N
     return found
 
 
+def clear_outputs(path: Path, names: Iterable[str], folder_pattern: str | None = None) -> None:
+    """Delete an earlier run's outputs in ``path`` (``names``; in sub-folders matching ``folder_pattern``
+    those names, and the sub-folder where nothing else is left)."""
+    names = tuple(names)
+    for entry in previous_outputs(path, names, folder_pattern):
+        if entry.is_dir():
+            for inner in previous_outputs(entry, names):
+                inner.unlink()
+            if not any(entry.iterdir()):
+                entry.rmdir()
+        else:
+            entry.unlink()
+
+
 @contextmanager
 def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: str = "-o",
-                   folder_pattern: str | None = None) -> Iterator[Path]:
+                   folder_pattern: str | None = None, clear: bool = True) -> Iterator[Path]:
     """Create (if needed) and lock ``path`` for one run; refuse or (``overwrite``)
     delete an earlier run's outputs (``names``; sub-folders matching
-    ``folder_pattern``). On exit the lock is released, and a folder this call
-    created that is still empty is removed again."""
+    ``folder_pattern``) — or, ``clear`` False, leave that to the caller once its input is
+    checked (:func:`clear_outputs`: a bad input then keeps them). On exit the lock is
+    released, and a folder this call created that is still empty is removed again."""
     path = Path(path)
     check_output_path(path, option)
     made = _missing_folders(path)  # (innermost first)
@@ -176,14 +191,8 @@ def claimed_folder(path: Path, names: Iterable[str], overwrite: bool, option: st
             shown = ", ".join(p.name for p in old[:4]) + (", …" if len(old) > 4 else "")
             raise OutputFolderError(f"{option} {path}: already holds the outputs of an earlier run ({shown}); fix: "
                                     "add --overwrite to replace them, or choose another output folder")
-        for entry in old:
-            if entry.is_dir():
-                for inner in previous_outputs(entry, names):
-                    inner.unlink()
-                if not any(entry.iterdir()):
-                    entry.rmdir()
-            else:
-                entry.unlink()
+        if clear:
+            clear_outputs(path, names, folder_pattern)
         yield path
     finally:
         lock.unlink(missing_ok=True)
