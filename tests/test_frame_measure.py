@@ -296,7 +296,7 @@ def test_the_runs_push_force_is_read_over_the_frames_that_pushed():
     from warpcoil.measure import push_summary
 
     def frame(deployed_mm: float, mean: float, peak: float, rms: float):
-        return types.SimpleNamespace(deployed_length_mm=deployed_mm, push_force_mean_uN=mean, push_force_peak_uN=peak,
+        return types.SimpleNamespace(kinetic_nJ=0.0, bend_nJ=1.0, twist_nJ=0.0, stretch_nJ=0.0, deployed_length_mm=deployed_mm, push_force_mean_uN=mean, push_force_peak_uN=peak,
                                      push_force_rms_uN=rms)
 
     frames = [frame(0.0, 0.0, 0.0, 0.0), frame(1.0, -350.0, 20.0, 400.0), frame(2.0, -300.0, 10.0, 300.0),
@@ -306,3 +306,19 @@ def test_the_runs_push_force_is_read_over_the_frames_that_pushed():
     assert summary["push_force_rms_uN"] == pytest.approx(math.sqrt((400.0**2 + 300.0**2) / 2.0))
     assert push_summary(frames[:1]) == {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0,
                                         "push_force_rms_uN": 0.0}
+
+
+def test_the_push_reports_kinetic_over_elastic_energy_and_says_when_it_is_not_quasi_static():
+    """MODEL.md: a simulation may push fast while it stays quasi-static; report kinetic over elastic energy.
+    Frames whose elastic energy is below the carried coil's own kinetic energy (a straight coil) do not count."""
+    from warpcoil.measure import Frame, QUASI_STATIC_KE_RATIO, push_summary, quasi_static_note
+
+    def frame(length, kinetic, bend):
+        return Frame(0.0, length, 0.0, 0.0, 0.0, kinetic, bend, 0.0, 0.0, 0, 0, 0.0, 1.0, 1.0, 0.0)
+
+    frames = [frame(0.0, 0.0, 100.0), frame(1.0, 10.0, 100.0), frame(2.0, 30.0, 100.0), frame(3.0, 5.0, 1.0)]
+    summary = push_summary(frames, push_nJ_per_mm=1.0)  # the last: elastic 1 nJ < 3 nJ carried, not counted
+    assert summary["push_kinetic_elastic_mean"] == pytest.approx(0.2)
+    assert summary["push_kinetic_elastic_max"] == pytest.approx(0.3)
+    assert quasi_static_note(0.2) and "not quasi-static" in quasi_static_note(0.2)
+    assert quasi_static_note(0.5 * QUASI_STATIC_KE_RATIO) == ""

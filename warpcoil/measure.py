@@ -40,6 +40,7 @@ class Measured(Protocol):
     steps: int
     step_bound_s: float
     stored_energy_nJ: float
+    mass_g: np.ndarray  # per node (g)
     frames: list
     inflation: float | None  # the balloon's, None without one
     deflate_from_s: float | None  # when the balloon started to deflate
@@ -91,6 +92,8 @@ class RunResult:
     push_force_peak_uN: float  # largest compressive single-step push force of the run
     push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
     push_force_rms_uN: float  # root mean square over every step while a coil was pushed
+    push_kinetic_elastic_mean: float  # kinetic / elastic energy over the frames that pushed: mean (quasi-static ≪ 1)
+    push_kinetic_elastic_max: float  # ... and largest (the snap of a packed coil reads 0.2 in the seed case)
     stored_energy_nJ: float
     final_kinetic_nJ: float
     final_bend_nJ: float
@@ -219,9 +222,12 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     finite = lambda values: float(min(values)) if values else math.inf  # noqa: E731
     regions = regional_densities(model, member, x, free)
     coil_gap = finite([f.min_coil_gap_mm for f in frames])
+    pushing = push_summary(frames, 0.5 * float(member.mass_g.sum()) / float(member.coil_lengths_mm.sum())
+                           * member.scene.simulation.push_speed_mm_s ** 2)
     return RunResult(
         status=status, reason=reason + crossing_note(coil_gap, min(c.d for c in coil_specs))
-        + wall_crossing_note(member.sample_centre_mm, coil_specs), steps=member.steps,
+        + wall_crossing_note(member.sample_centre_mm, coil_specs)
+        + quasi_static_note(pushing["push_kinetic_elastic_mean"]), steps=member.steps,
         dt_s=solver.dt_s, step_bound_s=member.step_bound_s, mass_scale=m.mass_scale, wall_time_s=wall_time_s,
         simulated_time_s=snap.time_s, coil_length_mm=float(member.coil_lengths_mm.sum()),
         deployed_length_mm=last.deployed_length_mm, sac_volume_mm3=sac_volume,
@@ -230,7 +236,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
         min_coil_gap_mm=coil_gap,
         max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
-        **push_summary(frames),
+        **pushing,
         stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
         final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
         regions=regions, occlusion=occlusion_of_regions(regions, member.scene.regions.occlusion_threshold),
@@ -305,14 +311,36 @@ def pushed_frames(frames: list[Frame]) -> list[Frame]:
     return [f for f, before in zip(frames[1:], frames) if f.deployed_length_mm > before.deployed_length_mm]
 
 
-def push_summary(frames: list[Frame]) -> dict[str, float]:
+QUASI_STATIC_KE_RATIO = 0.1  # kinetic / elastic energy while pushing above which a push is not quasi-static
+
+
+def push_summary(frames: list[Frame], push_nJ_per_mm: float = 0.0) -> dict[str, float]:
     """The run's push force (µN) over the frames in which the pusher pushed: the largest compressive
     single-step value (≥ 0), the largest frame mean (signed: a coil that draws itself out reads below 0
-    throughout) and the RMS (each frame spans the same simulated time, so over that time); 0 where none
-    pushed."""
+    throughout) and the RMS (each frame spans the same simulated time, so over that time); and the mean and
+    largest kinetic / elastic energy of those frames (MODEL.md: report it), over the frames whose elastic
+    energy is above the kinetic energy of the deployed length carried at the push speed (``push_nJ_per_mm``
+    of it: ½ mass per mm × speed², nJ/mm: a straight coil carried along stores next to nothing, and its
+    ratio says nothing); 0 where none pushed."""
     pushed = pushed_frames(frames)
+    ratios = [f.kinetic_nJ / elastic for f in pushed
+              if (elastic := f.bend_nJ + f.twist_nJ + f.stretch_nJ) > push_nJ_per_mm * f.deployed_length_mm]
     if not pushed:
-        return {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0, "push_force_rms_uN": 0.0}
+        return {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0, "push_force_rms_uN": 0.0,
+                "push_kinetic_elastic_mean": 0.0, "push_kinetic_elastic_max": 0.0}
     return {"push_force_peak_uN": max(f.push_force_peak_uN for f in pushed),
             "push_force_mean_max_uN": max(f.push_force_mean_uN for f in pushed),
-            "push_force_rms_uN": float(np.sqrt(np.mean(np.square([f.push_force_rms_uN for f in pushed]))))}
+            "push_force_rms_uN": float(np.sqrt(np.mean(np.square([f.push_force_rms_uN for f in pushed])))),
+            "push_kinetic_elastic_mean": float(np.mean(ratios)) if ratios else 0.0,
+            "push_kinetic_elastic_max": max(ratios, default=0.0)}
+
+
+def quasi_static_note(kinetic_elastic_mean: float) -> str:
+    """What a run's reason adds where the frames that pushed had kinetic / elastic energy above
+    QUASI_STATIC_KE_RATIO on average (MODEL.md: a simulation may push faster than a clinician while it
+    stays quasi-static); empty otherwise."""
+    if not kinetic_elastic_mean > QUASI_STATIC_KE_RATIO:
+        return ""
+    return (f"; but the push was not quasi-static (kinetic / elastic energy {kinetic_elastic_mean:.2g} on average "
+            f"while pushing, above {QUASI_STATIC_KE_RATIO:g}): the coil's inertia shapes the result; push slower "
+            "(simulation.push_speed_mm_s) to model a clinical deployment")

@@ -46,6 +46,7 @@ import numpy as np
 from .. import validation
 from ..deploy import Deployment
 from ..implicit import EULER, GATED_CHORD, IMPLICIT_ADVANCE_PER_C0, IMPLICIT_SETTLE_DT_MAX_S
+from ..measure import QUASI_STATIC_KE_RATIO
 from ..scene import load_scene
 from ..recorder.atomic import write_text_atomic
 from .report import markdown_table, timed, write_report
@@ -53,7 +54,6 @@ from .report import markdown_table, timed, write_report
 SEED_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "seed_sphere.toml"
 D = validation.REFERENCE_D_MM
 L0_IS_THE_MODEL = "l0 = d defines the model (MODEL.md)"
-QUASI_STATIC_KE_RATIO = 0.1  # kinetic / elastic energy while pushing, above which a push is not quasi-static
 MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a free release: its error in the table)"
 # a deployment setting is a default candidate only while its push force's mean over the push is within this
 # many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
