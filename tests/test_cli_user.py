@@ -274,6 +274,26 @@ def test_a_porous_field_too_fine_to_hold_is_refused_before_the_run(tmp_path):
     assert not (tmp_path / "never").exists()
 
 
+NECK = "[neck]\nplane_point_mm = [0.0, 0.0, -1.2]\nplane_normal = [0.0, 0.0, 1.0]\n\n"
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+@pytest.mark.parametrize("voxel, said", [
+    ("0.0001", "regions.voxel_mm: voxels of 0.0001 mm make 3.61e+13 over the sac's bounding box"),
+    ("10", "regions.voxel_mm: voxels of 10 mm are too coarse to resolve the regions: boundary_mm = 0.584 mm")])
+def test_a_regions_voxel_too_fine_or_too_coarse_is_refused_before_the_run(tmp_path, command, voxel, said):
+    """[regions] voxel_mm = 0.0001 (3.6e13 voxels: once an int32 traceback after the whole run) or 10 (coarser
+    than the sac: regions and occlusion silently null): exit 2 before any step, from run and sweep alike,
+    one line naming the key and a workable voxel, no output folder."""
+    path = scene(tmp_path, **{"[output]": f"{NECK}[regions]\nvoxel_mm = {voxel}\n\n[output]"})
+    extra = ["--vary", "simulation.push_speed_mm_s=100,150"] if command == "sweep" else []
+    code, _, err = cli(tmp_path, command, str(path), *extra, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and f"tiny.toml: {said}" in line, line
+    assert ("fix: voxel_mm = 0.013 or more" if voxel == "0.0001" else "fix: voxel_mm = 0.29 or less") in line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the
