@@ -294,6 +294,20 @@ def test_a_regions_voxel_too_fine_or_too_coarse_is_refused_before_the_run(tmp_pa
     assert not (tmp_path / "never").exists()
 
 
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_a_wall_field_too_fine_to_build_is_refused_before_the_run(tmp_path, command):
+    """[contact] wall_voxel_mm = 0.0001 with wall_query = "sdf": its faces would propose 2.8e12 tiles (once a
+    traceback, a negative array size from an int32 overflow); exit 2, one line naming the key and a voxel
+    that fits, no output folder, from run and sweep alike."""
+    path = scene(tmp_path, **{"[output]": '[contact]\nwall_query = "sdf"\nwall_voxel_mm = 0.0001\n\n[output]'})
+    extra = ["--vary", "simulation.push_speed_mm_s=100,150"] if command == "sweep" else []
+    code, _, err = cli(tmp_path, command, str(path), *extra, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and "tiny.toml: contact.wall_voxel_mm: voxels of 0.0001 mm make the wall field's" in line, line
+    assert "more than 2e+07; fix: wall_voxel_mm = 0.0077 or more" in line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the

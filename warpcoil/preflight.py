@@ -299,6 +299,30 @@ def check_regions(scene: Scene, anatomy) -> None:
                          f"{0.25 * min(c.wire_diameter_mm for c in scene.coils):.2g} mm)")
 
 
+def check_wall_field(scene: Scene, anatomy, extent: tuple) -> None:
+    """Raise SetupError when ``[contact] wall_voxel_mm`` (with wall_query "sdf") has the wall field's faces
+    propose more than MAX_CANDIDATE_TILES tiles (the field is built before the first step: an int32 overflow
+    or memory beyond reach). ``extent``: the field's (band, region), solver.wall_field_extent."""
+    from .wall_field import MAX_CANDIDATE_TILES, candidate_tiles
+
+    if scene.contact.wall_query != "sdf" or anatomy.wall is None:
+        return
+    vertices = anatomy.wall.vertices_mm
+    origin = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))  # the wall's frame (model.WallModel)
+    band, (centre, radius) = extent
+    tiles = lambda h: candidate_tiles(vertices - origin, anatomy.wall.faces, band, h, (centre - origin, radius))  # noqa: E731
+    h = scene.contact.wall_voxel_mm
+    count = tiles(h)
+    if count <= MAX_CANDIDATE_TILES:
+        return
+    coarser = h * (count / MAX_CANDIDATE_TILES) ** (1.0 / 3.0)  # (the count goes as ~1/h³)
+    while tiles(coarser) > MAX_CANDIDATE_TILES:
+        coarser *= 1.05
+    raise SetupError(f"{scene.where}: contact.wall_voxel_mm: voxels of {h:g} mm make the wall field's faces propose "
+                     f"{count:.3g} tiles of 8³ voxels, more than {MAX_CANDIDATE_TILES:.0e}; fix: wall_voxel_mm = "
+                     f"{math.ceil(coarser * 1e4) / 1e4:g} or more (the default is 0.04)")
+
+
 def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     """Warnings for an implicit scene: a ``dt_s`` within the explicit stability bound
     (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed

@@ -33,14 +33,14 @@ from pathlib import Path
 
 from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_models, resolve_anatomies,
                      world_bounds, world_steps)
-from .preflight import SetupError, preflight
+from .preflight import SetupError, check_wall_field, preflight
 from .preshape import PreshapeError
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
-from .solver import UnstableStepError
+from .solver import UnstableStepError, wall_field_extent
 from .sweep_task import MemberOutput, make_task, named_files, run_task
 from .wall import WallError
 
@@ -428,6 +428,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             model = host_models([scenes[k]], [anatomy], "cpu")[0]  # step bounds and groups, host-side
             bounds = world_bounds(model)
             world_steps(model, [scenes[k]], bounds)  # (its frame against its step and time limit)
+            check_wall_field(scenes[k], anatomy, wall_field_extent(model)[0])  # (built in the member's solver)
             member_warnings[k] = list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu", bounds[0].dt_s)))
         anatomies.append(anatomy)
         models.append(model)
