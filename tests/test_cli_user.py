@@ -308,6 +308,22 @@ def test_a_wall_field_too_fine_to_build_is_refused_before_the_run(tmp_path, comm
     assert not (tmp_path / "never").exists()
 
 
+@pytest.mark.parametrize("command", ["sweep", "plan"])
+@pytest.mark.parametrize("address, said", [
+    ("notanaddress", "missing port number"), ("tcp://localhost", "missing port number"),
+    ("foo://x:1", "unknown address scheme 'foo'"), ("tcp://[::1", "invalid address '[::1'"),
+    ("tcp://h:x", "the port is not a number"), ("", "empty")])
+def test_a_scheduler_address_dask_cannot_read_is_one_line(tmp_path, command, address, said):
+    """A malformed --scheduler (once a 30-line traceback, exit 1) or an empty one (once the local cluster
+    ran the whole plan): exit 2, one line naming --scheduler, the problem and the fix, nothing run."""
+    code, _, err = cli(tmp_path, command, str(scene(tmp_path)), "--vary", "coil.length_mm=3,4",
+                       "--scheduler", address, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith(f"warpcoil {command}: --scheduler '{address}': {said}"), line
+    assert "fix: give the address `dask scheduler` prints" in line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the

@@ -295,6 +295,30 @@ def default_workers(device: str | None) -> int:
     return gpus if gpus > 0 else cores
 
 
+SCHEDULER_FIX = "fix: give the address `dask scheduler` prints, e.g. tcp://10.0.0.5:8786"
+
+
+def check_scheduler(address: str | None) -> None:
+    """Raise SweepError for a --scheduler address Dask cannot read (an empty one would silently run the
+    local cluster), before anything runs: one line with the problem and the fix."""
+    if address is None:
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    if not address.strip():
+        raise SweepError(f"--scheduler '{address}': empty; {SCHEDULER_FIX}, or leave out --scheduler for a "
+                         "local cluster (--workers)")
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls", "ws", "wss"):  # (host:port; inproc and ucx name theirs otherwise)
+            parse_host_port(location)
+    except ValueError as error:
+        problem = "the port is not a number" if "int()" in str(error) else str(error)
+        raise SweepError(f"--scheduler '{address}': {problem}; {SCHEDULER_FIX}") from None
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None, workers: int | None, device: str | None, retries: int) -> Iterator:
     """A Dask client: of the scheduler at ``scheduler``, or of an embedded
