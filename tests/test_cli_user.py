@@ -324,6 +324,17 @@ def test_a_scheduler_address_dask_cannot_read_is_one_line(tmp_path, command, add
     assert not (tmp_path / "never").exists()
 
 
+def test_two_spellings_of_one_coils_key_are_refused_like_a_key_given_twice(tmp_path):
+    """--vary coil.length_mm and --vary coil.0.length_mm on a one-coil scene both set its length (once: four
+    members, two of them duplicates, and a summary column of values never run): exit 2 before anything runs."""
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "coil.length_mm=3,4", "--vary",
+                       "coil.0.length_mm=3.5,4.5", "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith("warpcoil sweep: --vary coil.length_mm and --vary coil.0.length_mm: both "
+                                         "set the same key of one coil") and "fix: vary one of them" in line, line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the

@@ -108,14 +108,37 @@ class Member:
         return f"member_{self.index:03d}"
 
 
+SAME_SETTING = "the same key of one coil (coil.KEY sets every coil's, coil.N.KEY coil N's), one overriding the other"
+
+
+def same_coil_setting(keys) -> tuple[str, str] | None:
+    """The first two of ``keys`` that set the same key of one coil (``coil.K`` sets every coil's, so
+    ``coil.N.K`` too; ``coil.0.K`` and ``coil.00.K``), else None."""
+    seen: dict[str, tuple] = {}
+    for key in keys:
+        parts = key.split(".")
+        if parts[0] != "coil" or not (len(parts) == 2 or len(parts) == 3 and parts[1].isdigit()):
+            continue
+        coil, name = (None, parts[1]) if len(parts) == 2 else (int(parts[1]), parts[2])
+        for other, (other_coil, other_name) in seen.items():
+            if name == other_name and (coil == other_coil or None in (coil, other_coil)):
+                return other, key
+        seen[key] = (coil, name)
+    return None
+
+
 def check_varies(varies: list[tuple[str, list]]) -> None:
-    """SweepError for a key varied twice (the last --vary of it won, unseen) or a value given twice for
-    one key (two identical members)."""
+    """SweepError for a key varied twice (the last --vary of it won, unseen), two keys that set one coil's
+    same key (coil.K and coil.0.K: one overrides the other, unseen) or a value given twice for one key
+    (two identical members)."""
     keys = [k for k, _ in varies]
     twice = sorted({k for k in keys if keys.count(k) > 1})
     if twice:
         raise SweepError(f"--vary {twice[0]}: given {keys.count(twice[0])} times; fix: one --vary per key, its values "
                          "in one list (key=a,b,c)")
+    pair = same_coil_setting(keys)
+    if pair:
+        raise SweepError(f"--vary {pair[0]} and --vary {pair[1]}: both set {SAME_SETTING}; fix: vary one of them")
     for key, values in varies:
         seen = [v for k, v in enumerate(values) if v in values[:k]]
         if seen:
