@@ -335,6 +335,19 @@ def test_two_spellings_of_one_coils_key_are_refused_like_a_key_given_twice(tmp_p
     assert not (tmp_path / "never").exists()
 
 
+@pytest.mark.parametrize("varies, said", [
+    (["coil.length_mm = 3,4", "coil.length_mm=5"], "--vary coil.length_mm: given 2 times"),  # (the key stripped)
+    (["coil.length_mm=3:4"], "--vary 'coil.length_mm=3:4': a range is three numbers, start:stop:step, and '3:4' has 2")])
+def test_a_vary_written_loosely_is_read_or_said_in_words(tmp_path, varies, said):
+    """Spaces around = are read as TOML's (once: "unknown key 'length_mm '"); a range of two numbers is
+    said as such (once: a Python unpacking message). Exit 2, one line, nothing run."""
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), *(a for v in varies for a in ("--vary", v)),
+                       "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith(f"warpcoil sweep: {said}") and "unpack" not in line, line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the

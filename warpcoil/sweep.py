@@ -65,24 +65,29 @@ MAX_MEMBERS = 20_000  # a sweep's members (more is most likely a mistyped step: 
 def parse_vary(text: str) -> tuple[str, list]:
     """``key=start:stop:step`` or ``key=a,b,c`` → (key, values)."""
     key, sep, values = text.partition("=")
+    key = key.strip()  # ("coil.length_mm = 6,8": the values are stripped each)
     fix = "write --vary key=start:stop:step or key=a,b,c, e.g. catheter.angle_deg=0:30:5"
     if not sep or not key or not values:
         raise SweepError(f"--vary {text!r}: {fix}")
-    try:
-        if ":" in values:
-            start, stop, step = (float(v) for v in values.split(":"))
-            if not step > 0.0 or stop < start:
-                raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
-            count = int(math.floor((stop - start) / step + 1e-9)) + 1
-            if count > MAX_MEMBERS:
-                raise SweepError(f"--vary {text!r}: {count:,} values, more than a sweep's {MAX_MEMBERS:,} members; "
-                                 "fix: a coarser step (or run the range as several sweeps)")
-            return key, [round(start + k * step, 12) for k in range(count)]
-        return key, [_scalar(v) for v in values.split(",")]
-    except ValueError as error:
-        if isinstance(error, SweepError):
-            raise
-        raise SweepError(f"--vary {text!r}: {error}; {fix}") from error
+    if ":" in values:
+        bounds = values.split(":")
+        if len(bounds) != 3:
+            raise SweepError(f"--vary {text!r}: a range is three numbers, start:stop:step, and {values!r} has "
+                             f"{len(bounds)}; {fix}")
+        try:
+            start, stop, step = (float(v) for v in bounds)
+        except ValueError:
+            start = stop = step = math.nan  # (a word that is no number: said as one below)
+        if not all(math.isfinite(v) for v in (start, stop, step)):
+            raise SweepError(f"--vary {text!r}: start, stop and step must be finite numbers; {fix}")
+        if not step > 0.0 or stop < start:
+            raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
+        count = int(math.floor((stop - start) / step + 1e-9)) + 1
+        if count > MAX_MEMBERS:
+            raise SweepError(f"--vary {text!r}: {count:,} values, more than a sweep's {MAX_MEMBERS:,} members; "
+                             "fix: a coarser step (or run the range as several sweeps)")
+        return key, [round(start + k * step, 12) for k in range(count)]
+    return key, [_scalar(v) for v in values.split(",")]
 
 
 def _scalar(text: str):
