@@ -337,7 +337,8 @@ def test_two_spellings_of_one_coils_key_are_refused_like_a_key_given_twice(tmp_p
 
 @pytest.mark.parametrize("varies, said", [
     (["coil.length_mm = 3,4", "coil.length_mm=5"], "--vary coil.length_mm: given 2 times"),  # (the key stripped)
-    (["coil.length_mm=3:4"], "--vary 'coil.length_mm=3:4': a range is three numbers, start:stop:step, and '3:4' has 2")])
+    (["coil.length_mm=3:4"], "--vary 'coil.length_mm=3:4': a range is three numbers, start:stop:step, and "
+                             "'3:4' has 2")])
 def test_a_vary_written_loosely_is_read_or_said_in_words(tmp_path, varies, said):
     """Spaces around = are read as TOML's (once: "unknown key 'length_mm '"); a range of two numbers is
     said as such (once: a Python unpacking message). Exit 2, one line, nothing run."""

@@ -310,13 +310,13 @@ def check_wall_field(scene: Scene, anatomy, extent: tuple) -> None:
     vertices = anatomy.wall.vertices_mm
     origin = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))  # the wall's frame (model.WallModel)
     band, (centre, radius) = extent
-    tiles = lambda h: candidate_tiles(vertices - origin, anatomy.wall.faces, band, h, (centre - origin, radius))  # noqa: E731
+    local, region = vertices - origin, (centre - origin, radius)
     h = scene.contact.wall_voxel_mm
-    count = tiles(h)
+    count = candidate_tiles(local, anatomy.wall.faces, band, h, region)
     if count <= MAX_CANDIDATE_TILES:
         return
     coarser = h * (count / MAX_CANDIDATE_TILES) ** (1.0 / 3.0)  # (the count goes as ~1/h³)
-    while tiles(coarser) > MAX_CANDIDATE_TILES:
+    while candidate_tiles(local, anatomy.wall.faces, band, coarser, region) > MAX_CANDIDATE_TILES:
         coarser *= 1.05
     raise SetupError(f"{scene.where}: contact.wall_voxel_mm: voxels of {h:g} mm make the wall field's faces propose "
                      f"{count:.3g} tiles of 8³ voxels, more than {MAX_CANDIDATE_TILES:.0e}; fix: wall_voxel_mm = "

@@ -281,9 +281,10 @@ class Solver:
         self.contact_u_linear = contact_linear_onset(model, self.dt_s)
         n, dev = model.node_count, model.device
         self.wall_query = wall_query
+        extents = wall_field_extent(model, wall_search_mm)
         self.wall_fields = [None if wall is None or wall_query == "bvh" else
                             wall_field_for(wall, band, wall_voxel_mm, region)
-                            for wall, (band, region) in zip(model.world_walls, wall_field_extent(model, wall_search_mm))]
+                            for wall, (band, region) in zip(model.world_walls, extents)]
         self._field_ids = wp.array([0 if f is None else f.id for f in self.wall_fields], dtype=wp.uint64, device=dev)
         self._no_fields = wp.zeros(model.world_count, dtype=wp.uint64, device=dev)
         # an anchored node must be beyond contact for the field too: its error is ≤ h √3/2 (1-Lipschitz, trilinear)
