@@ -274,6 +274,81 @@ def test_a_porous_field_too_fine_to_hold_is_refused_before_the_run(tmp_path):
     assert not (tmp_path / "never").exists()
 
 
+NECK = "[neck]\nplane_point_mm = [0.0, 0.0, -1.2]\nplane_normal = [0.0, 0.0, 1.0]\n\n"
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+@pytest.mark.parametrize("voxel, said", [
+    ("0.0001", "regions.voxel_mm: voxels of 0.0001 mm make 3.61e+13 over the sac's bounding box"),
+    ("10", "regions.voxel_mm: voxels of 10 mm are too coarse to resolve the regions: boundary_mm = 0.584 mm")])
+def test_a_regions_voxel_too_fine_or_too_coarse_is_refused_before_the_run(tmp_path, command, voxel, said):
+    """[regions] voxel_mm = 0.0001 (3.6e13 voxels: once an int32 traceback after the whole run) or 10 (coarser
+    than the sac: regions and occlusion silently null): exit 2 before any step, from run and sweep alike,
+    one line naming the key and a workable voxel, no output folder."""
+    path = scene(tmp_path, **{"[output]": f"{NECK}[regions]\nvoxel_mm = {voxel}\n\n[output]"})
+    extra = ["--vary", "simulation.push_speed_mm_s=100,150"] if command == "sweep" else []
+    code, _, err = cli(tmp_path, command, str(path), *extra, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and f"tiny.toml: {said}" in line, line
+    assert ("fix: voxel_mm = 0.013 or more" if voxel == "0.0001" else "fix: voxel_mm = 0.29 or less") in line
+    assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_a_wall_field_too_fine_to_build_is_refused_before_the_run(tmp_path, command):
+    """[contact] wall_voxel_mm = 0.0001 with wall_query = "sdf": its faces would propose 2.8e12 tiles (once a
+    traceback, a negative array size from an int32 overflow); exit 2, one line naming the key and a voxel
+    that fits, no output folder, from run and sweep alike."""
+    path = scene(tmp_path, **{"[output]": '[contact]\nwall_query = "sdf"\nwall_voxel_mm = 0.0001\n\n[output]'})
+    extra = ["--vary", "simulation.push_speed_mm_s=100,150"] if command == "sweep" else []
+    code, _, err = cli(tmp_path, command, str(path), *extra, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and "tiny.toml: contact.wall_voxel_mm: voxels of 0.0001 mm make the wall field's" in line, line
+    assert "more than 2e+07; fix: wall_voxel_mm = 0.0077 or more" in line
+    assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("command", ["sweep", "plan"])
+@pytest.mark.parametrize("address, said", [
+    ("notanaddress", "missing port number"), ("tcp://localhost", "missing port number"),
+    ("foo://x:1", "unknown address scheme 'foo'"), ("tcp://[::1", "invalid address '[::1'"),
+    ("tcp://h:x", "the port is not a number"), ("", "empty")])
+def test_a_scheduler_address_dask_cannot_read_is_one_line(tmp_path, command, address, said):
+    """A malformed --scheduler (once a 30-line traceback, exit 1) or an empty one (once the local cluster
+    ran the whole plan): exit 2, one line naming --scheduler, the problem and the fix, nothing run."""
+    code, _, err = cli(tmp_path, command, str(scene(tmp_path)), "--vary", "coil.length_mm=3,4",
+                       "--scheduler", address, "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith(f"warpcoil {command}: --scheduler '{address}': {said}"), line
+    assert "fix: give the address `dask scheduler` prints" in line
+    assert not (tmp_path / "never").exists()
+
+
+def test_two_spellings_of_one_coils_key_are_refused_like_a_key_given_twice(tmp_path):
+    """--vary coil.length_mm and --vary coil.0.length_mm on a one-coil scene both set its length (once: four
+    members, two of them duplicates, and a summary column of values never run): exit 2 before anything runs."""
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "coil.length_mm=3,4", "--vary",
+                       "coil.0.length_mm=3.5,4.5", "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith("warpcoil sweep: --vary coil.length_mm and --vary coil.0.length_mm: both "
+                                         "set the same key of one coil") and "fix: vary one of them" in line, line
+    assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("varies, said", [
+    (["coil.length_mm = 3,4", "coil.length_mm=5"], "--vary coil.length_mm: given 2 times"),  # (the key stripped)
+    (["coil.length_mm=3:4"], "--vary 'coil.length_mm=3:4': a range is three numbers, start:stop:step, and "
+                             "'3:4' has 2")])
+def test_a_vary_written_loosely_is_read_or_said_in_words(tmp_path, varies, said):
+    """Spaces around = are read as TOML's (once: "unknown key 'length_mm '"); a range of two numbers is
+    said as such (once: a Python unpacking message). Exit 2, one line, nothing run."""
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path)), *(a for v in varies for a in ("--vary", v)),
+                       "-o", "never")
+    line = one_line(err)
+    assert code == 2 and line.startswith(f"warpcoil sweep: {said}") and "unpack" not in line, line
+    assert not (tmp_path / "never").exists()
+
+
 def test_a_tip_closer_to_the_wall_than_the_coils_radius_is_refused(tmp_path):
     """The tip 0.06 mm inside a 3.5 mm sphere (its icosphere's faces a little nearer), a coil of d/2 = 0.146 mm:
     the coil would leave the catheter inside the wall, and the wall then shoves every node leaving it for the

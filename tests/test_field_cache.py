@@ -170,3 +170,21 @@ def test_the_second_run_of_a_scene_loads_its_field_and_repeats_the_first(tmp_pat
     assert first == second
     for name in ("centerline.csv", "timeseries.csv"):
         assert (tmp_path / "first" / name).read_bytes() == (tmp_path / "second" / name).read_bytes()
+
+
+@pytest.mark.parametrize("region", [(np.zeros(3), 1.0e9), (np.array([0.0, 0.0, -1.45]), 1.5)])
+def test_the_host_tile_count_is_the_builds_own(region):
+    """wall_field.candidate_tiles (the preflight's count of what the build allocates) sums the build's
+    per-face tile counts (kernels.count_face_tiles), whole wall or a region."""
+    from warpcoil.wall_field import INNER_MM_VOXELS, candidate_tiles
+
+    wall = sphere_wall(shift=(0.3, 0.0, 0.0))
+    tile = 8.0 * VOXEL_MM
+    reach = max(BAND_MM, INNER_MM_VOXELS * VOXEL_MM) + np.sqrt(3.0) * tile + VOXEL_MM
+    centre = region[0] - wall.origin
+    counts = wp.zeros(len(wall.faces_np), dtype=wp.int32)
+    wp.launch(field_kernels.count_face_tiles, len(wall.faces_np), inputs=[
+        wall.vertices, wall.faces, tile, reach, wp.vec3d(*centre), region[1], counts])
+    expected = int(counts.numpy().astype(np.int64).sum())
+    assert 0 < expected == candidate_tiles(wall.vertices.numpy(), wall.faces_np, BAND_MM, VOXEL_MM,
+                                           (centre, region[1]))

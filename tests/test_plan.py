@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from warpcoil.plan import PlanError, perturbed_keys, read_plan, tilted
-from warpcoil.sweep import SweepError
 from warpcoil.plan_rank import CRITERIA, Stats, rank, raymond_roy_number
 from warpcoil.settings import CatheterSpec
+from warpcoil.sweep import SweepError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = """
@@ -204,6 +204,7 @@ def test_plan_cli_ranks_the_options_as_plan_csv_says(tmp_path):
                 assert a["rank"] == b["rank"] == "=1" and not _beats(a, b)
     text = (out / "plan.md").read_text()
     assert text in stdout and "Tie rule" in text and "herniated length" in text
+    assert "lower is better; resolution 0.25 mN + 10 % of the larger mean" in text  # the rule plan_rank applies
     # the occlusion grade is each run's result.json modified class (IIIb after IIIa), in plan order (said to be missing if no run has it)
     results = [json.loads((out / f"member_{k:03d}" / "result.json").read_text()) for k in range(4)]
     classes = [raymond_roy_number((r.get("occlusion") or {}).get("modified_raymond_roy_class")) for r in results]
@@ -250,6 +251,16 @@ def test_plan_errors_name_the_option_and_key(tmp_path):
     with pytest.raises(PlanError, match=r"plan\.option\[1\]: \(tip below the neck, tilted\) is the treatment of "
                                         r"plan\.option\[0\] \(tip deep in the sac\).*fix"):
         read_plan(scene)  # (1 and 1.0: one value)
+    # coil.KEY and coil.0.KEY set one coil's same key (one overriding the other, unseen): refused
+    scene.write_text(SCENE.replace("catheter.depth_mm = 1.0", "catheter.depth_mm = 1.0\ncoil.length_mm = 6.0\n"
+                                   "coil.0.length_mm = 7.0"))
+    with pytest.raises(PlanError, match=r"plan\.option\[0\]: sets coil\.length_mm and coil\.0\.length_mm: the same key "
+                                        r"of one coil.*fix: keep one of them"):
+        read_plan(scene)
+    scene.write_text(SCENE.split("[[plan.option]]")[0])  # (--vary gives the options)
+    with pytest.raises(SweepError, match=r"--vary coil\.0\.length_mm and --vary coil\.length_mm: both set the same "
+                                         r"key of one coil.*fix: vary one of them"):
+        read_plan(scene, [("coil.0.length_mm", [6.0, 8.0]), ("coil.length_mm", [7.0, 9.0])])
     scene.write_text(SCENE.split("[[plan.option]]")[0])  # (--vary gives the options)
     with pytest.raises(PlanError, match=r"plan\.perturbations: is a setting of the plan"):
         read_plan(scene, [("plan.perturbations", [2, 3])])

@@ -102,6 +102,12 @@ def _sweep_cli(args: list[str], stdout: Path, timeout_s: float = 300) -> subproc
 def test_parse_vary():
     assert parse_vary("catheter.angle_deg=0:30:5") == ("catheter.angle_deg", [0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0])
     assert parse_vary("coil.0.length_mm=40,50") == ("coil.0.length_mm", [40.0, 50.0])
+    assert parse_vary("coil.length_mm = 6, 8") == ("coil.length_mm", [6.0, 8.0])  # (spaces around = as in TOML)
+    with pytest.raises(SweepError, match=r"'coil\.length_mm=6:8': a range is three numbers, start:stop:step, and "
+                                         r"'6:8' has 2; write"):
+        parse_vary("coil.length_mm=6:8")  # (once a Python unpacking message)
+    with pytest.raises(SweepError, match=r"start, stop and step must be finite numbers"):
+        parse_vary("coil.length_mm=6:inf:1")  # (once a traceback: an OverflowError)
     for bad in ("catheter.angle_deg", "x=1:0:1", "x=0:1:0", "x=a:b:c"):
         with pytest.raises(SweepError, match="--vary"):
             parse_vary(bad)

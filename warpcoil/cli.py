@@ -203,10 +203,12 @@ def _add_retries(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    """The options of sweep and plan that no value or pair of them allows: --retries below 0, and
-    --resume with --overwrite (keep the complete members, or replace them all: --resume won, unseen)."""
-    from .sweep import SweepError
+    """The options of sweep and plan that no value or pair of them allows: a --scheduler address Dask
+    cannot read, --retries below 0, and --resume with --overwrite (keep the complete members, or replace
+    them all: --resume won, unseen)."""
+    from .sweep import SweepError, check_scheduler
 
+    check_scheduler(args.scheduler)
     if args.retries < 0:
         raise SweepError(f"--retries {args.retries}: give 0 or more")
     if args.resume and args.overwrite:

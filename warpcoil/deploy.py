@@ -29,11 +29,11 @@ from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THET
                        make_solver, scheme_options, SETTLE_REFINE_MAX, SETTLE_RISE_REFINE_MAX, settle_energy_rose,
                        settle_finest_level, settle_level, settle_stalled,
                        settle_step_s, settle_step_scale)
-from .preflight import SetupError, preflight
+from .preflight import SetupError, check_wall_field, preflight
 from .preshape import PreshapeError
 from .scene import check_built_scene
 from .settings import Scene, SimulationSettings, resolve_integrator
-from .solver import Control, Stepper
+from .solver import Control, Stepper, wall_field_extent
 from .catheter_roll import packed_rolls
 from .state import State, new_state_like, packed_state
 
@@ -200,6 +200,8 @@ class Ensemble:
         self.settle_rule = settle_level  # (fastest speed mm/s, c0 mm, frame s, scale) → steps per half frame
         self._fine: dict[int, Stepper] = {}  # detachment frames: steps per push step → its stepper
         self.detach_rule = detach_level  # (push speed mm/s, push step s, c0 mm) → steps per push step
+        for scene, anatomy, extent in zip(self.scenes, self.anatomies, wall_field_extent(self.model)):
+            check_wall_field(scene, anatomy, extent)  # (the solver builds the field)
         contact = self.scenes[0].contact
         scheme = scheme_options(steps[0][6]) if self.integrator == "implicit" else {}  # simulation.implicit_scheme
         self._solver_options = {"wall_query": contact.wall_query, "wall_voxel_mm": contact.wall_voxel_mm,

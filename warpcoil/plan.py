@@ -30,7 +30,7 @@ from .recorder.atomic import write_text_atomic
 from .orientation import anatomy_normal, tip_axis
 from .sac import neck_frame
 from .scene import SceneError, load_scene
-from .sweep import MAX_MEMBERS, Member, check_varies, run_members
+from .sweep import MAX_MEMBERS, SAME_SETTING, Member, check_varies, run_members, same_coil_setting
 from .wall import load_wall
 
 DEVICES = ("none", "balloon", "stent")
@@ -155,6 +155,9 @@ def _at(where: str, key: str) -> str:
 def _option(source: Path, document: dict, devices: dict, raw: dict, where: str, index: int) -> Option:
     """One option from its table (or --vary values): name, device, scene keys."""
     keys = _flat({k: v for k, v in raw.items() if k not in ("name", "device")})
+    pair = same_coil_setting(keys)
+    if pair:
+        raise _error(source, where, f"sets {pair[0]} and {pair[1]}: {SAME_SETTING}", "keep one of them")
     device = raw.get("device", "none")
     if device not in DEVICES:
         raise _error(source, _at(where, "device"), f"{device!r} is not an assist device",
@@ -391,7 +394,7 @@ def _resumed(result: PlanResult) -> str:
 
 def _resolution(c) -> str:
     if c.relative:
-        return f"{100 * c.relative:g} % of the larger mean"
+        return f"{c.resolution:g} {c.unit} + {100 * c.relative:g} % of the larger mean"
     return f"{c.resolution:g} {c.unit}".strip() + (" class" if not c.unit else "")
 
 

@@ -270,6 +270,59 @@ def check_porous(scene: Scene, anatomy) -> None:
                          f"porous_voxel_mm = {coarser:.2g} or more")
 
 
+def check_regions(scene: Scene, anatomy) -> None:
+    """Raise SetupError for a given ``[regions] voxel_mm`` that makes more than MAX_REGION_VOXELS
+    voxels over the sac's bounding box, or fewer than MIN_VOXELS_ACROSS across the neck band, the
+    boundary band or the sac's narrowest extent (the densities are computed after the run: refused before it)."""
+    from .sac import MAX_REGION_VOXELS, MIN_VOXELS_ACROSS
+
+    h, regions = scene.regions.voxel_mm, scene.regions
+    if h is None or anatomy.sac is None:
+        return
+    vertices = np.asarray(anatomy.sac.closed_surface.vertices, dtype=np.float64)
+    span = np.ptp(vertices, axis=0)
+    count = math.prod(int(n) + 2 for n in np.ceil(span / h))
+    if count > MAX_REGION_VOXELS:
+        coarser = (float(np.prod(span)) / MAX_REGION_VOXELS) ** (1.0 / 3.0) * 1.05
+        raise SetupError(f"{scene.where}: regions.voxel_mm: voxels of {h:g} mm make {count:.3g} over the sac's "
+                         f"bounding box ({_vec(span)} mm), more than {MAX_REGION_VOXELS:.0e}; fix: voxel_mm = "
+                         f"{coarser:.2g} or more (or remove it: the default, d_min/4, is capped)")
+    d_max = max(c.wire_diameter_mm for c in scene.coils)
+    lengths = {"neck_band_mm": 4.0 * d_max if regions.neck_band_mm is None else regions.neck_band_mm,
+               "boundary_mm": 2.0 * d_max if regions.boundary_mm is None else regions.boundary_mm,
+               "the sac's narrowest extent": float(span.min())}
+    name, thinnest = min(lengths.items(), key=lambda item: item[1])
+    if h * MIN_VOXELS_ACROSS > thinnest:
+        raise SetupError(f"{scene.where}: regions.voxel_mm: voxels of {h:g} mm are too coarse to resolve the "
+                         f"regions: {name} = {thinnest:.3g} mm is less than {MIN_VOXELS_ACROSS} voxels across; fix: "
+                         f"voxel_mm = {thinnest / MIN_VOXELS_ACROSS:.2g} or less (the default is d_min/4 = "
+                         f"{0.25 * min(c.wire_diameter_mm for c in scene.coils):.2g} mm)")
+
+
+def check_wall_field(scene: Scene, anatomy, extent: tuple) -> None:
+    """Raise SetupError when ``[contact] wall_voxel_mm`` (with wall_query "sdf") has the wall field's faces
+    propose more than MAX_CANDIDATE_TILES tiles (the field is built before the first step: an int32 overflow
+    or memory beyond reach). ``extent``: the field's (band, region), solver.wall_field_extent."""
+    from .wall_field import MAX_CANDIDATE_TILES, candidate_tiles
+
+    if scene.contact.wall_query != "sdf" or anatomy.wall is None:
+        return
+    vertices = anatomy.wall.vertices_mm
+    origin = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))  # the wall's frame (model.WallModel)
+    band, (centre, radius) = extent
+    local, region = vertices - origin, (centre - origin, radius)
+    h = scene.contact.wall_voxel_mm
+    count = candidate_tiles(local, anatomy.wall.faces, band, h, region)
+    if count <= MAX_CANDIDATE_TILES:
+        return
+    coarser = h * (count / MAX_CANDIDATE_TILES) ** (1.0 / 3.0)  # (the count goes as ~1/h³)
+    while candidate_tiles(local, anatomy.wall.faces, band, coarser, region) > MAX_CANDIDATE_TILES:
+        coarser *= 1.05
+    raise SetupError(f"{scene.where}: contact.wall_voxel_mm: voxels of {h:g} mm make the wall field's faces propose "
+                     f"{count:.3g} tiles of 8³ voxels, more than {MAX_CANDIDATE_TILES:.0e}; fix: wall_voxel_mm = "
+                     f"{math.ceil(coarser * 1e4) / 1e4:g} or more (the default is 0.04)")
+
+
 def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     """Warnings for an implicit scene: a ``dt_s`` within the explicit stability bound
     (``step_bound_s``, s: a step the reference takes as it is, at ~3× the cost per step, the seed
@@ -311,6 +364,7 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
     check_porous(scene, anatomy)
+    check_regions(scene, anatomy)
     check_balloon(scene, anatomy)
     notes = [f"{scene.where}: {note}" for note in scene.notes]
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]

@@ -68,6 +68,8 @@ CUT_EDGES_PER_OSTIUM = 8
 CUT_MAX_FACES = 2_000_000
 PAIR_CHUNK = 1_000_000  # (point, contour segment) pairs handled at once
 MAX_VOXELS = 4_000_000  # the default voxel edge grows so that the sac's bounding box holds at most this many
+MAX_REGION_VOXELS = 20_000_000  # a given voxel_mm making more over the sac's box is refused before the run (~60 B each)
+MIN_VOXELS_ACROSS = 2  # ... and one with fewer across the neck band, the boundary band or the sac (unresolved)
 CONTOUR_SUFFIXES = (".vtk", ".vtp", ".csv", ".txt", ".xyz", ".npy")
 
 

@@ -139,6 +139,8 @@ def _polyline(value: object, base: Path) -> tuple[Vec3, ...]:
 
 def _existing_file(value: object, base: Path) -> Path:
     path = (base / _text(value, base, "sac.stl")).resolve()
+    if path.is_dir():
+        raise _Invalid(f"{path} is a folder, not a file", f"give the path of a file in it (relative to {base})")
     if not path.is_file():
         raise _Invalid(f"file {path} does not exist", f"check the path; it is relative to {base}")
     return path
@@ -190,7 +192,7 @@ _COIL = {
     "loop_diameter_mm": _Key(_positive, required=True),
     "length_mm": _Key(_positive, required=True),
     "pitch_mm": _Key(_positive, shape="helix"),
-    "shrink": _Key(_positive, shape="spherical"),
+    "shrink": _Key(_fraction, shape="spherical"),
     "segment_length_mm": _Key(_positive),
     "primary_wire_diameter_mm": _Key(_positive),
     "bending_stiffness_uN_mm2": _Key(_positive),
@@ -281,8 +283,19 @@ class _Reader:
         if isinstance(value, dict) and any(key in value for key in _PRODUCT):
             return self.product_coil(value, index)
         values = self.table(value, _COIL, where)
+        self.check_primary(values, value, where, values.get("wire_diameter_mm"))
         spec = self.build(CoilSpec, {"name": f"coil_{index}", **self.shaped(value, values, where)}, where)
         return self.checked_coil(spec, value, where)
+
+    def check_primary(self, values: dict[str, Any], value: dict[str, Any], where: str, d_mm: float | None) -> None:
+        """Refuse a primary wire no thinner than the coil's wire diameter ``d_mm`` (it is wound into the coil)."""
+        primary = values.get("primary_wire_diameter_mm", CoilSpec.primary_wire_diameter_mm)
+        if d_mm is not None and primary >= d_mm:
+            key = "primary_wire_diameter_mm" if "primary_wire_diameter_mm" in value else "wire_diameter_mm"
+            raise self.error(f"{where}.{key}", f"the primary wire ({primary:g} mm) is not thinner than the coil's wire "
+                             f"diameter d = {d_mm:g} mm it is wound into", f"give primary_wire_diameter_mm below "
+                             f"{d_mm:g} mm (the default is {CoilSpec.primary_wire_diameter_mm:g}), or check "
+                             "wire_diameter_mm")
 
     def checked_coil(self, spec: CoilSpec, value: dict[str, Any], where: str) -> CoilSpec:
         """``spec``, refused when its loops are no wider than its wire (it cannot wind) or its length
@@ -337,6 +350,7 @@ class _Reader:
                 raise self.error(f"{where}.{key}", f"is set by product = {line.family!r} from its source ({line.source})",
                                  "remove it, or describe the coil by its keys without product and size")
         values = self.shaped(value, values, where, shape=line.model_shape)
+        self.check_primary(values, value, where, values.get("wire_diameter_mm", line.d_mm))
         try:
             spec, note = line.spec(values.pop("size"), **values)
         except CatalogueError as bad:

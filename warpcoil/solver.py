@@ -42,6 +42,15 @@ NEIGHBOUR_BUILDS = ("auto", "grid", "walk")  # how the neighbour lists are built
 NEIGHBOUR_WALK_MAX_NODES = 360
 
 
+def wall_field_extent(model: Model, wall_search_mm: float = WALL_SEARCH_MM) -> list[tuple[float, tuple]]:
+    """Per world, the wall field's band (mm: the largest node radius + c0 + the wall search) and region
+    ((centre, radius) mm: the coil's loops around the catheter tip, where the coil can reach)."""
+    radius = model.node_radius.numpy()
+    path, last = model.catheter_path.numpy(), model.catheter_first.numpy() + model.catheter_count.numpy() - 1
+    return [(float(radius[model.world_nodes(w)].max()) + model.contact.c0_mm + min(wall_search_mm, WALL_SEARCH_MM),
+             (path[last[w]], max(model.coils[c].loop_diameter_mm for c in model.world_coils(w)) + FIELD_REGION_MM))
+            for w in range(model.world_count)]
+
 class UnstableStepError(ValueError):
     """A step size above the explicit stability bound was asked for."""
 
@@ -272,15 +281,10 @@ class Solver:
         self.contact_u_linear = contact_linear_onset(model, self.dt_s)
         n, dev = model.node_count, model.device
         self.wall_query = wall_query
-        radius = model.node_radius.numpy()
-        band_mm = [float(radius[model.world_nodes(w)].max()) + model.contact.c0_mm + min(wall_search_mm, WALL_SEARCH_MM)
-                   for w in range(model.world_count)]  # per world, as its single run has it
-        path, last = model.catheter_path.numpy(), model.catheter_first.numpy() + model.catheter_count.numpy() - 1
-        regions = [(path[last[w]], max(model.coils[c].loop_diameter_mm for c in model.world_coils(w)) + FIELD_REGION_MM)
-                   for w in range(model.world_count)]  # where the coil can reach: its loops around the tip
+        extents = wall_field_extent(model, wall_search_mm)
         self.wall_fields = [None if wall is None or wall_query == "bvh" else
                             wall_field_for(wall, band, wall_voxel_mm, region)
-                            for wall, band, region in zip(model.world_walls, band_mm, regions)]
+                            for wall, (band, region) in zip(model.world_walls, extents)]
         self._field_ids = wp.array([0 if f is None else f.id for f in self.wall_fields], dtype=wp.uint64, device=dev)
         self._no_fields = wp.zeros(model.world_count, dtype=wp.uint64, device=dev)
         # an anchored node must be beyond contact for the field too: its error is ≤ h √3/2 (1-Lipschitz, trilinear)

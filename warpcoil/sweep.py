@@ -33,14 +33,14 @@ from pathlib import Path
 
 from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_models, resolve_anatomies,
                      world_bounds, world_steps)
-from .preflight import SetupError, preflight
+from .preflight import SetupError, check_wall_field, preflight
 from .preshape import PreshapeError
 from .progress import Progress
 from .recorder.atomic import write_folder_atomic, write_text_atomic
 from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
-from .solver import UnstableStepError
+from .solver import UnstableStepError, wall_field_extent
 from .sweep_task import MemberOutput, make_task, named_files, run_task
 from .wall import WallError
 
@@ -65,24 +65,29 @@ MAX_MEMBERS = 20_000  # a sweep's members (more is most likely a mistyped step: 
 def parse_vary(text: str) -> tuple[str, list]:
     """``key=start:stop:step`` or ``key=a,b,c`` → (key, values)."""
     key, sep, values = text.partition("=")
+    key = key.strip()  # ("coil.length_mm = 6,8": the values are stripped each)
     fix = "write --vary key=start:stop:step or key=a,b,c, e.g. catheter.angle_deg=0:30:5"
     if not sep or not key or not values:
         raise SweepError(f"--vary {text!r}: {fix}")
-    try:
-        if ":" in values:
-            start, stop, step = (float(v) for v in values.split(":"))
-            if not step > 0.0 or stop < start:
-                raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
-            count = int(math.floor((stop - start) / step + 1e-9)) + 1
-            if count > MAX_MEMBERS:
-                raise SweepError(f"--vary {text!r}: {count:,} values, more than a sweep's {MAX_MEMBERS:,} members; "
-                                 "fix: a coarser step (or run the range as several sweeps)")
-            return key, [round(start + k * step, 12) for k in range(count)]
-        return key, [_scalar(v) for v in values.split(",")]
-    except ValueError as error:
-        if isinstance(error, SweepError):
-            raise
-        raise SweepError(f"--vary {text!r}: {error}; {fix}") from error
+    if ":" in values:
+        bounds = values.split(":")
+        if len(bounds) != 3:
+            raise SweepError(f"--vary {text!r}: a range is three numbers, start:stop:step, and {values!r} has "
+                             f"{len(bounds)}; {fix}")
+        try:
+            start, stop, step = (float(v) for v in bounds)
+        except ValueError:
+            start = stop = step = math.nan  # (a word that is no number: said as one below)
+        if not all(math.isfinite(v) for v in (start, stop, step)):
+            raise SweepError(f"--vary {text!r}: start, stop and step must be finite numbers; {fix}")
+        if not step > 0.0 or stop < start:
+            raise SweepError(f"--vary {text!r}: needs step > 0 and stop ≥ start; {fix}")
+        count = int(math.floor((stop - start) / step + 1e-9)) + 1
+        if count > MAX_MEMBERS:
+            raise SweepError(f"--vary {text!r}: {count:,} values, more than a sweep's {MAX_MEMBERS:,} members; "
+                             "fix: a coarser step (or run the range as several sweeps)")
+        return key, [round(start + k * step, 12) for k in range(count)]
+    return key, [_scalar(v) for v in values.split(",")]
 
 
 def _scalar(text: str):
@@ -108,14 +113,37 @@ class Member:
         return f"member_{self.index:03d}"
 
 
+SAME_SETTING = "the same key of one coil (coil.KEY sets every coil's, coil.N.KEY coil N's), one overriding the other"
+
+
+def same_coil_setting(keys) -> tuple[str, str] | None:
+    """The first two of ``keys`` that set the same key of one coil (``coil.K`` sets every coil's, so
+    ``coil.N.K`` too; ``coil.0.K`` and ``coil.00.K``), else None."""
+    seen: dict[str, tuple] = {}
+    for key in keys:
+        parts = key.split(".")
+        if parts[0] != "coil" or not (len(parts) == 2 or len(parts) == 3 and parts[1].isdigit()):
+            continue
+        coil, name = (None, parts[1]) if len(parts) == 2 else (int(parts[1]), parts[2])
+        for other, (other_coil, other_name) in seen.items():
+            if name == other_name and (coil == other_coil or None in (coil, other_coil)):
+                return other, key
+        seen[key] = (coil, name)
+    return None
+
+
 def check_varies(varies: list[tuple[str, list]]) -> None:
-    """SweepError for a key varied twice (the last --vary of it won, unseen) or a value given twice for
-    one key (two identical members)."""
+    """SweepError for a key varied twice (the last --vary of it won, unseen), two keys that set one coil's
+    same key (coil.K and coil.0.K: one overrides the other, unseen) or a value given twice for one key
+    (two identical members)."""
     keys = [k for k, _ in varies]
     twice = sorted({k for k in keys if keys.count(k) > 1})
     if twice:
         raise SweepError(f"--vary {twice[0]}: given {keys.count(twice[0])} times; fix: one --vary per key, its values "
                          "in one list (key=a,b,c)")
+    pair = same_coil_setting(keys)
+    if pair:
+        raise SweepError(f"--vary {pair[0]} and --vary {pair[1]}: both set {SAME_SETTING}; fix: vary one of them")
     for key, values in varies:
         seen = [v for k, v in enumerate(values) if v in values[:k]]
         if seen:
@@ -295,6 +323,30 @@ def default_workers(device: str | None) -> int:
     return gpus if gpus > 0 else cores
 
 
+SCHEDULER_FIX = "fix: give the address `dask scheduler` prints, e.g. tcp://10.0.0.5:8786"
+
+
+def check_scheduler(address: str | None) -> None:
+    """Raise SweepError for a --scheduler address Dask cannot read (an empty one would silently run the
+    local cluster), before anything runs: one line with the problem and the fix."""
+    if address is None:
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    if not address.strip():
+        raise SweepError(f"--scheduler '{address}': empty; {SCHEDULER_FIX}, or leave out --scheduler for a "
+                         "local cluster (--workers)")
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls", "ws", "wss"):  # (host:port; inproc and ucx name theirs otherwise)
+            parse_host_port(location)
+    except ValueError as error:
+        problem = "the port is not a number" if "int()" in str(error) else str(error)
+        raise SweepError(f"--scheduler '{address}': {problem}; {SCHEDULER_FIX}") from None
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None, workers: int | None, device: str | None, retries: int) -> Iterator:
     """A Dask client: of the scheduler at ``scheduler``, or of an embedded
@@ -431,6 +483,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
             model = host_models([scenes[k]], [anatomy], "cpu")[0]  # step bounds and groups, host-side
             bounds = world_bounds(model)
             world_steps(model, [scenes[k]], bounds)  # (its frame against its step and time limit)
+            check_wall_field(scenes[k], anatomy, wall_field_extent(model)[0])  # (built in the member's solver)
             member_warnings[k] = list(dict.fromkeys(unified + preflight(scenes[k], anatomy, "cpu", bounds[0].dt_s)))
         anatomies.append(anatomy)
         models.append(model)

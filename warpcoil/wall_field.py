@@ -33,6 +33,8 @@ DEFAULT_VOXEL_MM = 0.04  # distance error ≤ 1.2 µm (0.04 c0) on the seed sphe
 GRAD_TOLERANCE = 0.05  # |∇d| outside 1 ± this: a crease (dihedral ≳ 36°) in the stencil, use the BVH
 DEFAULT_CREASE_MM = 0.006  # second difference of d flagging a crease: trusted samples off by ≲ a quarter of it
 INNER_MM_VOXELS = 2.0  # the band reaches this many voxels beyond the wall (nodes pressed into it)
+MAX_CANDIDATE_TILES = 20_000_000  # tiles the faces may propose (16 B each): more is refused before the run; the
+# seed sphere proposes 1.6e6 at the default 0.04 mm, 1.1e7 at 0.01; the patient walls 3–3.5e6 and 2.5–3e7
 
 
 @dataclass
@@ -100,6 +102,22 @@ def build_wall_field(wall, band_mm: float, voxel_mm: float = DEFAULT_VOXEL_MM,
     wp.synchronize_device(dev)
     return WallField(volume=volume, voxel_mm=h, band_mm=float(band_mm), inner_mm=inner,
                      voxels=int(voxels.shape[0]), build_s=time.perf_counter() - start)
+
+
+def candidate_tiles(vertices_mm: np.ndarray, faces: np.ndarray, band_mm: float, voxel_mm: float,
+                    region: tuple) -> int:
+    """The tiles :func:`build_wall_field` has the faces propose (kernels.count_face_tiles, in int64 on
+    the host: the build's int32 total overflows past 2³¹), which bound its allocations. ``vertices_mm``
+    and the region's centre in the wall's frame (model.WallModel: relative to its box's centre)."""
+    h = float(voxel_mm)
+    tile_mm = 8.0 * h
+    reach = max(band_mm, INNER_MM_VOXELS * h) + math.sqrt(3.0) * tile_mm + h
+    corners = np.asarray(vertices_mm, dtype=np.float64)[np.asarray(faces)]
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    centre = np.asarray(region[0], dtype=np.float64)
+    near = np.linalg.norm(np.clip(centre, lo, hi) - centre, axis=1) <= region[1] + reach
+    counts = np.floor((hi + reach) / tile_mm).astype(np.int64) - np.floor((lo - reach) / tile_mm).astype(np.int64) + 1
+    return int(counts[near].prod(axis=1).sum())
 
 
 def field_error_bound_mm(voxel_mm: float) -> float:
