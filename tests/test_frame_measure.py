@@ -305,7 +305,8 @@ def test_the_runs_push_force_is_read_over_the_frames_that_pushed():
     assert summary["push_force_mean_max_uN"] == -300.0 and summary["push_force_peak_uN"] == 20.0
     assert summary["push_force_rms_uN"] == pytest.approx(math.sqrt((400.0**2 + 300.0**2) / 2.0))
     assert push_summary(frames[:1]) == {"push_force_peak_uN": 0.0, "push_force_mean_max_uN": 0.0,
-                                        "push_force_rms_uN": 0.0}
+                                        "push_force_rms_uN": 0.0, "push_kinetic_elastic_mean": 0.0,
+                                        "push_kinetic_elastic_max": 0.0}
 
 
 def test_the_push_reports_kinetic_over_elastic_energy_and_says_when_it_is_not_quasi_static():
