@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import warpcoil as wc
+from warpcoil.model import voronoi_lengths
 from warpcoil.solver import SimulationUnstable, UnstableStepError
 
 
@@ -146,3 +147,27 @@ def test_world_energies_count_each_non_finite_node_once():
     straight[7, 2] = np.inf
     _, bad = solver.world_energies(wc.state_from_positions(model, straight))
     assert bad.tolist() == [2]
+
+
+@pytest.mark.parametrize("mass_scale", [1.0, 10.0])
+def test_mass_scaling_keeps_the_damped_terminal_speed(mass_scale):
+    """Mass scaling makes nodes heavier, not the damping stronger: a coil in its rest shape
+    pulled by f = 6 µN per mm of coil reaches the terminal speed of c (1 − exp(−v/k)) = f,
+    v = −k ln(1 − f/c), whatever mass_scale (scaled damping would make it f/(s c)-slow)."""
+    settings = wc.SimulationSettings(damping_uN_per_mm=10.0, damping_speed_mm_s=20.0, mass_scale=mass_scale)
+    free_model, spec = helix_model(settings)
+    builder = wc.ModelBuilder(settings=settings)
+    builder.add_coil(spec)
+    per_mm = 6.0
+    edges = np.linalg.norm(np.diff(free_model.rest_positions, axis=0), axis=1)
+    for node, length in enumerate(voronoi_lengths(np.append(edges, 0.0))):
+        builder.apply_force(0, node, (per_mm * length, 0.0, 0.0))
+    model = builder.finalize()
+    solver = wc.Solver(model, dt_safety=0.5)
+    stepper = wc.Stepper(solver, wc.rest_state(model), wc.Control.create(model), chunk=500)
+    while stepper.state.time_s < 0.3:  # 9 relaxation times m k exp(v/k)/c of the heavier coil
+        stepper.run_chunk()
+    terminal = -settings.damping_speed_mm_s * math.log(1.0 - per_mm / settings.damping_uN_per_mm)
+    v = stepper.state.v.numpy()
+    assert np.allclose(v[:, 0], terminal, rtol=2e-3)
+    assert np.allclose(v[:, 1:], 0.0, atol=1e-6 * terminal)

@@ -110,7 +110,7 @@ class Member:
         self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
         # (at least STALL_DRAG_FACTOR × the damping drag of the pushed coil moving at the push speed, per coil: a
         # coil with little or no pre-shape draws itself out with ~0 µN, and the drag of its free part alone stalled it)
-        drag_uN = (sim.damping_uN_per_mm * sim.mass_scale * self.coil_lengths_mm
+        drag_uN = (sim.damping_uN_per_mm * self.coil_lengths_mm
                    * (1.0 - math.exp(-sim.push_speed_mm_s / sim.damping_speed_mm_s)))
         self.stall_forces_uN = (np.full(len(self.coil_lengths_mm), sim.stall_force_uN) if sim.stall_force_uN is not None
                                 else np.maximum(sim.stall_force_ratio * self.self_deployment_force_uN,

@@ -233,10 +233,10 @@ def implicit_step_s(model: Model, push_speed_mm_s: float) -> float:
 
 
 def settle_relaxation_per_s(coil, sim: SimulationSettings) -> float:
-    """λ = EI v_d / (c d⁴) (1/s) of a coil (CoilSpec) in ``sim``'s damping (c = damping_uN_per_mm ×
-    mass_scale, as the model damps, v_d = damping_speed_mm_s): the rate at which the damping relaxes a bend
+    """λ = EI v_d / (c d⁴) (1/s) of a coil (CoilSpec) in ``sim``'s damping (c = damping_uN_per_mm, which
+    mass_scale leaves alone; v_d = damping_speed_mm_s): the rate at which the damping relaxes a bend
     over segments of d; 0 without damping (no relaxation to scale by: its bounds stay those of l0)."""
-    damping = sim.damping_uN_per_mm * sim.mass_scale
+    damping = sim.damping_uN_per_mm
     if damping <= 0.0:
         return 0.0
     return coil.EI * sim.damping_speed_mm_s / (damping * coil.d ** 4)

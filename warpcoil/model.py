@@ -12,7 +12,7 @@ advances them all, and nothing couples one world to another.
 
 Masses are lumped on each node's share of the coil (its Voronoi length, half of
 each adjacent rest edge): ``ρ (l̄_i−1 + l̄_i)/2 · mass_scale``, so an end node
-carries half a segment; the node damping follows the same length, and so does
+carries half a segment; the node damping follows the same length (not mass-scaled), and so does
 each node's contact (``contact_share`` = l̄_i / the coil's segment length: the
 contact law acts per node patch d·l̄_i, ½ P0 at an end node's half patch). Per edge:
 twist inertia ``ρ l̄_i r² · mass_scale`` (r the winding radius (d − d_w)/2) and
@@ -421,11 +421,11 @@ class ModelBuilder:
         edge_prev = np.concatenate([[0.0], edge_len[:-1]])
         spin_len = np.where(has_next == 1, edge_len, edge_prev)  # per edge; a coil's last index repeats its edge
         inertia = rho * spin_len * s.mass_scale * winding_r**2
-        damping_c = s.damping_uN_per_mm * node_len * s.mass_scale  # same damping rate c/(m k) when mass-scaled
+        damping_c = s.damping_uN_per_mm * node_len  # not mass-scaled: the creeping motion c·v ≈ F stays the true one
         segment = np.repeat([edge_len[f:l].mean() for f, l in zip(first, last)], counts)  # the coil's l0
         contact_share = node_len / segment  # its contact per unit mass is every node's of its coil
         contact_samples = contact_samples_per_edge(segment, per_coil(lambda c: c.d))
-        twist_damping = s.damping_uN_per_mm * spin_len * s.mass_scale / s.damping_speed_mm_s * winding_r**2
+        twist_damping = s.damping_uN_per_mm * spin_len / s.damping_speed_mm_s * winding_r**2
         vertex_len = np.zeros(n)
         interior = np.zeros(n, bool)
         interior[1:-1] = (has_next[1:-1] == 1) & (has_next[:-2] == 1)

@@ -14,7 +14,7 @@ DEFAULT_DT_SAFETY = 0.9  # fraction of the stable bound; on the run-time/error P
 # Step for undamped dynamics by the reference integrator: a quarter of the default, where the
 # energy of a released 3D helix stays within 1 % over 10⁶ steps (docs/FORMULATION.md, "Energy").
 UNDAMPED_DT_SAFETY = 0.25 * DEFAULT_DT_SAFETY
-DEFAULT_MASS_SCALE = 1.0  # true inertia; mass scaling is opt-in (it changes a free release: BENCHMARKS.md)
+DEFAULT_MASS_SCALE = 1.0  # true inertia; mass scaling is opt-in (it changes the dynamics: BENCHMARKS.md)
 
 
 @dataclass(frozen=True)
@@ -176,9 +176,10 @@ class SimulationSettings:
       coil is out, frame / (2k), the longest moving the fastest node ≤ c0, 1.67–2.5 ms at
       10 ms frames: implicit.settle_level).
       A symplectic dt above the bound is refused unless allow_unstable_dt.
-    * mass_scale: node masses, twist inertia and damping × this factor (default 1,
-      true inertia): a named quasi-static speed-up (the damped, first-order motion
-      c·v ≈ F is kept; only inertia grows, and the stable step grows by √scale),
+    * mass_scale: node masses and twist inertia × this factor (default 1, true
+      inertia), not the damping: a named quasi-static speed-up (the damped,
+      first-order motion c·v ≈ F is kept; only inertia grows, and the stable
+      symplectic step grows by √scale),
       reported in results; BENCHMARKS.md shows what it does to the error.
     * jam_force_uN: push force at which the deployment is "jammed" (in-vitro
       insertion forces are of the order of 0.1 N = 1e5 µN).

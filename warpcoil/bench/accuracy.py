@@ -54,7 +54,7 @@ from .report import markdown_table, timed, write_report
 SEED_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "seed_sphere.toml"
 D = validation.REFERENCE_D_MM
 L0_IS_THE_MODEL = "l0 = d defines the model (MODEL.md)"
-MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (it tangles a free release: its error in the table)"
+MASS_SCALING_CHANGES_DYNAMICS = "mass scaling changes the dynamics (heavier nodes, more inertia: its error in the table)"
 # a deployment setting is a default candidate only while its push force's mean over the push is within this
 # many self-deployment forces F0 (stored energy per mm, docs/FORMULATION.md "Stall") of the finest setting's
 PUSH_FORCE_TOLERANCE_F0 = 0.25
@@ -150,7 +150,7 @@ def _release_detail(res, speed: float, integrator: str, perturbations: int, adva
 
 def release_rows(quick: bool, repeats: int) -> list[Row]:
     rows = []
-    if quick:  # mass scaling tangles a free release (shown once; the full sweep shows it on the seed deployment)
+    if quick:  # mass scaling on a free release (shown once; the full sweep shows it on the seed deployment)
         res, t = timed(lambda: validation.free_release(push_speed_mm_s=200.0, mass_scale=10.0), repeats)
         rows.append(Row("free release", "push 200 mm/s, dt 0.9 bound, mass scale 10", False, 0, t, _helix_error(res),
                         f"D {res[0].result:.4f} mm, pitch {res[1].result:.4f} mm"))
