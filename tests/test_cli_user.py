@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 import trimesh
 
+import warpcoil as wc
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SPHERE = """
@@ -788,20 +790,26 @@ def test_an_overfull_sac_is_warned_about_and_ends_as_jammed(tmp_path):
 
 
 def test_a_loop_far_larger_than_the_sac_is_warned_about_and_stalls_on_push_force(tmp_path):
-    """A 35 mm loop for the 3.5 mm sac: warned before the run; it ends as jammed
-    ("stalled") once the frame-mean push force has stayed above stall_force_ratio (100)
-    × the coil's self-deployment force (its elastic energy per mm straightened in the
-    catheter, about 9 µN for so flat a loop) for the whole stall window (0.1 s)."""
+    """A 35 mm loop for the 3.5 mm sac: warned before the run. Its self-deployment force (elastic energy
+    per mm straightened in the catheter) is about 9 µN for so flat a loop, but no coil fills the sac
+    without bending to its curvature, EI/(2 R²) ≈ 490 µN: the stall force is stall_force_ratio (here 1)
+    × that, and the run ends as jammed ("stalled") once the frame-mean push force has stayed above it for
+    the whole stall window (0.1 s)."""
     path = scene(tmp_path, **{"loop_diameter_mm = 2.5": "loop_diameter_mm = 35.0",
-                              "length_mm = 4.0": "length_mm = 20.0"})
+                              "length_mm = 4.0": "length_mm = 20.0",
+                              "frame_interval_s = 0.005": "frame_interval_s = 0.005\nstall_force_ratio = 1.0"})
     code, out, err = cli(tmp_path, "run", str(path), "-o", "big", "-q")
     assert code == 3, err
     assert "coil[0].loop_diameter_mm = 35 is 10.0× the sac's size" in err
     result = json.loads((tmp_path / "big" / "result.json").read_text())
     self_force = result["stored_energy_nJ"] / result["coil_length_mm"]  # nJ/mm = µN
-    stall_force = 100.0 * self_force
-    assert result["status"] == "jammed" and "stall_force_ratio = 100 ×" in result["reason"], result["reason"]
-    assert (f"self-deployment force {self_force:.4g} µN, at least 2 × the pushed coil's damping drag at the push speed, "
+    sac_radius = (3.0 * result["sac_volume_mm3"] / (4.0 * math.pi)) ** (1.0 / 3.0)
+    sac_bend = wc.CoilSpec(wire_diameter_mm=0.2921, loop_diameter_mm=35.0, length_mm=20.0).EI / (2.0 * sac_radius**2)
+    stall_force = sac_bend
+    assert 400.0 < sac_bend < 600.0 and self_force < 0.05 * sac_bend
+    assert result["status"] == "jammed" and "stall_force_ratio = 1 ×" in result["reason"], result["reason"]
+    assert (f"self-deployment force {self_force:.4g} µN (or the force that bends it to the sac's curvature, "
+            f"{sac_bend:.4g} µN, where larger), at least 2 × the pushed coil's damping drag at the push speed, "
             f"= {stall_force:.4g} µN") in result["reason"]
     assert out.startswith("jammed: stalled") and "stall_force_ratio" in out
     rows = list(csv.DictReader((tmp_path / "big" / "timeseries.csv").open()))
@@ -838,6 +846,26 @@ def test_a_coil_that_fits_completes_well_below_the_stall_force(tmp_path):
     assert result["status"] == "completed" and out.startswith("completed")
     self_force = result["stored_energy_nJ"] / result["coil_length_mm"]
     assert result["push_force_mean_max_uN"] < 0.1 * 100.0 * self_force  # margin ≥ 10×
+
+
+@pytest.mark.parametrize("shape", ["straight", "loop 10x the sac"])
+def test_a_coil_without_a_pre_shape_that_fits_fills_the_sac_instead_of_stalling(tmp_path, shape):
+    """A straight coil (self-deployment force 0) or a 35 mm loop (9 µN), 30 mm into the 3.5 mm sphere: each must
+    bend to the sac's curvature, EI/(2 R²) ≈ 490 µN per mm, to fill it; held to 100 × its self-deployment force (or
+    the drag floor, 551 µN) the straight one stalled at 8.2 mm, 2.5 % packing (a physicist's audit). The stall force
+    is 100 × the larger of the two now: both deploy the whole coil, every node inside the wall."""
+    (tmp_path / "straight.txt").write_text("\n".join(f"0 0 {0.1 * k:.1f}" for k in range(301)) + "\n")
+    coil = ('shape = "file"\nfile = "straight.txt"\nloop_diameter_mm = 3.0' if shape == "straight" else
+            'shape = "helix"\nloop_diameter_mm = 35.0\npitch_mm = 0.6')
+    path = scene(tmp_path, **{'shape = "helix"\nwire_diameter_mm = 0.2921\nloop_diameter_mm = 2.5\npitch_mm = 0.6\n'
+                              'length_mm = 4.0': f"{coil}\nwire_diameter_mm = 0.2921\nlength_mm = 30.0",
+                              "push_speed_mm_s = 100.0": "push_speed_mm_s = 50.0"})
+    code, out, err = cli(tmp_path, "run", str(path), "-o", "out")
+    assert code == 0, err
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["status"] == "completed", result["reason"]
+    assert result["deployed_length_mm"] == pytest.approx(30.0, abs=1e-3) and result["length_outside_sac_mm"] == 0.0
+    assert result["min_wall_gap_mm"] > -0.5 * 0.2921
 
 
 def test_a_straight_coil_in_free_space_completes_instead_of_stalling(tmp_path):

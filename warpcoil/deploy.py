@@ -55,6 +55,16 @@ def time_limit_s(sim: SimulationSettings, coil_lengths_mm: Sequence[float]) -> f
     return sim.max_time_s if sim.max_time_s is not None else push_time_s(sim, coil_lengths_mm) + DEFAULT_SETTLE_TIME_S
 
 
+def sac_bend_forces_uN(coils: Sequence, sac_volume_mm3: float | None) -> np.ndarray:
+    """Per coil (CoilSpec), EI / (2 R²) (µN = nJ/mm): the elastic energy per mm of the coil bent to the
+    curvature of a sphere of the sac's volume, R = (3 V / 4π)^(1/3) — the least push force per mm with
+    which any coil fills that sac, whatever its pre-shape; 0 without a sac."""
+    if not sac_volume_mm3:
+        return np.zeros(len(coils))
+    radius_mm = (3.0 * sac_volume_mm3 / (4.0 * math.pi)) ** (1.0 / 3.0)
+    return np.array([c.EI / (2.0 * radius_mm**2) for c in coils])
+
+
 def model_builder(scene: Scene, anatomy: Anatomy) -> ModelBuilder:
     """The builder of a scene's world: coils (pre-shapes), catheter, contact and wall."""
     builder = ModelBuilder(catheter=anatomy.catheter, settings=scene.simulation, contact=scene.contact,
@@ -112,8 +122,12 @@ class Member:
         # coil with little or no pre-shape draws itself out with ~0 µN, and the drag of its free part alone stalled it)
         drag_uN = (sim.damping_uN_per_mm * self.coil_lengths_mm
                    * (1.0 - math.exp(-sim.push_speed_mm_s / sim.damping_speed_mm_s)))
+        # (and at least the force that bends each coil to the sac's own curvature: a straight or oversized coil
+        # draws itself out with ~0 µN, but no coil fills a sac without that bend)
+        self.sac_bend_forces_uN = sac_bend_forces_uN(scene.coils, anatomy.sac_volume_mm3)
         self.stall_forces_uN = (np.full(len(self.coil_lengths_mm), sim.stall_force_uN) if sim.stall_force_uN is not None
-                                else np.maximum(sim.stall_force_ratio * self.self_deployment_force_uN,
+                                else np.maximum(sim.stall_force_ratio * np.maximum(self.self_deployment_force_uN,
+                                                                                  self.sac_bend_forces_uN),
                                                 STALL_DRAG_FACTOR * drag_uN))  # per coil, while it is pushed
         self.resisted_since_s: float | None = None  # start of the frames with mean push force > stall force
         self.frames: list[Frame] = []
@@ -534,10 +548,12 @@ class Ensemble:
             member.resisted_since_s = frame.time_s - frame_s
         if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
             return None
+        sac_bend = (f" (or the force that bends it to the sac's curvature, {member.sac_bend_forces_uN[k]:.4g} µN, "
+                    "where larger)" if member.sac_bend_forces_uN[k] > 0.0 else "")
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
-                 f"{member.self_deployment_force_uN:.4g} µN, at least {STALL_DRAG_FACTOR:g} × the pushed coil's damping drag at "
-                 f"the push speed, = {stall_force_uN:.4g} µN")
+                 f"{member.self_deployment_force_uN:.4g} µN{sac_bend}, at least {STALL_DRAG_FACTOR:g} × the pushed "
+                 f"coil's damping drag at the push speed, = {stall_force_uN:.4g} µN")
         return (f"stalled: {where()}: the mean push force stayed above {limit} "
                 f"in every frame for stall_window_s = {sim.stall_window_s:g} s (last {frame.push_force_mean_uN:.4g} "
                 f"µN), a resistance that does not let up; {fix}")

@@ -195,7 +195,9 @@ class SimulationSettings:
       the catheter tip completes at 56×, a loop 10× the sac holds 165–280×. The
       stall force is at least twice the pushed coil's own damping drag at the push
       speed (a coil with little or no pre-shape has a self-deployment force near 0:
-      its free part's damping drag alone stalled it).
+      its free part's damping drag alone stalled it), and in a sac the ratio
+      multiplies the larger of F0 and the force that bends the pushed coil to the
+      sac's curvature, EI/(2R²) (R of a sphere of the sac's volume; deploy.sac_bend_forces_uN).
     * stall_force_uN: optional (None: off): an absolute push force (µN) used
       instead of stall_force_ratio × the self-deployment force.
     * rest_kinetic_energy_nJ: after detachment the run ends when kinetic energy
