@@ -145,3 +145,32 @@ def test_a_coils_nodes_stand_for_its_length_so_herniated_never_exceeds_it():
     for c in range(model.coil_count):
         first, last = int(model.coil_first[c]), int(model.coil_last[c])
         assert member.segment[first:last + 1].sum() == pytest.approx(rest[first:last].sum(), rel=1e-12)
+
+
+def test_a_jammed_coils_exported_geometry_ends_at_its_cut(tmp_path):
+    """The withdrawn part of a jammed coil leaves with the catheter: the final centreline (CSV, tube mesh,
+    porous field: the CFD geometry) holds only what stays, every node in the sac and every edge near its rest
+    length, and the USD draws no edge across the cut (the first version exported the parked part in the
+    catheter, 17 nodes outside the sac, joined to the deployed part by a 0.74 mm edge of rest length 0.30)."""
+    from pxr import Usd, UsdGeom
+
+    from warpcoil.recorder.outputs import UsdFrames
+
+    deployment = Deployment(two_coil_scene(jam_force_uN=2.0))
+    usd = UsdFrames.for_model(tmp_path / "run.usdc", deployment.model, 0.005)
+    result = deployment.run(usd)
+    usd.close()
+    first = result.coils[0]
+    assert first["status"] == JAMMED
+    rest = deployment.model.rest_length.numpy()
+    stage = Usd.Stage.Open(str(tmp_path / "run.usdc"))
+    drawn = UsdGeom.BasisCurves(stage.GetPrimAtPath("/World/Coils/Coil_0")).GetPointsAttr().Get(
+        stage.GetEndTimeCode())
+    for k, x in enumerate(result.positions_mm):
+        sl = deployment.model.node_slice(k)
+        assert np.all(np.linalg.norm(x, axis=1) < R_SAC)
+        assert np.all(np.linalg.norm(np.diff(x, axis=0), axis=1) < 1.05 * rest[sl][:len(x) - 1])
+    kept = result.positions_mm[0]
+    assert (len(kept) - 1) * rest[0] == pytest.approx(first["deployed_length_mm"], abs=rest[0])
+    edges = np.linalg.norm(np.diff(np.asarray(drawn), axis=0), axis=1)
+    assert edges.max() < 1.05 * rest[0] and np.allclose(np.asarray(drawn)[len(kept):], kept[-1], atol=1e-5)

@@ -115,6 +115,7 @@ class Member:
         self.radius = host["node_radius"][self.nodes]
         self.segment = voronoi_lengths(host["rest_length"])[self.nodes]  # (half an edge at a coil's end)
         self.coil_status = ["waiting"] * len(self.coils)
+        self.withdrawn_from: list[int | None] = [None] * len(self.coils)  # a jammed coil's first withdrawn node
         self.jam_reasons: list[str] = []
         # the force with which the coils draw themselves out of the catheter (µN = nJ/mm)
         self.self_deployment_force_uN = stored_energy_nJ / float(self.coil_lengths_mm.sum())
@@ -257,6 +258,7 @@ class Ensemble:
         inside = np.flatnonzero(self.stepper.state.free.numpy()[sl] == 0) + sl.start
         if inside.size == 0:
             return
+        member.withdrawn_from[coil] = int(inside.min() - sl.start)
         has_next, fixed = m.has_next.numpy(), m.fixed.numpy()
         has_next[inside.min() - 1 if inside.min() > sl.start else sl.start:sl.stop] = 0
         fixed[inside] = 1

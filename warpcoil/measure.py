@@ -244,7 +244,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         wall_repairs=list(member.anatomy.wall.notes) if member.anatomy.wall is not None else [],
         catheter_tip_mm=member.anatomy.catheter.tip_mm, catheter_direction=member.anatomy.catheter.direction,
         frames=frames,
-        positions_mm=[x[s] for s in local],
+        positions_mm=[x[s][:cut] for s, cut in zip(local, member.withdrawn_from)],  # (a jammed coil: what stays)
         packing_density_in_sac=(sum(math.pi * (c["wire_diameter_mm"] / 2.0) ** 2 * max(
             c["deployed_length_mm"] - c["length_outside_sac_mm"], 0.0) for c in coils) / sac_volume
             if sac_volume else None),

@@ -126,7 +126,7 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
                 usd = recorders[k] = UsdFrames(
                     folders[k] / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
                     wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
-                    member.scene.simulation.frame_interval_s)
+                    member.scene.simulation.frame_interval_s, ensemble.model.fixed)
                 usd.add_device(member.anatomy.balloon, member.anatomy.stent)
             last_time_s[k] = frame.time_s
             usd(frame, state)
