@@ -372,3 +372,20 @@ def test_the_settling_energy_tolerance_is_absolute_then_relative():
     assert not settle_energy_rose(big, big * (1.0 + 0.99 * SETTLE_RISE_FRACTION))
     assert settle_energy_rose(big, big * (1.0 + 1.01 * SETTLE_RISE_FRACTION))
     assert not settle_energy_rose(big, 0.5 * big)
+
+
+def test_a_packed_coil_settling_at_its_own_step_is_refined_until_it_comes_to_rest():
+    """A stiff d 0.5 mm helix (EI 3e4 µN·mm², 10 mm loop) pushed 20 mm into a 2.5 mm sphere (48 % packing) halves
+    its push step at 0.04 s (a node past the wall), so it settles at its own step; there its step sustained a cycle
+    (kinetic 0.06–2.5 nJ for 2 s, `timeout` at 2.42 s: a physicist's audit) that the reference and a step of
+    6.25e-5 s bring to rest. A kinetic energy that loses less than SETTLE_STALL_DROP over SETTLE_STALL_S with
+    nothing driving the coil now halves the step, as the settling step refines on it: it comes to rest."""
+    coil = wc.CoilSpec(name="h", shape="helix", wire_diameter_mm=0.5, loop_diameter_mm=10.0, length_mm=20.0,
+                       bending_stiffness_uN_mm2=3e4)
+    scene = wc.Scene(coils=(coil,), catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -0.8), direction=(0.0, 0.0, 1.0)),
+                     wall=wc.WallSpec(sphere_diameter_mm=2.5), simulation=wc.SimulationSettings(push_speed_mm_s=50.0))
+    result = Deployment(scene).run()
+    assert result.status == "completed", (result.reason, result.step_reductions)
+    stalls = [r for r in result.step_reductions if "kinetic energy stalled" in r]
+    assert stalls and result.final_kinetic_nJ < 1e-3
+    assert result.simulated_time_s < 2.0

@@ -26,7 +26,8 @@ from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, note_samples, run_result, take_snapshot
 from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble, voronoi_lengths
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
-                       make_solver, scheme_options, SETTLE_REFINE_MAX, SETTLE_RISE_REFINE_MAX, settle_energy_rose,
+                       make_solver, scheme_options, SETTLE_REFINE_MAX, SETTLE_RISE_REFINE_MAX, SETTLE_STALL_DROP,
+                       SETTLE_STALL_S, settle_energy_rose,
                        settle_finest_level, settle_level, settle_stalled,
                        settle_step_s, settle_step_scale)
 from .preflight import SetupError, check_wall_field, preflight
@@ -370,14 +371,26 @@ class Ensemble:
         """Outside the settling step (a member's last coil out before it starts, or a run that settles
         at its own step: it gave ``dt_s`` or halved it): a frame in which a member's energy rose
         (:meth:`_energy_rise_nJ`) is a problem, redone at half the step like an unstable one, while
-        halvings are left (MAX_STEP_HALVINGS)."""
+        halvings are left (MAX_STEP_HALVINGS); so is, in a run settling at its own step, a kinetic energy
+        that has stalled (implicit.settle_stalled, as the settling step refines on it: a packed coil
+        whose step sustains a cycle instead of coming to rest)."""
         if len(self.step_reductions) >= MAX_STEP_HALVINGS:
             return
+        frame_s = self.members[0].scene.simulation.frame_interval_s
         for m in running:
-            rise = self._energy_rise_nJ(m, energies) if problems[m.world] is None else None
+            if problems[m.world] is not None:
+                continue
+            rise = self._energy_rise_nJ(m, energies)
             if rise is not None:
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic + elastic energy rose {rise:.3g} nJ in a frame with nothing driving the coil",
+                    self.stepper.state.time_s)
+            elif (self._push_over and m.active < 0 and not (m.inflation or 0.0) > 0.0
+                  and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
+                m.settle_stall_from = len(m.settle_kinetic_nJ)
+                problems[m.world] = self.solver.unstable_reason(
+                    f"kinetic energy stalled at {m.settle_kinetic_nJ[-1]:.3g} nJ (less than "
+                    f"{100 * SETTLE_STALL_DROP:g} % lost over {SETTLE_STALL_S:g} s) with nothing driving the coil",
                     self.stepper.state.time_s)
 
     def _settle_again(self, risen: list[Member], running: list[Member], snapshot: State) -> None:
@@ -601,7 +614,7 @@ class Ensemble:
 
     def _record(self, member: Member, frame: Frame, on_frame) -> None:
         member.frames.append(frame)
-        if self._settling:
+        if self._settling or self._push_over:  # (the latter: a run settling at its own step)
             member.settle_kinetic_nJ.append(frame.kinetic_nJ)
         if on_frame:
             on_frame(member, frame, self.stepper.state)
