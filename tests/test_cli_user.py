@@ -1024,3 +1024,31 @@ def test_a_run_without_a_tube_mesh_needs_no_vtk(tmp_path, monkeypatch):
     written = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert "result.json" in written and "summary.png" in written and "coils.stl" not in written
     assert json.loads((tmp_path / "out" / "result.json").read_text())["status"] == "completed"
+
+
+def _file_size_limit(limit_bytes: int):
+    """preexec_fn: writes past ``limit_bytes`` fail with EFBIG (as on a full disk: ENOSPC), not with SIGXFSZ."""
+    import resource
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return limit
+
+
+def test_outputs_that_cannot_be_written_are_one_line_exit_4_and_leave_nothing(tmp_path):
+    path = scene(tmp_path, **{"usd = false": "usd = false\npng = true"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "warm", "-q")  # (the kernels cached, unlimited)
+    assert code == 0, err
+    assert (tmp_path / "warm" / "summary.png").stat().st_size > 20_000  # (more than the limit below)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    with (tmp_path / "full.out").open("w") as stdout, (tmp_path / "full.err").open("w") as stderr:
+        code = subprocess.run([sys.executable, "-m", "warpcoil.cli", "run", str(path), "-o", "full", "-q"],
+                              stdout=stdout, stderr=stderr, cwd=tmp_path, env=program_env(),
+                              preexec_fn=_file_size_limit(20_000), timeout=600).returncode
+    line = one_line((tmp_path / "full.err").read_text())
+    assert code == 4
+    assert line.startswith("warpcoil run: full: writing the outputs failed (File too large, EFBIG)"), line
+    assert "fix: free space" in line
+    assert sorted(p.name for p in (tmp_path / "full").iterdir()) == ["notes.txt"]  # no output, no lock, no stage

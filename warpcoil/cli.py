@@ -3,12 +3,14 @@
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
+4 the outputs could not be written (a full disk: none is left half-written),
 130 interrupted (Ctrl-C, or SIGTERM from a batch scheduler).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import sys
 from contextlib import nullcontext
@@ -16,6 +18,16 @@ from pathlib import Path
 
 EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+EXIT_NOT_WRITTEN = 4  # an output could not be written (OSError: a full disk, a file-size limit)
+
+
+def _not_written(command: str, out: Path, error: OSError, kept: str) -> int:
+    """One line for outputs that could not be written into ``out`` (``kept``: what is left there); exit 4."""
+    name = errno.errorcode.get(error.errno, "") if error.errno else ""
+    print(f"warpcoil {command}: {out}: writing the outputs failed ({error.strerror or error}"
+          f"{f', {name}' if name else ''}); {kept}; fix: free space on that disk (or raise the file-size limit, "
+          "or choose another output folder) and run again", file=sys.stderr)
+    return EXIT_NOT_WRITTEN
 
 
 def _positive_seconds(text: str) -> float:
@@ -93,6 +105,8 @@ def _run(args: argparse.Namespace) -> int:
     except OutputFolderError as error:
         print(f"warpcoil run: {error}", file=sys.stderr)
         return 2
+    except OSError as error:
+        return _not_written("run", out, error, "none of this run's outputs were left there")
 
 
 def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warnings: list[str]) -> int:
@@ -191,6 +205,10 @@ def _sweep(args: argparse.Namespace) -> int:
         progress.close(failed=True)
         print(f"warpcoil sweep: {error}", file=sys.stderr)
         return 1
+    except OSError as error:
+        progress.close(failed=True)
+        return _not_written("sweep", out, error, "the member folders written before are complete, no summary was "
+                            "written; rerun with --resume to finish")
     progress.close()
     print((out / "summary.md").read_text())
     codes = {EXIT_FOR_STATUS[m.result["status"]] for m in todo}
@@ -248,6 +266,10 @@ def _plan(args: argparse.Namespace) -> int:
         progress.close(failed=True)
         print(f"warpcoil plan: {error}", file=sys.stderr)
         return 1
+    except OSError as error:
+        progress.close(failed=True)
+        return _not_written("plan", out, error, "the member folders written before are complete, no summary was "
+                            "written; rerun with --resume to finish")
     progress.close()
     print((out / "plan.md").read_text())
     return 1 if any(r.rank == 0 for r in result.ranked) else 0  # an option none of whose runs gave a result

@@ -36,7 +36,7 @@ from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_m
 from .preflight import SetupError, check_wall_field, preflight
 from .preshape import PreshapeError
 from .progress import Progress
-from .recorder.atomic import write_folder_atomic, write_text_atomic
+from .recorder.atomic import all_or_none, write_folder_atomic, write_text_atomic
 from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
@@ -228,10 +228,11 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    write_text_atomic(out / "summary.csv", buffer.getvalue())
     lines = [header, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(str(row[c]) for c in columns) + " |" for row in rows]
-    write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
+    with all_or_none(out / "summary.csv", out / "summary.md"):
+        write_text_atomic(out / "summary.csv", buffer.getvalue())
+        write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
 def member_values(member: Member) -> str:
