@@ -148,7 +148,9 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     if late[0]:
         print("warpcoil run: interrupted after the last frame: the outputs were written first", file=sys.stderr)
     print(f"{result.status}: {result.reason}")
-    density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
+    density = (f"in sac {100 * result.packing_density_in_sac:.1f} % (all deployed coil "
+               f"{100 * result.packing_density:.1f} %)" if result.packing_density_in_sac is not None
+               else "n/a (no wall)")
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
           f"{result.steps} {result.scheme['integrator']} steps of {result.dt_s:.3g} s"
           f"{f' (then {result.settle_dt_s:.3g} s)' if result.settle_dt_s else ''} in {result.wall_time_s:.1f} s wall time -> {out}")
