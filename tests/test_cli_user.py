@@ -1052,3 +1052,21 @@ def test_outputs_that_cannot_be_written_are_one_line_exit_4_and_leave_nothing(tm
     assert line.startswith("warpcoil run: full: writing the outputs failed (File too large, EFBIG)"), line
     assert "fix: free space" in line
     assert sorted(p.name for p in (tmp_path / "full").iterdir()) == ["notes.txt"]  # no output, no lock, no stage
+
+
+def test_free_space_reports_no_length_outside_a_sac(tmp_path):
+    """With no [wall] there is no sac to be outside of: length_outside_sac_mm is null (result.json, each coil),
+    an empty cell in timeseries.csv and a sweep's summary.csv, as the packing densities are, not 0."""
+    free = SPHERE.replace("[wall]\nsphere_diameter_mm = 3.5\n", "")
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path, free)), "-o", "run", "-q")
+    assert code == 0, err
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["packing_density"] is None and result["length_outside_sac_mm"] is None
+    assert [c["length_outside_sac_mm"] for c in result["coils"]] == [None]
+    rows = list(csv.DictReader((tmp_path / "run" / "timeseries.csv").open()))
+    assert {r["length_outside_sac_mm"] for r in rows} == {""}
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path, free)), "--vary", "coil.length_mm=4,5", "-o", "sweep",
+                       "-q", "--workers", "1")
+    assert code == 0, err
+    rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
+    assert [(r["packing_density"], r["length_outside_sac_mm"]) for r in rows] == [("", "")] * 2
