@@ -164,6 +164,32 @@ def check_balloon(scene: Scene, anatomy) -> None:
             f"its radius) or move the tip out of it ({key})")
 
 
+def check_deflation(scene: Scene) -> None:
+    """Raise SetupError for a ``balloon.deflate_at_s`` whose deflation would not end within the run's
+    time limit: a run ends only once its balloon has deflated, so it could only time out (and the
+    deflation it names would never have happened)."""
+    from .deploy import time_limit_s
+    from .preshape import rest_centerline
+
+    balloon = scene.balloon
+    if balloon is None or balloon.deflate_at_s is None:
+        return
+    lengths_mm = [float(np.linalg.norm(np.diff(rest_centerline(c), axis=0), axis=1).sum()) for c in scene.coils]
+    limit_s = time_limit_s(scene.simulation, lengths_mm)  # (the coils' chords, as the run takes them)
+    deflated_s = balloon.deflate_at_s + balloon.deflation_time_s
+    if deflated_s <= limit_s:
+        return
+    limit = (f"simulation.max_time_s = {limit_s:g} s" if scene.simulation.max_time_s is not None else
+             f"the default time limit (the push time + 2 s = {limit_s:.3g} s)")
+    earliest = limit_s - balloon.deflation_time_s
+    raise SetupError(f"{scene.where}: balloon.deflate_at_s = {balloon.deflate_at_s:g} s: the balloon would be "
+                     f"deflated only at {deflated_s:.3g} s (with deflation_time_s = {balloon.deflation_time_s:g} s), "
+                     f"after {limit}, and a run ends only once its balloon has deflated, so it could only time out; "
+                     "fix: " + (f"deflate_at_s = {earliest:.3g} or less, or " if earliest > 0.0 else "")
+                     + f"max_time_s = {deflated_s + 2.0:.3g} or more (or leave deflate_at_s out: the balloon then "
+                     "deflates when the last coil detaches)")
+
+
 def check_sac_side(scene: Scene, anatomy) -> list[str]:
     """Warn when only the pieces' sizes told the sac's side of the neck (no flat vessel cap, no
     neck.sac_point_mm) and the other piece is not small: a parent vessel larger than the sac is
@@ -366,6 +392,7 @@ def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> 
     check_porous(scene, anatomy)
     check_regions(scene, anatomy)
     check_balloon(scene, anatomy)
+    check_deflation(scene)
     notes = [f"{scene.where}: {note}" for note in scene.notes]
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_wall_bodies(scene, anatomy) + check_sac_side(scene, anatomy)
