@@ -1070,3 +1070,14 @@ def test_free_space_reports_no_length_outside_a_sac(tmp_path):
     assert code == 0, err
     rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
     assert [(r["packing_density"], r["length_outside_sac_mm"]) for r in rows] == [("", "")] * 2
+
+
+def test_a_sweep_with_a_jammed_member_exits_3_as_its_help_says(tmp_path):
+    """Exit codes are documented (sweep --help, docs/SWEEPS.md): no member failed, one jammed → 3."""
+    code, out, _ = cli(tmp_path, "sweep", "--help", log="help")
+    assert code == 0 and "3 no member failed but one jammed or timed out" in " ".join(out.split())
+    code, out, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "simulation.stall_packing=0.002,0.5",
+                         "-o", "sweep", "-q", "--workers", "1")
+    assert code == 3, err
+    rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
+    assert [r["status"] for r in rows] == ["jammed", "completed"]

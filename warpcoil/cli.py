@@ -345,6 +345,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message}; see {self.prog} --help\n")
 
 
+RUN_EXITS = ("exit codes: 0 completed; 1 failed (went unstable); 2 bad input (nothing run); 3 jammed or timed "
+             "out; 4 the outputs could not be written (a full disk; none left); 130 interrupted")
+SWEEP_EXITS = ("exit codes: 0 every member completed; 1 a member failed (went unstable), or members were not run "
+               "(their task still raised after --retries: rerun with --resume); 2 bad input (nothing run); 3 no "
+               "member failed but one jammed or timed out; 4 the outputs could not be written (a full disk); 130 "
+               "interrupted (Ctrl-C, SIGTERM)")
+PLAN_EXITS = ("exit codes: 0 ranked, every option with a usable run (completed, jammed or timed out); 1 an option "
+              "none of whose runs gave a result (all failed), or runs were not done (rerun with --resume); 2 bad "
+              "input (nothing run); 4 the outputs could not be written (a full disk); 130 interrupted")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warpcoil", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -368,7 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3)")
     bench.set_defaults(func=_bench)
 
-    sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary")
+    sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary",
+                           epilog=SWEEP_EXITS)
     sweep.add_argument("scene", help="scene TOML file")
     sweep.add_argument("--vary", action="append", required=True, metavar="KEY=START:STOP:STEP|A,B,C",
                        help="a scene key to vary, e.g. catheter.angle_deg=0:30:5 or coil.length_mm=40,50 (repeat "
@@ -390,7 +402,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
     plan = sub.add_parser("plan", help="deploy treatment options (the scene's [plan] or --vary), each with "
-                                       "perturbed catheter tips, and rank them: plan.md, plan.csv, plan.png")
+                                       "perturbed catheter tips, and rank them: plan.md, plan.csv, plan.png",
+                          epilog=PLAN_EXITS)
     plan.add_argument("scene", help="scene TOML file (with a [plan] table, docs/PLAN.md)")
     plan.add_argument("--vary", action="append", metavar="KEY=A,B,C",
                       help="options instead of [[plan.option]]: a scene key or device=none,balloon,stent (repeat "
@@ -409,7 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
     coils = sub.add_parser("coils", help="list the coil catalogue (families, shapes, sizes, sources) for product = ...")
     coils.add_argument("--family", help="only the families whose name contains this text (case-insensitive)")
     coils.set_defaults(func=_coils)
-    run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
+    run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD",
+                         epilog=RUN_EXITS)
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")
     run.add_argument("--no-usd", action="store_true", help="skip deployment.usdc")
