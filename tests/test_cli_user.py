@@ -1081,3 +1081,32 @@ def test_a_sweep_with_a_jammed_member_exits_3_as_its_help_says(tmp_path):
     assert code == 3, err
     rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
     assert [r["status"] for r in rows] == ["jammed", "completed"]
+
+
+def test_a_step_far_longer_than_the_default_is_warned_about(tmp_path):
+    """dt_s = 2 ms at 100 mm/s moves the pusher 6.8 c0 a step (the default 0.8 c0): one line at the start,
+    kept in result.json; the run goes on."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 2e-3"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "coarse")
+    assert code in (0, 3), err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert len(said) == 1 and "simulation.dt_s = 0.002 s moves the pusher 6.8 c0 a step" in said[0], err
+    assert "the default step here, 0.000234 s" in said[0] and "0.00058 s or less" in said[0]
+    assert said[0].split("warning: ")[1] in json.loads((tmp_path / "coarse" / "result.json").read_text())["warnings"]
+
+
+def test_a_step_that_would_take_hours_is_warned_about_before_stepping(tmp_path):
+    """dt_s = 1e-8 s: 2e8 steps to the default time limit (2.05 s); said once at the start with the
+    default step, before the run steps (stopped here at its first progress line by a Ctrl-C)."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 1e-7\ndt_s = 1e-8"})
+    process, _, err = cli(tmp_path, "run", str(path), "-o", "fine", wait=False, log="fine")
+    deadline = time.monotonic() + 300
+    while "deployed " not in err.read_text() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=300) == 130
+    text = err.read_text()
+    assert text.index("steps to the time limit") < text.index("deployed ")  # said before it steps
+    said = [line for line in text.splitlines() if "steps to the time limit" in line]
+    assert len(said) == 1 and "simulation.dt_s = 1e-08 s takes up to 2e+08 steps" in said[0]
+    assert "the default step here is 0.000234 s" in said[0] and "remove dt_s" in said[0]
