@@ -395,7 +395,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="keep members whose folder holds a complete result; run the others")
     _add_retries(sweep)
     sweep.add_argument("-j", "--jobs", type=int, help=argparse.SUPPRESS)  # removed: says to use --workers
-    sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
+    usd = sweep.add_mutually_exclusive_group()
+    usd.add_argument("--usd", action="store_const", const=True, dest="usd",
+                     help="write each member's deployment.usdc, even where the scene's [output] says usd = false")
+    usd.add_argument("--no-usd", action="store_const", const=False, dest="usd",
+                     help="skip each member's deployment.usdc (default: as the scene's [output] usd says, as for run)")
     sweep.add_argument("--overwrite", action="store_true",
                        help="replace the outputs of an earlier sweep in the output folder (default: refuse)")
     sweep.add_argument("-q", "--quiet", action="store_true",
