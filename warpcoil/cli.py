@@ -19,14 +19,18 @@ from pathlib import Path
 EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 EXIT_NOT_WRITTEN = 4  # an output could not be written (OSError: a full disk, a file-size limit)
+WRITE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS}  # the storage failed us
 
 
 def _not_written(command: str, out: Path, error: OSError, kept: str) -> int:
-    """One line for outputs that could not be written into ``out`` (``kept``: what is left there); exit 4."""
-    name = errno.errorcode.get(error.errno, "") if error.errno else ""
-    print(f"warpcoil {command}: {out}: writing the outputs failed ({error.strerror or error}"
-          f"{f', {name}' if name else ''}); {kept}; fix: free space on that disk (or raise the file-size limit, "
-          "or choose another output folder) and run again", file=sys.stderr)
+    """One line for outputs that could not be written into ``out`` (``kept``: what is left there); exit 4.
+    An OSError other than the storage's (WRITE_ERRORS) is raised again: it is no full disk."""
+    if error.errno not in WRITE_ERRORS:
+        raise error
+    name = errno.errorcode[error.errno]
+    print(f"warpcoil {command}: {out}: writing the outputs failed ({error.strerror}, {name}); {kept}; fix: free "
+          "space on that disk (or raise the file-size limit, or choose another output folder) and run again",
+          file=sys.stderr)
     return EXIT_NOT_WRITTEN
 
 
