@@ -1052,3 +1052,89 @@ def test_a_run_without_a_tube_mesh_needs_no_vtk(tmp_path, monkeypatch):
     written = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert "result.json" in written and "summary.png" in written and "coils.stl" not in written
     assert json.loads((tmp_path / "out" / "result.json").read_text())["status"] == "completed"
+
+
+def _file_size_limit(limit_bytes: int):
+    """preexec_fn: writes past ``limit_bytes`` fail with EFBIG (as on a full disk: ENOSPC), not with SIGXFSZ."""
+    import resource
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return limit
+
+
+def test_outputs_that_cannot_be_written_are_one_line_exit_4_and_leave_nothing(tmp_path):
+    path = scene(tmp_path, **{"usd = false": "usd = false\npng = true"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "warm", "-q")  # (the kernels cached, unlimited)
+    assert code == 0, err
+    assert (tmp_path / "warm" / "summary.png").stat().st_size > 20_000  # (more than the limit below)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    with (tmp_path / "full.out").open("w") as stdout, (tmp_path / "full.err").open("w") as stderr:
+        code = subprocess.run([sys.executable, "-m", "warpcoil.cli", "run", str(path), "-o", "full", "-q"],
+                              stdout=stdout, stderr=stderr, cwd=tmp_path, env=program_env(),
+                              preexec_fn=_file_size_limit(20_000), timeout=600).returncode
+    line = one_line((tmp_path / "full.err").read_text())
+    assert code == 4
+    assert line.startswith("warpcoil run: full: writing the outputs failed (File too large, EFBIG)"), line
+    assert "fix: free space" in line
+    assert sorted(p.name for p in (tmp_path / "full").iterdir()) == ["notes.txt"]  # no output, no lock, no stage
+
+
+def test_free_space_reports_no_length_outside_a_sac(tmp_path):
+    """With no [wall] there is no sac to be outside of: length_outside_sac_mm is null (result.json, each coil),
+    an empty cell in timeseries.csv and a sweep's summary.csv, as the packing densities are, not 0."""
+    free = SPHERE.replace("[wall]\nsphere_diameter_mm = 3.5\n", "")
+    code, _, err = cli(tmp_path, "run", str(scene(tmp_path, free)), "-o", "run", "-q")
+    assert code == 0, err
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert result["packing_density"] is None and result["length_outside_sac_mm"] is None
+    assert [c["length_outside_sac_mm"] for c in result["coils"]] == [None]
+    rows = list(csv.DictReader((tmp_path / "run" / "timeseries.csv").open()))
+    assert {r["length_outside_sac_mm"] for r in rows} == {""}
+    code, _, err = cli(tmp_path, "sweep", str(scene(tmp_path, free)), "--vary", "coil.length_mm=4,5", "-o", "sweep",
+                       "-q", "--workers", "1")
+    assert code == 0, err
+    rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
+    assert [(r["packing_density"], r["length_outside_sac_mm"]) for r in rows] == [("", "")] * 2
+
+
+def test_a_sweep_with_a_jammed_member_exits_3_as_its_help_says(tmp_path):
+    """Exit codes are documented (sweep --help, docs/SWEEPS.md): no member failed, one jammed → 3."""
+    code, out, _ = cli(tmp_path, "sweep", "--help", log="help")
+    assert code == 0 and "3 no member failed but one jammed or timed out" in " ".join(out.split())
+    code, out, err = cli(tmp_path, "sweep", str(scene(tmp_path)), "--vary", "simulation.stall_packing=0.002,0.5",
+                         "-o", "sweep", "-q", "--workers", "1")
+    assert code == 3, err
+    rows = list(csv.DictReader((tmp_path / "sweep" / "summary.csv").open()))
+    assert [r["status"] for r in rows] == ["jammed", "completed"]
+
+
+def test_a_step_far_longer_than_the_default_is_warned_about(tmp_path):
+    """dt_s = 2 ms at 100 mm/s moves the pusher 6.8 c0 a step (the default 0.8 c0): one line at the start,
+    kept in result.json; the run goes on."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 0.005\ndt_s = 2e-3"})
+    code, _, err = cli(tmp_path, "run", str(path), "-o", "coarse")
+    assert code in (0, 3), err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert len(said) == 1 and "simulation.dt_s = 0.002 s moves the pusher 6.8 c0 a step" in said[0], err
+    assert "the default step here, 0.000234 s" in said[0] and "0.00058 s or less" in said[0]
+    assert said[0].split("warning: ")[1] in json.loads((tmp_path / "coarse" / "result.json").read_text())["warnings"]
+
+
+def test_a_step_that_would_take_hours_is_warned_about_before_stepping(tmp_path):
+    """dt_s = 1e-8 s: 2e8 steps to the default time limit (2.05 s); said once at the start with the
+    default step, before the run steps (stopped here at its first progress line by a Ctrl-C)."""
+    path = scene(tmp_path, **{"frame_interval_s = 0.005": "frame_interval_s = 1e-7\ndt_s = 1e-8"})
+    process, _, err = cli(tmp_path, "run", str(path), "-o", "fine", wait=False, log="fine")
+    deadline = time.monotonic() + 300
+    while "deployed " not in err.read_text() and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=300) == 130
+    text = err.read_text()
+    assert text.index("steps to the time limit") < text.index("deployed ")  # said before it steps
+    said = [line for line in text.splitlines() if "steps to the time limit" in line]
+    assert len(said) == 1 and "simulation.dt_s = 1e-08 s takes up to 2e+08 steps" in said[0]
+    assert "the default step here is 0.000234 s" in said[0] and "remove dt_s" in said[0]

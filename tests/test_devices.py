@@ -346,3 +346,37 @@ def test_the_shipped_balloon_scenes_keep_their_tips_out_of_the_balloon():
         check_balloon(scene, anatomy)  # no SetupError
         radius = 0.5 * max(c.wire_diameter_mm for c in scene.coils)
         assert balloon_gap_mm(anatomy, np.asarray(anatomy.catheter.tip_mm), radius) > 0.3
+
+
+BALLOON_SCENE = ('[wall]\nsphere_diameter_mm = 4.0\n[catheter]\ntip = [0.0, 0.0, -1.5]\n[[coil]]\nshape = "helix"\n'
+                 'wire_diameter_mm = 0.2921\nloop_diameter_mm = 2.0\nlength_mm = 5\n[simulation]\n'
+                 'push_speed_mm_s = 100.0\nframe_interval_s = 0.005\n{simulation}\n[output]\nusd = false\n'
+                 '[balloon]\naxis = [[-1.2, 0.8, -0.3], [1.2, 0.8, -0.3]]\ndiameter_mm = 0.8\n'
+                 'deflation_time_s = 0.02\ndeflate_at_s = {deflate_at_s}\n')
+
+
+def test_a_deflation_after_the_time_limit_is_refused(tmp_path):
+    """deflate_at_s = 2 s with max_time_s = 0.5 s ran, timed out (the run waits for the deflation) and reported
+    deflation_started_s = 2.0, a deflation that never happened; now refused before the run, one line."""
+    scene = tmp_path / "s.toml"
+    scene.write_text(BALLOON_SCENE.format(simulation="max_time_s = 0.5", deflate_at_s=2.0))
+    rc, text = warpcoil_run(scene, tmp_path / "o", tmp_path / "log.txt")
+    lines = text.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in text, text
+    assert f"{scene}: balloon.deflate_at_s = 2 s" in lines[0] and "simulation.max_time_s = 0.5 s" in lines[0]
+    assert "fix: deflate_at_s = 0.48 or less, or max_time_s = 4.02 or more" in lines[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_deflation_the_run_did_not_reach_is_reported_as_not_started(tmp_path):
+    """A run that ends (here stalled at 0.01 s) before its deflate_at_s (1 s) reports deflation_started_s null."""
+    import json
+
+    scene = tmp_path / "s.toml"
+    scene.write_text(BALLOON_SCENE.format(simulation="stall_packing = 0.002", deflate_at_s=1.0))
+    rc, text = warpcoil_run(scene, tmp_path / "o", tmp_path / "log.txt")
+    assert rc == 3, text
+    result = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert result["status"] == "jammed" and result["simulated_time_s"] < 1.0
+    assert result["device"]["deflation_started_s"] is None
+    assert {f for _, f in result["device"]["inflation_over_time"]} == {1.0}

@@ -204,17 +204,38 @@ def test_two_local_workers_equal_single_runs_and_resume(tmp_path, single_runs):
 
 
 def test_resume_with_usd_reruns_members_made_without_it(tmp_path):
-    """Members kept by `--resume --usd` had no deployment.usdc when the first sweep ran without --usd (no word):
-    a member made without the USD the resumed sweep asks for runs again, with it."""
+    """Members kept by `--resume` had no deployment.usdc when the first sweep ran with --no-usd (no word): a
+    member made without the USD the resumed sweep asks for (the scene's [output] usd, default true) runs again."""
     scene = _scene(tmp_path)
     out = tmp_path / "out"
     vary = ["--vary", "simulation.push_speed_mm_s=100,150", "-o", str(out), "--workers", "1"]
-    assert _sweep_cli([str(scene), *vary], tmp_path / "stdout.txt").returncode == 0
+    assert _sweep_cli([str(scene), *vary, "--no-usd"], tmp_path / "stdout.txt").returncode == 0
     assert not list(out.glob("member_*/deployment.usdc"))
-    run = _sweep_cli([str(scene), *vary, "--resume", "--usd"], tmp_path / "stdout.txt")
+    run = _sweep_cli([str(scene), *vary, "--resume"], tmp_path / "stdout.txt")
     assert run.returncode == 0, run.stderr
     assert "2 members (0 resumed)" in (tmp_path / "stdout.txt").read_text()
     assert len(list(out.glob("member_*/deployment.usdc"))) == 2
+
+
+def test_members_write_the_usd_and_animation_their_scene_asks_for(tmp_path):
+    """A sweep's members write what `warpcoil run` of them writes: the scene's [output] usd (default true) and
+    animation (both were left out unless --usd, the animation always); --no-usd skips the USD, as for run."""
+    scene = _scene(tmp_path)
+    scene.write_text(SCENE + "\n[output]\nanimation = true\n")
+    for flags, written in (([], ["deployment.gif", "deployment.usdc"]), (["--no-usd"], ["deployment.gif"])):
+        out = tmp_path / f"out{len(flags)}"
+        run = _sweep_cli([str(scene), "--vary", "simulation.push_speed_mm_s=100", "-o", str(out), "--workers", "1",
+                          "-q", *flags], tmp_path / "stdout.txt")
+        assert run.returncode == 0, run.stderr
+        member = out / "member_000"
+        assert sorted(p.name for p in member.glob("deployment.*")) == written
+        assert set(written) <= set(json.loads((member / "result.json").read_text())["files"])
+    from PIL import Image
+
+    with Image.open(tmp_path / "out0" / "member_000" / "deployment.gif") as gif:
+        frames = len(list(csv.DictReader((tmp_path / "out0" / "member_000" / "timeseries.csv").open())))
+        assert gif.n_frames == min(60, frames)
+    assert validate_usd(tmp_path / "out0" / "member_000" / "deployment.usdc") == []
 
 
 def test_a_killed_workers_task_is_retried(tmp_path, single_runs, monkeypatch):

@@ -208,3 +208,17 @@ def test_failed_summary_leaves_no_file(tmp_path: Path, monkeypatch):
     with pytest.raises(RuntimeError):
         write_summary_png(tmp_path / "summary.png", sac_volume_mm3=None, **summary_inputs())
     assert list(tmp_path.iterdir()) == []
+
+
+def test_summary_png_headlines_the_packing_in_the_sac():
+    """The headline is the clinically meaningful figure, result.json's packing_density_in_sac (coil
+    herniated into the parent vessel does not pack the sac), with the deployed coil's beside it."""
+    from types import SimpleNamespace
+
+    from warpcoil.recorder.outputs import summary_title
+
+    herniated = SimpleNamespace(status="completed", packing_density=0.30, packing_density_in_sac=0.20, occlusion=None)
+    title = summary_title(SimpleNamespace(source=Path("/x/C0001.toml")), herniated)
+    assert title == "C0001: completed, packing density in sac 20.0 % (all deployed coil 30.0 %)"
+    free = SimpleNamespace(status="completed", packing_density=None, packing_density_in_sac=None, occlusion=None)
+    assert summary_title(SimpleNamespace(source=None), free) == "scene: completed, no sac"

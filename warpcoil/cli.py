@@ -3,12 +3,14 @@
 
 Exit codes: 0 completed (or validation passed), 1 failed (unstable run, or a
 validation case out of tolerance), 2 bad input, 3 jammed or timed out,
+4 the outputs could not be written (a full disk: none is left half-written),
 130 interrupted (Ctrl-C, or SIGTERM from a batch scheduler).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import sys
 from contextlib import nullcontext
@@ -16,6 +18,20 @@ from pathlib import Path
 
 EXIT_FOR_STATUS = {"completed": 0, "failed": 1, "jammed": 3, "timeout": 3, "interrupted": 130}
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+EXIT_NOT_WRITTEN = 4  # an output could not be written (OSError: a full disk, a file-size limit)
+WRITE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS}  # the storage failed us
+
+
+def _not_written(command: str, out: Path, error: OSError, kept: str) -> int:
+    """One line for outputs that could not be written into ``out`` (``kept``: what is left there); exit 4.
+    An OSError other than the storage's (WRITE_ERRORS) is raised again: it is no full disk."""
+    if error.errno not in WRITE_ERRORS:
+        raise error
+    name = errno.errorcode[error.errno]
+    print(f"warpcoil {command}: {out}: writing the outputs failed ({error.strerror}, {name}); {kept}; fix: free "
+          "space on that disk (or raise the file-size limit, or choose another output folder) and run again",
+          file=sys.stderr)
+    return EXIT_NOT_WRITTEN
 
 
 def _positive_seconds(text: str) -> float:
@@ -93,6 +109,8 @@ def _run(args: argparse.Namespace) -> int:
     except OutputFolderError as error:
         print(f"warpcoil run: {error}", file=sys.stderr)
         return 2
+    except OSError as error:
+        return _not_written("run", out, error, "none of this run's outputs were left there")
 
 
 def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warnings: list[str]) -> int:
@@ -134,7 +152,9 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
     if late[0]:
         print("warpcoil run: interrupted after the last frame: the outputs were written first", file=sys.stderr)
     print(f"{result.status}: {result.reason}")
-    density = f"{100 * result.packing_density:.1f} %" if result.packing_density is not None else "n/a (no wall)"
+    density = (f"in sac {100 * result.packing_density_in_sac:.1f} % (all deployed coil "
+               f"{100 * result.packing_density:.1f} %)" if result.packing_density_in_sac is not None
+               else "n/a (no wall)")
     print(f"deployed {result.deployed_length_mm:.1f} of {result.coil_length_mm:.1f} mm, packing density {density}, "
           f"{result.steps} {result.scheme['integrator']} steps of {result.dt_s:.3g} s"
           f"{f' (then {result.settle_dt_s:.3g} s)' if result.settle_dt_s else ''} in {result.wall_time_s:.1f} s wall time -> {out}")
@@ -191,6 +211,10 @@ def _sweep(args: argparse.Namespace) -> int:
         progress.close(failed=True)
         print(f"warpcoil sweep: {error}", file=sys.stderr)
         return 1
+    except OSError as error:
+        progress.close(failed=True)
+        return _not_written("sweep", out, error, "the member folders written before are complete, no summary was "
+                            "written; rerun with --resume to finish")
     progress.close()
     print((out / "summary.md").read_text())
     codes = {EXIT_FOR_STATUS[m.result["status"]] for m in todo}
@@ -248,6 +272,10 @@ def _plan(args: argparse.Namespace) -> int:
         progress.close(failed=True)
         print(f"warpcoil plan: {error}", file=sys.stderr)
         return 1
+    except OSError as error:
+        progress.close(failed=True)
+        return _not_written("plan", out, error, "the member folders written before are complete, no summary was "
+                            "written; rerun with --resume to finish")
     progress.close()
     print((out / "plan.md").read_text())
     return 1 if any(r.rank == 0 for r in result.ranked) else 0  # an option none of whose runs gave a result
@@ -321,6 +349,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message}; see {self.prog} --help\n")
 
 
+RUN_EXITS = ("exit codes: 0 completed; 1 failed (went unstable); 2 bad input (nothing run); 3 jammed or timed "
+             "out; 4 the outputs could not be written (a full disk; none left); 130 interrupted")
+SWEEP_EXITS = ("exit codes: 0 every member completed; 1 a member failed (went unstable), or members were not run "
+               "(their task still raised after --retries: rerun with --resume); 2 bad input (nothing run); 3 no "
+               "member failed but one jammed or timed out; 4 the outputs could not be written (a full disk); 130 "
+               "interrupted (Ctrl-C, SIGTERM)")
+PLAN_EXITS = ("exit codes: 0 ranked, every option with a usable run (completed, jammed or timed out); 1 an option "
+              "none of whose runs gave a result (all failed), or runs were not done (rerun with --resume); 2 bad "
+              "input (nothing run); 4 the outputs could not be written (a full disk); 130 interrupted")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warpcoil", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -344,7 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, help="timing runs per setting, median reported (default 3)")
     bench.set_defaults(func=_bench)
 
-    sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary")
+    sweep = sub.add_parser("sweep", help="deploy variants of a scene in batched ensembles; one result each + summary",
+                           epilog=SWEEP_EXITS)
     sweep.add_argument("scene", help="scene TOML file")
     sweep.add_argument("--vary", action="append", required=True, metavar="KEY=START:STOP:STEP|A,B,C",
                        help="a scene key to vary, e.g. catheter.angle_deg=0:30:5 or coil.length_mm=40,50 (repeat "
@@ -359,14 +399,19 @@ def build_parser() -> argparse.ArgumentParser:
                        help="keep members whose folder holds a complete result; run the others")
     _add_retries(sweep)
     sweep.add_argument("-j", "--jobs", type=int, help=argparse.SUPPRESS)  # removed: says to use --workers
-    sweep.add_argument("--usd", action="store_true", help="also write each member's deployment.usdc")
+    usd = sweep.add_mutually_exclusive_group()
+    usd.add_argument("--usd", action="store_const", const=True, dest="usd",
+                     help="write each member's deployment.usdc, even where the scene's [output] says usd = false")
+    usd.add_argument("--no-usd", action="store_const", const=False, dest="usd",
+                     help="skip each member's deployment.usdc (default: as the scene's [output] usd says, as for run)")
     sweep.add_argument("--overwrite", action="store_true",
                        help="replace the outputs of an earlier sweep in the output folder (default: refuse)")
     sweep.add_argument("-q", "--quiet", action="store_true",
                        help="no progress (otherwise a bar on a terminal, a line every few seconds in a log)")
     sweep.set_defaults(func=_sweep)
     plan = sub.add_parser("plan", help="deploy treatment options (the scene's [plan] or --vary), each with "
-                                       "perturbed catheter tips, and rank them: plan.md, plan.csv, plan.png")
+                                       "perturbed catheter tips, and rank them: plan.md, plan.csv, plan.png",
+                          epilog=PLAN_EXITS)
     plan.add_argument("scene", help="scene TOML file (with a [plan] table, docs/PLAN.md)")
     plan.add_argument("--vary", action="append", metavar="KEY=A,B,C",
                       help="options instead of [[plan.option]]: a scene key or device=none,balloon,stent (repeat "
@@ -385,7 +430,8 @@ def build_parser() -> argparse.ArgumentParser:
     coils = sub.add_parser("coils", help="list the coil catalogue (families, shapes, sizes, sources) for product = ...")
     coils.add_argument("--family", help="only the families whose name contains this text (case-insensitive)")
     coils.set_defaults(func=_coils)
-    run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD")
+    run = sub.add_parser("run", help="deploy the coils of a scene and write result.json, CSVs and USD",
+                         epilog=RUN_EXITS)
     run.add_argument("scene", help="scene TOML file")
     run.add_argument("-o", "--output", help="output folder (default out/<scene name>)")
     run.add_argument("--no-usd", action="store_true", help="skip deployment.usdc")

@@ -542,7 +542,8 @@ class Ensemble:
             return None
         areas = member.wire_areas_mm2
         deployed = np.clip(advance, 0.0, member.coil_lengths_mm)
-        in_sac = float(areas @ deployed) - areas[k] * frame.length_outside_sac_mm  # (outside: at the active's d)
+        outside_mm = frame.length_outside_sac_mm or 0.0  # (None in free space)
+        in_sac = float(areas @ deployed) - areas[k] * outside_mm  # (outside: at the active's d)
         sac = member.anatomy.sac_volume_mm3
         packing = in_sac / sac if sac else 0.0
 

@@ -148,7 +148,8 @@ def stent_struts(spec, wall, source: str = "scene") -> tuple[np.ndarray, np.ndar
 
 
 def device_report(scene, anatomy, frames: list, deflate_from_s: float | None) -> dict | None:
-    """result.json's ``device``: kind, geometry and state over time (None without one)."""
+    """result.json's ``device``: kind, geometry and state over time (None without one). A balloon's
+    ``deflation_started_s`` is None where the run ended before its deflation started."""
     if scene.stent is not None:
         starts, ends, _ = anatomy.stent
         stent = scene.stent
@@ -160,6 +161,8 @@ def device_report(scene, anatomy, frames: list, deflate_from_s: float | None) ->
         return None
     _, radii = anatomy.balloon
     balloon = scene.balloon
+    if deflate_from_s is not None and (not frames or deflate_from_s > frames[-1].time_s):
+        deflate_from_s = None  # (a deflate_at_s the run did not reach)
     return dict(kind="balloon", nominal_diameter_mm=balloon.diameter_mm,
                 axis_mm=[list(map(float, p)) for p in balloon.axis_mm],
                 inflated_radius_min_mm=float(radii.min()), inflated_radius_max_mm=float(radii.max()),

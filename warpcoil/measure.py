@@ -65,7 +65,7 @@ class Frame:
     max_wall_force_uN: float
     min_wall_gap_mm: float
     min_coil_gap_mm: float  # (same-coil pairs: gap + the rest offset, so c0 at rest)
-    length_outside_sac_mm: float
+    length_outside_sac_mm: float | None  # None in free space (no wall: no sac to be outside of)
     balloon_inflation: float | None = None  # 1 inflated, 0 deflated; None without a balloon
 
 
@@ -85,7 +85,7 @@ class RunResult:
     deployed_length_mm: float
     sac_volume_mm3: float | None
     packing_density: float | None
-    length_outside_sac_mm: float
+    length_outside_sac_mm: float | None
     min_wall_gap_mm: float
     min_coil_gap_mm: float
     max_wall_force_uN: float
@@ -164,7 +164,8 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
     deployed = float(np.clip(advance, 0.0, member.coil_lengths_mm).sum())
     c0 = m.contact.c0_mm
     wall_gap = np.inf
-    wall_contacts, max_wall_force, outside = 0, 0.0, 0.0
+    wall_contacts, max_wall_force = 0, 0.0
+    outside = None if m.world_walls[w] is None else 0.0
     if m.world_walls[w] is not None and any_free:
         centre = snap.wall_distance[sl][free]
         gaps = centre - member.radius[free]
@@ -212,8 +213,9 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     elif m.world_walls[member.world] is not None:
         outside[free] = snap.wall_distance[sl][free] < 0.0
     local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
+    walled = m.world_walls[member.world] is not None  # (free space: no sac, no length outside it)
     coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
-                  length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()),
+                  length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()) if walled else None,
                   loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, product=c.product, size=c.size,
                   length_mm=float(member.coil_lengths_mm[k]),
                   deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),

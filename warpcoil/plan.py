@@ -26,7 +26,7 @@ import numpy as np
 
 from .plan_rank import CRITERIA, Ranked, Stats, active_criteria, rank
 from .recorder import outputs
-from .recorder.atomic import write_text_atomic
+from .recorder.atomic import all_or_none, write_text_atomic
 from .orientation import anatomy_normal, tip_axis
 from .sac import neck_frame
 from .scene import SceneError, load_scene
@@ -278,9 +278,10 @@ def run_plan(scene_path: Path, plan: Plan, out: Path, device: str | None = None,
     result = PlanResult(plan, ranked, todo, owner, graded, time.perf_counter() - started)
     from .recorder.plan_figure import write_plan_png
 
-    write_plan_png(out / "plan.png", scene_path, result)
-    write_text_atomic(out / "plan.csv", plan_csv(result))
-    write_text_atomic(out / "plan.md", plan_markdown(scene_path, result))
+    with all_or_none(*(out / name for name in outputs.SWEEP_OUTPUTS + outputs.PLAN_OUTPUTS)):  # (this plan's)
+        write_plan_png(out / "plan.png", scene_path, result)
+        write_text_atomic(out / "plan.csv", plan_csv(result))
+        write_text_atomic(out / "plan.md", plan_markdown(scene_path, result))
     return result
 
 

@@ -7,9 +7,11 @@
 * Warnings, for a run that may go on but will likely disappoint: a catheter
   pointing away from the sac, a coil whose segments make it more than 1 % shorter than its
   length (coarse on its loops), coils whose volume exceeds MAX_PACKING of the
-  sac, a loop far larger than the sac.
+  sac, a loop far larger than the sac, a given step that would take hours or that
+  skips contacts.
+* A balloon that would deflate only after the time limit is refused (SetupError).
 
-Units mm.
+Units mm, s.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ MAX_PACKING = 0.5  # coil volume / sac volume above which a set-up is warned abo
 MAX_LOOP_OVER_SAC = 2.0  # loop diameter / the sac's equivalent-sphere diameter warned about
 CENTERLINE_SAMPLE_MM = 0.1  # spacing of the checked points along a catheter centerline
 MAX_LENGTH_SHORTFALL = 0.01  # a coil's chords this much shorter than its length_mm is warned about
+MAX_STEPS = 1e7  # a given dt_s taking more steps than this to the time limit is warned about (hours of run time)
+MAX_ADVANCE_PER_C0 = 2.0  # a given implicit dt_s moving the pusher more than this × c0 a step is warned about
 
 
 class SetupError(ValueError):
@@ -162,6 +166,32 @@ def check_balloon(scene: Scene, anatomy) -> None:
             f"({-gap:.3g} mm within its surface, with the coil's radius d/2 = {radius:.3g} mm): the coil would leave "
             f"the catheter inside it; fix: end the balloon's axis farther from the tip (its end caps are round, of "
             f"its radius) or move the tip out of it ({key})")
+
+
+def check_deflation(scene: Scene) -> None:
+    """Raise SetupError for a ``balloon.deflate_at_s`` whose deflation would not end within the run's
+    time limit: a run ends only once its balloon has deflated, so it could only time out (and the
+    deflation it names would never have happened)."""
+    from .deploy import time_limit_s
+    from .preshape import rest_centerline
+
+    balloon = scene.balloon
+    if balloon is None or balloon.deflate_at_s is None:
+        return
+    lengths_mm = [float(np.linalg.norm(np.diff(rest_centerline(c), axis=0), axis=1).sum()) for c in scene.coils]
+    limit_s = time_limit_s(scene.simulation, lengths_mm)  # (the coils' chords, as the run takes them)
+    deflated_s = balloon.deflate_at_s + balloon.deflation_time_s
+    if deflated_s <= limit_s:
+        return
+    limit = (f"simulation.max_time_s = {limit_s:g} s" if scene.simulation.max_time_s is not None else
+             f"the default time limit (the push time + 2 s = {limit_s:.3g} s)")
+    earliest = limit_s - balloon.deflation_time_s
+    raise SetupError(f"{scene.where}: balloon.deflate_at_s = {balloon.deflate_at_s:g} s: the balloon would be "
+                     f"deflated only at {deflated_s:.3g} s (with deflation_time_s = {balloon.deflation_time_s:g} s), "
+                     f"after {limit}, and a run ends only once its balloon has deflated, so it could only time out; "
+                     "fix: " + (f"deflate_at_s = {earliest:.3g} or less, or " if earliest > 0.0 else "")
+                     + f"max_time_s = {deflated_s + 2.0:.3g} or more (or leave deflate_at_s out: the balloon then "
+                     "deflates when the last coil detaches)")
 
 
 def check_sac_side(scene: Scene, anatomy) -> list[str]:
@@ -360,15 +390,48 @@ def check_integrator(scene: Scene, step_bound_s: float) -> list[str]:
     return warnings
 
 
+def check_step(scene: Scene, step_bound_s: float) -> list[str]:
+    """Warnings for a given ``dt_s`` that takes more than MAX_STEPS steps to the time limit where the
+    default would take fewer, or (implicit step) moves the pusher more than MAX_ADVANCE_PER_C0 × c0 a
+    step: contact begins within c0, so a step starting outside it can end deep in the wall or a coil
+    (the seed case's smallest wall gap: −0.019 mm at the default 0.8 c0, −0.025 at 1.7 c0, −0.112 at 3.4 c0).
+    ``step_bound_s``: the explicit step bound (s; 0: unknown)."""
+    from .deploy import time_limit_s
+    from .implicit import IMPLICIT_ADVANCE_PER_C0, IMPLICIT_DT_MAX_S
+
+    sim = scene.simulation
+    if sim.dt_s is None:
+        return []
+    c0_mm = scene.contact.c0_mm or 0.1 * min(c.wire_diameter_mm for c in scene.coils)  # (model.py's rule)
+    implicit = sim.integrator == "implicit"
+    default_s = (min(IMPLICIT_ADVANCE_PER_C0 * c0_mm / sim.push_speed_mm_s, IMPLICIT_DT_MAX_S) if implicit
+                 else sim.dt_safety * step_bound_s)
+    limit_s = time_limit_s(sim, [c.length_mm for c in scene.coils])
+    steps = limit_s / sim.dt_s
+    if steps > MAX_STEPS and sim.dt_s < default_s:
+        return [f"{scene.where}: simulation.dt_s = {sim.dt_s:g} s takes up to {steps:.2g} steps to the time limit "
+                f"({limit_s:.3g} s simulated), hours of run time; the default step here is {default_s:.3g} s "
+                f"({limit_s / default_s:.2g} steps): remove dt_s, or give a larger one"]
+    advance_c0 = sim.push_speed_mm_s * sim.dt_s / c0_mm
+    if implicit and advance_c0 > MAX_ADVANCE_PER_C0:
+        return [f"{scene.where}: simulation.dt_s = {sim.dt_s:g} s moves the pusher {advance_c0:.2g} c0 a step "
+                f"(c0 = {c0_mm:.3g} mm, the contact range; the default step here, {default_s:.3g} s, moves it "
+                f"{IMPLICIT_ADVANCE_PER_C0:g} c0): a step that starts outside a contact can end deep in the wall "
+                f"or a coil; remove dt_s, or give one of {MAX_ADVANCE_PER_C0 * c0_mm / sim.push_speed_mm_s:.2g} s "
+                "or less"]
+    return []
+
+
 def preflight(scene: Scene, anatomy, device=None, step_bound_s: float = 0.0) -> list[str]:
     """Every check of a scene and its resolved Anatomy before the first step; returns
     the warnings (raises SetupError). ``step_bound_s``: the explicit step bound (s; 0: not checked)."""
     check_porous(scene, anatomy)
     check_regions(scene, anatomy)
     check_balloon(scene, anatomy)
+    check_deflation(scene)
     notes = [f"{scene.where}: {note}" for note in scene.notes]
     notes += [f"{scene.where}: coil[{k}]: {note}" for k, coil in enumerate(scene.coils) for note in coil.notes]
     return (notes + check_wall_bodies(scene, anatomy) + check_sac_side(scene, anatomy)
             + check_catheter(scene, anatomy, device)
             + check_capacity(scene, anatomy.sac_volume_mm3)
-            + check_coil_lengths(scene) + check_integrator(scene, step_bound_s))
+            + check_coil_lengths(scene) + check_integrator(scene, step_bound_s) + check_step(scene, step_bound_s))

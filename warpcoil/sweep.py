@@ -6,7 +6,7 @@ ensembles (one set of launches per group of compatible members) on Dask.
 Cartesian product. Each ensemble is one Dask task (warpcoil.sweep_task) on an
 embedded LocalCluster or an existing scheduler; the client writes each member's
 folder ``member_NNN`` (result.json, centerline.csv, timeseries.csv, the pictures /
-tube meshes the scene asks for, and with ``--usd`` its deployment.usdc) in one
+tube meshes, deployment.usdc and deployment.gif its scene's [output] asks for) in one
 rename, and the summary.csv / summary.md last (their presence means the sweep
 is complete). docs/SWEEPS.md: clusters, resume, retries.
 """
@@ -36,8 +36,8 @@ from .deploy import (COMPLETED, FAILED, JAMMED, TIMEOUT, ensemble_groups, host_m
 from .preflight import SetupError, check_wall_field, preflight
 from .preshape import PreshapeError
 from .progress import Progress
-from .recorder.atomic import write_folder_atomic, write_text_atomic
-from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON
+from .recorder.atomic import all_or_none, write_folder_atomic, write_text_atomic
+from .recorder.outputs import ANIMATION_GIF, DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
 from .solver import UnstableStepError, wall_field_extent
@@ -228,10 +228,11 @@ def write_summary(out: Path, all_members: list[Member], header: str) -> None:
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    write_text_atomic(out / "summary.csv", buffer.getvalue())
     lines = [header, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(str(row[c]) for c in columns) + " |" for row in rows]
-    write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
+    with all_or_none(out / "summary.csv", out / "summary.md"):
+        write_text_atomic(out / "summary.csv", buffer.getvalue())
+        write_text_atomic(out / "summary.md", "\n".join(lines) + "\n")
 
 
 def member_values(member: Member) -> str:
@@ -413,7 +414,7 @@ def one_integrator(scene_path: Path, todo: list[Member], scenes: list[Scene]) ->
 
 def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, device: str | None = None,
               progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
-              workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
+              workers: int | None = None, usd: bool | None = None, resume: bool = False, retries: int = 2,
               checked: Callable[[], None] | None = None) -> list[Member]:
     """Deploy every member of the Cartesian product of ``varies`` (:func:`run_members`)."""
     return run_members(scene_path, members(varies), out, device, progress, scheduler, workers, usd, resume, retries,
@@ -422,7 +423,7 @@ def run_sweep(scene_path: Path, varies: list[tuple[str, list]], out: Path, devic
 
 def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | None = None,
                 progress: Callable[[Member], None] | None = None, scheduler: str | None = None,
-                workers: int | None = None, usd: bool = False, resume: bool = False, retries: int = 2,
+                workers: int | None = None, usd: bool | None = None, resume: bool = False, retries: int = 2,
                 title: str = "Sweep", stale_names: tuple[str, ...] = (),
                 checked: Callable[[], None] | None = None) -> list[Member]:
     """Deploy every member (``todo``: indices 0…n−1, each with the scene keys it sets) on
@@ -430,7 +431,9 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
     the scene; ``stale_names``: other files of ``out`` that only this run may leave, removed
     with the old summary once every member is checked). ``progress(member)`` after each
     finished (or resumed) member. ``checked()``: called once every member is checked, before
-    anything is written (`--overwrite` clears the folder there: a bad input keeps it).
+    anything is written (`--overwrite` clears the folder there: a bad input keeps it). ``usd``: every
+    member's deployment.usdc written (True, `--usd`) or not (False, `--no-usd`); None: as its scene's
+    [output] says, as for a single run.
 
     Members that can share an ensemble are grouped (deploy.ensemble_groups) and
     each group is split into one task per worker thread (a CPU launch runs on one
@@ -462,8 +465,10 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                 found = None  # made from another version of the scene (a value or a named file changed): run again
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
-            if found is not None and usd and DEPLOYMENT_USD not in found.get("files", {}):
-                found = None  # made without the USD this sweep asks for (--usd): run again, with it
+            wanted = {DEPLOYMENT_USD: usd if usd is not None else scenes[member.index].output.usd,
+                      ANIMATION_GIF: scenes[member.index].output.animation}
+            if found is not None and any(want and name not in found.get("files", {}) for name, want in wanted.items()):
+                found = None  # made without a USD or GIF this sweep asks for (an earlier release's): run again
             member.result, member.resumed = found, found is not None
         ours = {folder.name for folder in folders}
         foreign = sorted(f.name for f in out.glob("member_*") if f.is_dir() and f.name not in ours

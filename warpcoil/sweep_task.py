@@ -28,8 +28,11 @@ class EnsembleTask:
     indices: tuple[int, ...]
     scenes: tuple[Scene, ...]
     files: dict[str, bytes]
-    usd: bool = False
+    usd: bool | None = None  # every member's deployment.usdc written (True) or not (False); None: as its scene says
     device: str | None = None
+
+    def wants_usd(self, scene: Scene) -> bool:
+        return scene.output.usd if self.usd is None else self.usd
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,7 @@ def named_files(scene: Scene) -> list[Path]:
     return list(dict.fromkeys(found))
 
 
-def make_task(indices: list[int], scenes: list[Scene], usd: bool, device: str | None) -> EnsembleTask:
+def make_task(indices: list[int], scenes: list[Scene], usd: bool | None, device: str | None) -> EnsembleTask:
     """Read the files the scenes name into the task."""
     files = {str(path): path.read_bytes() for scene in scenes for path in named_files(scene)}
     return EnsembleTask(tuple(indices), tuple(scenes), files, usd, device)
@@ -97,10 +100,31 @@ def _this_worker_device(device: str | None) -> str | None:
     return worker_device(device, name, wp.get_cuda_device_count())
 
 
+def _frame_recorders(member, folder: Path, usd: bool, fixed) -> list:
+    """A member's recorders of its frames, as `warpcoil run` has them: its deployment.usdc (``usd``), with
+    its balloon or stent, and its deployment.gif where its scene's [output] asks for the animation; ``fixed``:
+    the ensemble model's fixed flags (UsdFrames)."""
+    from .recorder.animation import AnimationFrames
+    from .recorder.outputs import ANIMATION_GIF, DEPLOYMENT_USD, UsdFrames
+
+    wall, catheter, interval_s = member.anatomy.wall, member.anatomy.catheter, member.scene.simulation.frame_interval_s
+    vertices, faces = (wall.vertices_mm, wall.faces) if wall is not None else (None, None)
+    widths = [c.d for c in member.scene.coils]
+    recorders = []
+    if usd:
+        recorders.append(UsdFrames(folder / DEPLOYMENT_USD, member.coil_nodes, widths, vertices, faces, interval_s,
+                                   fixed))
+        recorders[-1].add_device(member.anatomy.balloon, member.anatomy.stent)
+    if member.scene.output.animation:
+        recorders.append(AnimationFrames(folder / ANIMATION_GIF, member.coil_nodes, widths, vertices, faces,
+                                         (catheter.tip_mm, catheter.direction, catheter.centerline_mm), interval_s))
+    return recorders
+
+
 def run_task(task: EnsembleTask) -> list[MemberOutput]:
     """Deploy the task's members as one ensemble (on a worker); their outputs."""
     from .deploy import Ensemble
-    from .recorder.outputs import DEPLOYMENT_USD, RESULT_JSON, UsdFrames, write_run
+    from .recorder.outputs import RESULT_JSON, write_run
 
     with tempfile.TemporaryDirectory(prefix="warpcoil-task-") as tmp:
         root = Path(tmp)
@@ -115,25 +139,21 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
         for folder in folders:
             folder.mkdir()
         ensemble = Ensemble(scenes, _this_worker_device(task.device))
-        recorders: dict[int, UsdFrames] = {}
+        recorders: dict[int, list] = {}
         last_time_s: dict[int, float] = {}
 
         def record(member, frame, state):
             k = member.index
-            usd = recorders.get(k)
-            if usd is None or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
-                wall = member.anatomy.wall
-                usd = recorders[k] = UsdFrames(
-                    folders[k] / DEPLOYMENT_USD, member.coil_nodes, [c.d for c in member.scene.coils],
-                    wall.vertices_mm if wall is not None else None, wall.faces if wall is not None else None,
-                    member.scene.simulation.frame_interval_s, ensemble.model.fixed)
-                usd.add_device(member.anatomy.balloon, member.anatomy.stent)
+            if k not in recorders or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
+                recorders[k] = _frame_recorders(member, folders[k], task.wants_usd(member.scene), ensemble.model.fixed)
             last_time_s[k] = frame.time_s
-            usd(frame, state)
+            for recorder in recorders[k]:
+                recorder(frame, state)
 
-        results = ensemble.run(record if task.usd else None)
-        for usd in recorders.values():
-            usd.close()
+        recorded = any(task.wants_usd(s) or s.output.animation for s in scenes)
+        results = ensemble.run(record if recorded else None)
+        for recorder in (r for kept in recorders.values() for r in kept):
+            recorder.close()
         outputs = []
         for k, (scene, anatomy, result) in enumerate(zip(scenes, ensemble.anatomies, results)):
             write_run(folders[k], scene, anatomy.wall, result, sac=anatomy.sac)

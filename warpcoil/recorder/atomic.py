@@ -40,6 +40,18 @@ def write_text_atomic(path: Path, text: str, encoding: str = "utf-8") -> None:
         tmp_path.write_text(text, encoding=encoding)
 
 
+@contextmanager
+def all_or_none(*paths: Path) -> Iterator[None]:
+    """Files written together in the block: when it raises (a full disk), each of ``paths`` is removed,
+    so none is left without the others."""
+    try:
+        yield
+    except BaseException:
+        for path in paths:
+            Path(path).unlink(missing_ok=True)
+        raise
+
+
 def write_folder_atomic(folder: Path, files: dict[str, bytes]) -> None:
     """Write ``files`` (name → bytes) as the whole content of ``folder``: built
     under a temporary name beside it, then renamed into place, so the folder

@@ -235,7 +235,7 @@ def write_summary_png(
         in_sac = packing_percent(np.maximum(inside_mm, 0.0), sac_volume_mm3, wire_diameters_mm, coil_boundaries_mm)
         packing.plot(t, percent, color="C2", lw=1.0, ls="--", label="all deployed coil")
         packing.plot(t, in_sac, color="C2", lw=1.6, label="coil inside the sac")
-        final = f" (final {percent[-1]:.1f} %)" if len(percent) else ""
+        final = f" (final in sac {in_sac[-1]:.1f} %)" if len(in_sac) else ""
         if occlusion is not None:
             _draw_occlusion(packing, occlusion, float(t[-1]) if len(t) else 0.0)
         packing.set(xlabel="time (s)", ylabel="packing density (%)", title=f"Packing density{final}")

@@ -173,6 +173,16 @@ def _device_lines(scene: Scene, wall) -> list:
     return []
 
 
+def summary_title(scene: Scene, result: RunResult) -> str:
+    """summary.png's headline: the scene, the status and the packing density of the coil in the sac
+    (result.json's ``packing_density_in_sac``; the deployed coil's beside it), and the Raymond–Roy class."""
+    packing = ("no sac" if result.packing_density_in_sac is None else
+               f"packing density in sac {100 * result.packing_density_in_sac:.1f} % "
+               f"(all deployed coil {100 * result.packing_density:.1f} %)")
+    grade = f", Raymond–Roy class {result.occlusion['raymond_roy_class']}" if result.occlusion else ""
+    return f"{Path(str(scene.source or 'scene')).stem}: {result.status}, {packing}{grade}"
+
+
 def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | None = None, sac=None) -> None:
     """Everything a run writes after it ends (the USD is recorded during the run):
     CSVs, then the pictures, tube meshes and porous field the scene asks for, then
@@ -206,9 +216,7 @@ def write_run(out: Path, scene: Scene, wall, result: RunResult, extra: dict | No
         write_summary_png(
             out / SUMMARY_PNG, wall.vertices_mm if wall is not None else np.zeros((0, 3)),
             wall.faces if wall is not None else np.zeros((0, 3), int), result.positions_mm, result.frames,
-            result.sac_volume_mm3, diameters, starts, title=f"{Path(str(scene.source or 'scene')).stem}: "
-            f"{result.status}, packing {100 * (result.packing_density or 0):.1f} %" + (
-                f", Raymond–Roy class {result.occlusion['raymond_roy_class']}" if result.occlusion else ""),
+            result.sac_volume_mm3, diameters, starts, title=summary_title(scene, result),
             catheter=(result.catheter_tip_mm, result.catheter_direction, scene.catheter.centerline_mm),
             devices=_device_lines(scene, wall), occlusion=result.occlusion)
     write_result_json(out / RESULT_JSON, result, extra)
