@@ -389,3 +389,18 @@ def test_a_packed_coil_settling_at_its_own_step_is_refined_until_it_comes_to_res
     stalls = [r for r in result.step_reductions if "kinetic energy stalled" in r]
     assert stalls and result.final_kinetic_nJ < 1e-3
     assert result.simulated_time_s < 2.0
+
+
+def test_a_packed_coil_jittering_on_the_wall_field_settles_on_the_exact_wall():
+    """A d 0.3 mm helix (4 mm loop) pushed 50 mm into a 2.5 mm sphere (43 % packing) on the wall field
+    (`wall_query = "sdf"`): its wall contacts jittered in place (kinetic 0.005 nJ, 0.0004 mm net over 1 s) and
+    the run timed out at 3.03 s, where the exact BVH query comes to rest at 1.04 s (a physicist's audit): a node
+    at the edge of the field's trusted region felt two wall distances. A settling member that stalls on a wall
+    field now goes over to the exact BVH for its wall (said in result.json) and comes to rest."""
+    coil = wc.CoilSpec(name="h", shape="helix", wire_diameter_mm=0.3, loop_diameter_mm=4.0, length_mm=50.0)
+    scene = wc.Scene(coils=(coil,), catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -0.9), direction=(0.0, 0.0, 1.0)),
+                     wall=wc.WallSpec(sphere_diameter_mm=2.5), contact=wc.ContactSettings(wall_query="sdf"),
+                     simulation=wc.SimulationSettings(push_speed_mm_s=50.0))
+    result = Deployment(scene).run()
+    assert result.status == "completed", result.reason
+    assert result.wall_field["exact_wall_from_s"] is not None and result.final_kinetic_nJ < 1e-3

@@ -145,6 +145,7 @@ class Member:
         self.settle_refine = 0  # how often its kinetic energy stalled or rose: 1 the finest step from then on, each more half
         self.settle_stall_from = 0  # its settling frame from which a stall is looked for (the last refinement's)
         self.settle_kinetic_nJ: list[float] = []  # its kinetic energy at each settling frame
+        self.exact_wall_from = -1  # its frame count when its wall field gave way to the BVH (Ensemble._stalled_settle)
         self.detach_level = 1  # this push frame's steps per push step (Ensemble._push_chunk; 1: the push step)
         self.detach_until_s = -math.inf  # frames starting before this run at the detachment step
         self.detach_steps = 0  # steps the detachment step added (included in steps)
@@ -286,6 +287,9 @@ class Ensemble:
         solver = make_solver(self.model, self.integrator, 0.5 * self.solver.dt_s,
                              dt_safety=self.members[0].scene.simulation.dt_safety, allow_unstable_dt=True,
                              **options)
+        for m in self.members:  # (a world that went over to the exact wall stays there: Solver.use_exact_wall)
+            if m.exact_wall_from >= 0:
+                solver.use_exact_wall(m.world)
         self.step_reductions.append(f"t = {snapshot.time_s:.5f} s: {why.split(' at t =')[0]}; "
                                     f"step halved to {solver.dt_s:.3e} s")
         start = new_state_like(self.model)
@@ -329,9 +333,9 @@ class Ensemble:
         for m in live:
             moving = free[m.nodes]
             speed = float(np.sqrt((v[m.nodes][moving] ** 2).sum(axis=1).max())) if moving.any() else 0.0
-            if (m.settle_refine < SETTLE_REFINE_MAX
+            if ((m.settle_refine < SETTLE_REFINE_MAX or self.solver.field_in_use(m.world))
                     and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
-                m.settle_refine += 1
+                m.settle_refine += 0 if self._stalled_settle(m) else 1  # (the exact wall first, then a finer step)
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
             m.settle_level = (settle_finest_level(frame_s, m.settle_scale) * 2 ** (m.settle_refine - 1)
                               if m.settle_refine else self.settle_rule(speed, c0, frame_s, m.settle_scale))
@@ -354,7 +358,7 @@ class Ensemble:
         """The rise of the member's kinetic + elastic energy (nJ) over the frame just run, where it is
         past implicit.settle_energy_rose's tolerance and nothing drives the coil (every coil out, no
         deflating balloon); else None."""
-        if member.active >= 0 or (member.inflation or 0.0) > 0.0:
+        if member.active >= 0 or (member.inflation or 0.0) > 0.0 or len(member.frames) == member.exact_wall_from:
             return None
         last = member.frames[-1]
         before = last.kinetic_nJ + last.bend_nJ + last.twist_nJ + last.stretch_nJ
@@ -388,10 +392,23 @@ class Ensemble:
             elif (self._push_over and m.active < 0 and not (m.inflation or 0.0) > 0.0
                   and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
+                if self._stalled_settle(m):
+                    continue
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic energy stalled at {m.settle_kinetic_nJ[-1]:.3g} nJ (less than "
                     f"{100 * SETTLE_STALL_DROP:g} % lost over {SETTLE_STALL_S:g} s) with nothing driving the coil",
                     self.stepper.state.time_s)
+
+    def _stalled_settle(self, member: Member) -> bool:
+        """A settling member whose kinetic energy stalled: where its wall distances still come from a wall
+        field, from now on all from the exact BVH (True; Solver.use_exact_wall: at the edge of the field's
+        trusted region a wall contact's force switched between two distances and kept packed coils jittering,
+        kinetic 0.005–0.06 nJ for 2 s, where the BVH lets them rest); else False (refine the step)."""
+        if not self.solver.field_in_use(member.world):
+            return False
+        self.solver.use_exact_wall(member.world)
+        member.exact_wall_from = len(member.frames)  # (its next frame's energy is measured on another distance)
+        return True
 
     def _settle_again(self, risen: list[Member], running: list[Member], snapshot: State) -> None:
         """Redo the settling frame of each member in ``risen`` from its start (``snapshot``) at half

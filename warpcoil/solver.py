@@ -620,6 +620,19 @@ class Solver:
             held = self._views[id(array)] = (array, array.numpy())
         return held[1]
 
+    def field_in_use(self, world: int) -> bool:
+        """Whether the world's wall distances come from its wall field (where trusted), not all from the BVH."""
+        return bool(self._field_ids.numpy()[world])
+
+    def use_exact_wall(self, world: int) -> None:
+        """From now on every wall distance of ``world`` from the exact BVH query, none from its wall field (in
+        place: the captured graphs see it). A coil at rest against the wall must feel one potential: where a
+        node sits at the edge of a field's trusted region its force switches between the field's and the BVH's
+        distance, which kept packed coils' wall contacts jittering instead of letting them come to rest."""
+        ids = self._field_ids.numpy()
+        ids[world] = 0
+        self._field_ids.assign(ids)
+
     def copy_state(self, target: State, source: State) -> None:
         """``target.copy_from(source)`` replayed from a captured graph (:meth:`_replayed`;
         eight copies each frame, ~6 µs each from Python on the CPU)."""
