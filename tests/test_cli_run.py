@@ -55,6 +55,9 @@ def test_result_json_reports_the_run(run_dir):
                 "push_force_peak_uN", "push_force_mean_max_uN", "push_force_rms_uN", "stored_energy_nJ", "final_kinetic_nJ", "final_bend_nJ"):
         assert key in result
     assert result["deployed_length_mm"] == pytest.approx(result["coil_length_mm"])
+    last = list(csv.DictReader((run_dir / "timeseries.csv").open()))[-1]  # the load at rest: the last frame's
+    assert result["final_max_wall_force_uN"] == pytest.approx(float(last["max_wall_force_uN"]), rel=1e-9)
+    assert 0.0 <= result["final_max_wall_force_uN"] <= result["max_wall_force_uN"]
     assert result["length_outside_sac_mm"] == 0.0
     assert result["stored_energy_nJ"] > 0
 

@@ -90,7 +90,8 @@ class RunResult:
     length_outside_sac_mm: float | None
     min_wall_gap_mm: float
     min_coil_gap_mm: float
-    max_wall_force_uN: float
+    max_wall_force_uN: float  # largest over the frames: a ringing contact's snapshot, not converged in dt
+    final_max_wall_force_uN: float  # largest on one node at the end (at rest: the coils' load on the wall)
     push_force_peak_uN: float  # largest compressive single-step push force of the run
     push_force_mean_max_uN: float  # largest frame mean (signed mean over a frame's steps)
     push_force_rms_uN: float  # root mean square over every step while a coil was pushed
@@ -240,7 +241,7 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
         length_outside_sac_mm=last.length_outside_sac_mm,
         min_wall_gap_mm=finite([f.min_wall_gap_mm for f in frames]),
         min_coil_gap_mm=coil_gap,
-        max_wall_force_uN=max(f.max_wall_force_uN for f in frames),
+        max_wall_force_uN=max(f.max_wall_force_uN for f in frames), final_max_wall_force_uN=last.max_wall_force_uN,
         **pushing,
         stored_energy_nJ=member.stored_energy_nJ, final_kinetic_nJ=last.kinetic_nJ, final_bend_nJ=last.bend_nJ,
         final_twist_nJ=last.twist_nJ, final_stretch_nJ=last.stretch_nJ, coils=coils,
