@@ -363,7 +363,9 @@ class Ensemble:
         last = member.frames[-1]
         before = last.kinetic_nJ + last.bend_nJ + last.twist_nJ + last.stretch_nJ
         after = float(sum(e[member.world] for e in energies.values()))
-        return after - before if settle_energy_rose(before, after) else None
+        contact_free = (last.wall_contacts == 0 and last.coil_contacts == 0  # (no contact energy to give back)
+                        and member.anatomy.balloon is None and member.anatomy.stent is None)
+        return after - before if settle_energy_rose(before, after, contact_free) else None
 
     def _energy_rose(self, member: Member, energies: dict[str, np.ndarray]) -> bool:
         """Whether a settling frame raised the member's energy (:meth:`_energy_rise_nJ`) while a finer
