@@ -379,22 +379,23 @@ class Ensemble:
         (:meth:`_energy_rise_nJ`) is a problem, redone at half the step like an unstable one, while
         halvings are left (MAX_STEP_HALVINGS); so is, in a run settling at its own step, a kinetic energy
         that has stalled (implicit.settle_stalled, as the settling step refines on it: a packed coil
-        whose step sustains a cycle instead of coming to rest)."""
-        if len(self.step_reductions) >= MAX_STEP_HALVINGS:
-            return
+        whose step sustains a cycle instead of coming to rest), where its wall field has not first given
+        way to the exact wall (:meth:`_stalled_settle`, halvings or not)."""
+        halvings_left = len(self.step_reductions) < MAX_STEP_HALVINGS
         frame_s = self.members[0].scene.simulation.frame_interval_s
         for m in running:
             if problems[m.world] is not None:
                 continue
-            rise = self._energy_rise_nJ(m, energies)
+            rise = self._energy_rise_nJ(m, energies) if halvings_left else None
             if rise is not None:
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic + elastic energy rose {rise:.3g} nJ in a frame with nothing driving the coil",
                     self.stepper.state.time_s)
             elif (self._push_over and m.active < 0 and not (m.inflation or 0.0) > 0.0
+                  and (halvings_left or self.solver.field_in_use(m.world))
                   and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
-                if self._stalled_settle(m):
+                if self._stalled_settle(m) or not halvings_left:
                     continue
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic energy stalled at {m.settle_kinetic_nJ[-1]:.3g} nJ (less than "
