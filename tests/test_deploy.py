@@ -9,6 +9,8 @@ import warpcoil as wc
 from warpcoil.deploy import COMPLETED, JAMMED, Deployment
 from warpcoil.occlusion import occlusion_grade
 
+from test_length_outside import length_below
+
 R_SAC = 1.75
 D = 0.2921
 
@@ -100,9 +102,8 @@ def test_a_neck_defines_the_sac_places_the_catheter_and_gives_regional_densities
     assert 0.0 <= regions["neck_coverage"] <= 1.0
     assert regions["total_voxel"] == pytest.approx(result.packing_density, rel=0.3)
     assert result.occlusion == occlusion_grade(regions["neck"], regions["boundary"], regions["core"])
-    x = result.positions_mm[0]
-    above = x[:, 2] > z_neck
-    assert result.length_outside_sac_mm == pytest.approx(0.2921 * np.count_nonzero(~above), abs=0.3)
+    below = length_below(result.positions_mm[0], z_neck)  # the centre line clipped at the neck plane
+    assert result.length_outside_sac_mm == result.coils[0]["length_outside_sac_mm"] == pytest.approx(below, abs=1e-4)
 
 
 def test_a_frame_that_goes_unstable_is_redone_with_half_the_step(monkeypatch):
@@ -127,24 +128,6 @@ def test_a_frame_that_goes_unstable_is_redone_with_half_the_step(monkeypatch):
     assert result.status == COMPLETED, result.reason
     assert len(result.step_reductions) == 1 and "step halved" in result.step_reductions[0]
     assert result.dt_s == pytest.approx(dt / 2)
-
-
-def test_a_coils_nodes_stand_for_its_length_so_herniated_never_exceeds_it():
-    """Each node counts half of each edge it ends (an end node half an edge): a coil wholly outside
-    the sac is reported herniated by its own length, not one segment more (the helper's 99.49 mm
-    of a 99.31 mm coil)."""
-    from warpcoil.model import voronoi_lengths
-
-    assert voronoi_lengths(np.array([0.3, 0.3, 0.3, 0.0])) == pytest.approx([0.15, 0.3, 0.3, 0.15])
-    scene = wc.Scene(coils=(wc.CoilSpec(shape="helix", length_mm=6.0, loop_diameter_mm=2.5, pitch_mm=0.6),
-                            wc.CoilSpec(shape="helix", length_mm=4.0, loop_diameter_mm=2.0, pitch_mm=0.5)),
-                     wall=wc.WallSpec(sphere_diameter_mm=6.0))
-    deployment = Deployment(scene)
-    model, member = deployment.model, deployment.members[0]
-    rest = model.rest_length.numpy()
-    for c in range(model.coil_count):
-        first, last = int(model.coil_first[c]), int(model.coil_last[c])
-        assert member.segment[first:last + 1].sum() == pytest.approx(rest[first:last].sum(), rel=1e-12)
 
 
 def test_a_jammed_coils_exported_geometry_ends_at_its_cut(tmp_path):

@@ -24,7 +24,7 @@ import warp as wp
 from .anatomy import Anatomy, resolve_anatomies, resolve_anatomy
 from .devices import deflation
 from .measure import Frame, RunResult, Snapshot, measure_frame, note_samples, run_result, take_snapshot
-from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble, voronoi_lengths
+from .model import EnsembleError, Model, ModelBuilder, finalize_ensemble
 from .implicit import (DETACH_LEAD_SEGMENTS, DETACH_WHIP_S, IMPLICIT_SETTLE_THETA, detach_level, implicit_step_s,
                        make_solver, scheme_options, SETTLE_REFINE_MAX, SETTLE_RISE_REFINE_MAX, SETTLE_STALL_DROP,
                        SETTLE_STALL_S, settle_energy_rose,
@@ -94,7 +94,7 @@ class Member:
 
     def __init__(self, world: int, scene: Scene, anatomy: Anatomy, model: Model, host: dict[str, np.ndarray],
                  stored_energy_nJ: float, step_bound_s: float):
-        """``host``: the model's arc_s, inv_mass, node_radius and rest_length, read once for all members."""
+        """``host``: the model's arc_s, inv_mass and node_radius, read once for all members."""
         sim = scene.simulation
         self.world = self.index = world
         self.scene, self.anatomy, self.step_bound_s = scene, anatomy, step_bound_s
@@ -114,7 +114,6 @@ class Member:
         self.rest_kinetic_energy_nJ = (sim.rest_kinetic_energy_nJ if sim.rest_kinetic_energy_nJ is not None
                                        else 0.5 * float(self.mass_g.sum()) * REST_SPEED_MM_S**2)
         self.radius = host["node_radius"][self.nodes]
-        self.segment = voronoi_lengths(host["rest_length"])[self.nodes]  # (half an edge at a coil's end)
         self.coil_status = ["waiting"] * len(self.coils)
         self.withdrawn_from: list[int | None] = [None] * len(self.coils)  # a jammed coil's first withdrawn node
         self.jam_reasons: list[str] = []
@@ -234,7 +233,7 @@ class Ensemble:
             wp.load_module(module, device=self.model.device)  # not at the first step inside the run's clock
         packed, _ = self.solver.world_energies(self.stepper.state)
         stored = packed["bend_nJ"] + packed["twist_nJ"] + packed["stretch_nJ"]
-        host = {name: self.model.host(name) for name in ("arc_s", "inv_mass", "node_radius", "rest_length")}
+        host = {name: self.model.host(name) for name in ("arc_s", "inv_mass", "node_radius")}
         self.members = [Member(w, s, a, self.model, host, float(stored[w]), bounds[w].dt_s)
                         for w, (s, a) in enumerate(zip(self.scenes, self.anatomies))]
         self.step_reductions: list[str] = []

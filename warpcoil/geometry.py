@@ -5,6 +5,8 @@
   :func:`surface_bvh` keeps one per owning object.
 * :func:`inside_points`: the side of the first face a ray from the point meets
   (``wp.mesh_query_ray``): one ray per point, exact for a closed, outward-wound surface.
+* :func:`lengths_outside`: each segment's length outside a closed surface, split at its
+  crossing (bisection with :func:`inside_points`' test).
 * :func:`inside_voxels`: voxel centres inside a closed surface from the crossings up each
   voxel column (``wp.mesh_query_ray``), one ray march per column.
 * :func:`surface_voxels`: the voxels a surface passes through (``wp.mesh_query_point_no_sign``).
@@ -26,6 +28,7 @@ import warp as wp
 from . import _warp  # noqa: F401  (kernel cache, init)
 
 FAR_MM = 1.0e6  # mm, 'no limit' for ray and point queries
+CROSSING_HALVINGS = 16  # bisection steps that place a segment's crossing of a surface (to 2⁻¹⁶ of its length)
 STEP_VOXELS = 1.0e-4  # a column's march resumes this far (in voxel edges) past each hit
 
 
@@ -71,6 +74,23 @@ def first_hit_inside(mesh: wp.uint64, point: wp.vec3) -> int:
 def _first_hit_inside(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), inside: wp.array(dtype=wp.int8)):
     k = wp.tid()
     inside[k] = wp.int8(first_hit_inside(mesh, points[k]))
+
+
+@wp.kernel
+def _crossing(mesh: wp.uint64, a: wp.array(dtype=wp.vec3), b: wp.array(dtype=wp.vec3), halvings: int,
+              t: wp.array(dtype=float)):
+    """Where (fraction from a) the segment a → b crosses the surface: ``halvings`` bisections with first_hit_inside."""
+    k = wp.tid()
+    side = first_hit_inside(mesh, a[k])
+    lo = float(0.0)
+    hi = float(1.0)
+    for _ in range(halvings):
+        mid = 0.5 * (lo + hi)
+        if first_hit_inside(mesh, a[k] + mid * (b[k] - a[k])) == side:
+            lo = mid
+        else:
+            hi = mid
+    t[k] = 0.5 * (lo + hi)
 
 
 @wp.kernel
@@ -164,6 +184,27 @@ def inside_points(surface: SurfaceBVH, points_mm: np.ndarray) -> np.ndarray:
         wp.launch(_first_hit_inside, len(points), inputs=[surface.mesh.id, surface.local(points)], outputs=[inside],
                   device=surface.device)
     return inside.numpy().astype(bool)
+
+
+def lengths_outside(surface: SurfaceBVH, points_mm: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                    ) -> np.ndarray:
+    """Per segment from ``points_mm[starts]`` to ``points_mm[ends]`` (mm): its length outside the closed,
+    outward-wound surface (mm): all of it where both ends are outside (:func:`inside_points`), none where both
+    are inside, and where they differ the part on the outside end's side of the crossing that CROSSING_HALVINGS
+    bisections with the same test place. A polyline's sum converges to its length outside, whatever its node
+    spacing (a segment that leaves and re-enters between its ends counts as inside)."""
+    points = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    outside = ~inside_points(surface, points)
+    a, b = points[starts], points[ends]
+    fraction = (outside[starts] & outside[ends]).astype(np.float64)
+    cross = np.flatnonzero(outside[starts] != outside[ends])
+    if len(cross):
+        t = wp.zeros(len(cross), dtype=float, device=surface.device)
+        wp.launch(_crossing, len(cross), inputs=[surface.mesh.id, surface.local(a[cross]), surface.local(b[cross]),
+                                                 CROSSING_HALVINGS], outputs=[t], device=surface.device)
+        t = t.numpy().astype(np.float64)
+        fraction[cross] = np.where(outside[starts][cross], t, 1.0 - t)
+    return fraction * np.linalg.norm(b - a, axis=1)
 
 
 def inside_voxels(surface: SurfaceBVH, origin_mm: np.ndarray, h_mm: float, shape: tuple[int, int, int]) -> np.ndarray:

@@ -17,9 +17,10 @@ import warp as wp
 
 from .anatomy import Anatomy
 from .devices import device_report
+from .geometry import lengths_outside, surface_bvh
 from .model import Model
 from .occlusion import occlusion_of_regions
-from .sac import inside_sac, regional_density
+from .sac import regional_density, sac_surface
 from .settings import Scene
 from .solver import Solver
 from .state import State
@@ -35,7 +36,6 @@ class Measured(Protocol):
     anatomy: Anatomy
     coil_lengths_mm: np.ndarray
     radius: np.ndarray  # per node (mm)
-    segment: np.ndarray  # per node: the length it stands for (mm)
     coil_status: list[str]
     steps: int
     step_bound_s: float
@@ -168,17 +168,12 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
     c0 = m.contact.c0_mm
     wall_gap = np.inf
     wall_contacts, max_wall_force = 0, 0.0
-    outside = None if m.world_walls[w] is None else 0.0
     if m.world_walls[w] is not None and any_free:
-        centre = snap.wall_distance[sl][free]
-        gaps = centre - member.radius[free]
+        gaps = snap.wall_distance[sl][free] - member.radius[free]
         wall_gap = min(float(gaps.min()), float(snap.sample_wall_gap[sl].min()))  # and along coarse segments
         wall_contacts = int(np.count_nonzero(gaps < c0))
         max_wall_force = float(np.linalg.norm(snap.wall_force[sl][free], axis=1).max())
-        if member.anatomy.sac is None:
-            outside = float(member.segment[free][centre < 0.0].sum())
-    if member.anatomy.sac is not None and any_free:
-        outside = float(member.segment[free][~inside_sac(member.anatomy.sac, snap.x[sl][free])].sum())
+    outside = lengths_outside_mm(m, member, snap.x[sl], free, advance)
     coil_gap = np.inf
     if solver.coil_contact and any_free:
         in_pass = free.copy()  # edges with a free node: the node or the next one free
@@ -192,7 +187,34 @@ def measure_frame(model: Model, solver: Solver, member: Measured, snap: Snapshot
         stretch_nJ=float(energies["stretch_nJ"][w]), wall_contacts=wall_contacts,
         coil_contacts=int(snap.coil_contacts[sl].sum()) // 2 if solver.coil_contact else 0,
         max_wall_force_uN=max_wall_force, min_wall_gap_mm=wall_gap, min_coil_gap_mm=coil_gap,
-        length_outside_sac_mm=outside, balloon_inflation=member.inflation)
+        length_outside_sac_mm=None if outside is None else float(outside.sum()), balloon_inflation=member.inflation)
+
+
+def lengths_outside_mm(model: Model, member: Measured, x: np.ndarray, free: np.ndarray, advance: np.ndarray
+                       ) -> np.ndarray | None:
+    """Per coil of the member: the length (mm) of its deployed centre line outside the sac (with no [neck]:
+    outside the wall); None in free space. ``x``: the member's nodes (mm), ``free``: bool per node,
+    ``advance``: per coil, its pusher advance (mm). The line runs along the edges between free nodes and on
+    into the catheter as far as the coil is pushed out (by arc length); an edge that crosses the surface
+    counts its part outside up to the crossing (geometry.lengths_outside), not its nodes' shares."""
+    anatomy = member.anatomy
+    if model.world_walls[member.world] is None:
+        return None
+    wall = anatomy.wall
+    surface = sac_surface(anatomy.sac) if anatomy.sac is not None else surface_bvh(wall, wall.vertices_mm, wall.faces)
+    sl = member.nodes
+    s = model.host("arc_s")[sl]
+    coil = model.host("coil_of")[sl][:-1] - member.coils.start
+    edge = free[:-1] & (model.host("has_next")[sl][:-1] == 1)  # the deployed edges: from a free node
+    part = edge & ~free[1:]  # ... into the catheter: out as far as the advance
+    out = np.clip((advance[coil[part]] - s[:-1][part]) / (s[1:][part] - s[:-1][part]), 0.0, 1.0)
+    tips = x[:-1][part] + out[:, None] * (x[1:][part] - x[:-1][part])
+    index = np.cumsum(free) - 1  # a free node's place among the free nodes
+    ends = index[1:].copy()
+    ends[part] = int(free.sum()) + np.arange(len(tips))
+    lengths = lengths_outside(surface, np.concatenate((x[free], tips)), index[:-1][edge], ends[edge])
+    return np.bincount(coil[edge], weights=lengths, minlength=len(member.coils))
+
 
 def run_result(model: Model, solver: Solver, member: Measured, status: str, reason: str, wall_time_s: float,
                snap: Snapshot, step_reductions: list[str], scheme: dict | None = None) -> RunResult:
@@ -210,15 +232,10 @@ def run_result(model: Model, solver: Solver, member: Measured, status: str, reas
     density = (lambda v: float(v) / sac_volume if sac_volume else None)  # noqa: E731
     x = snap.x[sl]
     free = snap.free[sl] == 1
-    outside = np.zeros(len(x), bool)
-    if member.anatomy.sac is not None:
-        outside[free] = ~inside_sac(member.anatomy.sac, x[free])
-    elif m.world_walls[member.world] is not None:
-        outside[free] = snap.wall_distance[sl][free] < 0.0
+    outside = lengths_outside_mm(m, member, x, free, advance)
     local = [slice(int(m.coil_first[c]) - sl.start, int(m.coil_last[c]) + 1 - sl.start) for c in member.coils]
-    walled = m.world_walls[member.world] is not None  # (free space: no sac, no length outside it)
     coils = [dict(name=c.name, status=member.coil_status[k], wire_diameter_mm=c.d,
-                  length_outside_sac_mm=float(member.segment[local[k]][outside[local[k]]].sum()) if walled else None,
+                  length_outside_sac_mm=None if outside is None else float(outside[k]),
                   loop_diameter_mm=c.loop_diameter_mm, shape=c.shape, product=c.product, size=c.size,
                   length_mm=float(member.coil_lengths_mm[k]),
                   deployed_length_mm=float(deployed_each[k]), packing_density=density(volumes[k]),

@@ -6,7 +6,7 @@
   fan of triangles from the centroid to the contour).
 * :func:`sac_from_neck` cuts the wall along the contour and closes the sac
   side with the ostium fan: a watertight :class:`Sac` surface and its volume.
-* :func:`inside_sac`, :func:`herniated_length_mm`, :func:`catheter_from_neck`.
+* :func:`inside_sac`, :func:`sac_surface`, :func:`herniated_length_mm`, :func:`catheter_from_neck`.
 * :func:`regional_density`: coil volume fraction in the neck, boundary and core
   regions of the sac (docs/REGIONS.md).
 
@@ -187,7 +187,13 @@ def in_other_piece(sac: Sac, wall: WallMesh, point_mm: np.ndarray) -> bool:
 
 def inside_sac(sac: Sac, points_mm: np.ndarray) -> np.ndarray:
     """Bool per point: inside the closed sac surface (side of the first face a ray along +z meets)."""
-    return inside_points(_sac_bvh(sac), _points(points_mm))
+    return inside_points(sac_surface(sac), _points(points_mm))
+
+
+def sac_surface(sac: Sac) -> SurfaceBVH:
+    """The closed sac surface as a BVH (kept while ``sac`` lives): what :func:`inside_sac` tests against."""
+    surface = sac.closed_surface
+    return surface_bvh(sac, np.asarray(surface.vertices), np.asarray(surface.faces))
 
 
 def herniated_length_mm(sac: Sac, wall: WallMesh, points_mm: np.ndarray, segment_lengths_mm: np.ndarray) -> float:
@@ -269,7 +275,7 @@ def regional_density(
 
     origin = lo - h
     shape = tuple(int(n) for n in np.ceil((hi - lo) / h).astype(np.int64) + 2)
-    inside = inside_voxels(_sac_bvh(sac), origin, h, shape)
+    inside = inside_voxels(sac_surface(sac), origin, h, shape)
     flat = np.flatnonzero(inside)
     centres = origin + h * (np.column_stack(np.unravel_index(flat, shape)) + 0.5)
     filled = points_near_segments(centres, segments_a, segments_b, radii)
@@ -709,7 +715,3 @@ def _fan_faces(count: int) -> np.ndarray:
     k = np.arange(count)
     return np.column_stack((np.full(count, count), k, (k + 1) % count))
 
-
-def _sac_bvh(sac: Sac) -> SurfaceBVH:
-    surface = sac.closed_surface
-    return surface_bvh(sac, np.asarray(surface.vertices), np.asarray(surface.faces))
