@@ -119,14 +119,15 @@ def spherical_spiral(
     or more apart, centre to centre. With two or more sweeps the first one
     crosses the equator at r ≈ D/2, so the first turns frame a ball of
     diameter D (largest extent 0.95–1.0 D from one loop, L ≈ πD, up). A
-    single sweep, which runs from its northern edge to the equator while the
-    radius shrinks and so spans only about 0.7 D at shrink 0.6, is left to
-    a coil too short for two sweeps of 0.4 turns (L below about 2.5 D) or
-    whose shrink cannot hold one dive (``(1 - shrink)·D/2 <= 1.155·d``). A
-    short coil, whose spacing would exceed D/4, narrows its band about the
-    equator instead. A coil too long for its ball (turns
-    closer than ``1.05·d`` even with as many sweeps as ``1.1·d`` dives fit
-    in ``(1 - shrink)·D/2``) raises PreshapeError; with d = 0.2921 mm and shrink 0.6 the limit is about
+    single sweep is left to a coil too short for two sweeps of 0.4 turns
+    (L below about 2.5 D) or whose shrink cannot hold one dive
+    (``(1 - shrink)·D/2 <= 1.155·d``); it keeps r = D/2 until it crosses
+    the equator, or at the latest until its last half turn, and shrinks
+    after that (under half a turn it shrinks all along, eased in up to one
+    turn). A short coil, whose spacing would exceed D/4, narrows its band
+    about the equator instead. A coil too long for its ball (turns closer
+    than ``1.05·d`` even with as many sweeps as ``1.1·d`` dives fit in
+    ``(1 - shrink)·D/2``) raises PreshapeError; with d = 0.2921 mm and shrink 0.6 the limit is about
     27 mm for D = 2 mm, 77 mm for D = 3 mm, 196 mm for D = 4 mm and over
     400 mm from D = 6 mm.
 
@@ -184,6 +185,11 @@ def _spiral(
     ramp = min(_DIVE_HALF_TURNS, 0.4 * turns.min())  # each dive, rounding included, fits in its sweeps
     w_r = np.concatenate(([0.0], np.repeat(w_knots[1:-1], 2) + np.tile([-ramp, ramp], sweeps - 1), [w_knots[-1]]))
     r_knots = np.concatenate(([radius], np.repeat(r_edge[1:-1], 2) + np.tile([dive, 0.0], sweeps - 1), [r_end]))
+    if sweeps == 1:  # D/2 until the equator or the last half turn, then the shrink; eased in from ½ to 1 turn
+        turns_all = w_knots[1]
+        w_hold = min(turns_all * half_band[0] / half_band.sum(), max(turns_all - 0.5, 0.5 * turns_all))
+        r_hold = radius - (1.0 - np.clip(2.0 * turns_all - 1.0, 0.0, 1.0)) * (radius - r_end) * w_hold / turns_all
+        w_r, r_knots = np.array([0.0, w_hold, turns_all]), np.array([radius, r_hold, r_end])
 
     def position(w: np.ndarray) -> np.ndarray:
         theta = _smooth_polyline(w, w_knots, theta_knots, _REVERSAL_HALF_TURNS)
