@@ -110,6 +110,38 @@ def test_spherical_spiral_other_sizes(diameter, length, shrink):
     assert non_neighbour_gap(points) >= D_WIRE
 
 
+def principal_extent(points: np.ndarray) -> float:
+    """Largest extent of the points along their principal axes."""
+    centred = points - points.mean(axis=0)
+    along = centred @ np.linalg.svd(centred, full_matrices=False)[2].T
+    return float((along.max(axis=0) - along.min(axis=0)).max())
+
+
+@pytest.mark.parametrize(
+    ("diameter", "length", "shrink"),
+    [(3.0, 15.0, 0.6), (5.0, 25.0, 0.6), (6.0, 60.0, 0.6), (10.0, 150.0, 0.6), (2.0, 20.0, 0.6), (3.0, 60.0, 0.6),
+     (4.0, 40.0, 0.6), (6.0, 150.0, 0.6), (10.0, 300.0, 0.6), (2.0, 6.3, 0.6), (2.0, 27.0, 0.6), (3.0, 9.5, 0.6),
+     (3.0, 18.0, 0.6), (3.0, 77.0, 0.6), (4.0, 12.6, 0.6), (4.0, 196.0, 0.6), (6.0, 19.0, 0.6), (6.0, 36.0, 0.6),
+     (10.0, 31.5, 0.6), (10.0, 60.0, 0.6), (2.0, 20.0, 0.8), (3.0, 12.0, 0.8), (3.0, 30.0, 0.8)],
+)
+def test_spherical_spiral_spans_its_loop_diameter(diameter, length, shrink):
+    """From one loop (πD) up to the longest that fits, the first turns frame a ball of the loop diameter
+    (a single sweep shrinking from the pole's side to the equator spanned only 0.71 D; at shrink 0.8 a
+    2–3 mm ball holds no dive, and its one sweep now keeps D/2 to the equator), with the turns kept apart
+    and the length exact."""
+    points = spherical_spiral(diameter, length, D_WIRE, shrink=shrink, wire_diameter_mm=D_WIRE)
+    assert principal_extent(points) >= 0.95 * diameter
+    radius = np.linalg.norm(points, axis=1)
+    assert radius[0] == pytest.approx(diameter / 2, abs=1e-12)
+    assert radius[-1] == pytest.approx(shrink * diameter / 2, abs=1e-12)
+    assert np.all(np.diff(radius) <= 1e-12)
+    n = len(points) - 1
+    assert n == round(length / D_WIRE) and np.all(chords(points) <= length / n * (1 + 1e-9))
+    fine = spherical_spiral(diameter, length, D_WIRE / 8, shrink=shrink, wire_diameter_mm=D_WIRE)
+    assert chords(fine).sum() == pytest.approx(length, rel=5e-4)  # the curve is length_mm long
+    assert non_neighbour_gap(points) >= D_WIRE
+
+
 def test_spherical_spiral_too_long_for_its_ball_is_refused():
     with pytest.raises(PreshapeError, match="does not fit"):
         spherical_spiral(2.0, 100.0, D_WIRE, wire_diameter_mm=D_WIRE)

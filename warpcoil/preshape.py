@@ -114,12 +114,20 @@ def spherical_spiral(
 
     The spacing ``s`` is fitted (secant iterations on the numerically
     integrated arc length) so that the curve is exactly ``length_mm`` long,
-    with the fewest sweeps giving ``s >= 1.05·d``; parts of the coil not
-    within a few segments of each other then stay about ``d`` or more apart,
-    centre to centre. A short coil, whose spacing would exceed D/4, narrows
-    its band about the equator instead. A coil too long for its ball (turns
-    closer than ``1.05·d`` even with as many sweeps as ``1.1·d`` dives fit
-    in ``(1 - shrink)·D/2``) raises PreshapeError; with d = 0.2921 mm and shrink 0.6 the limit is about
+    with the fewest sweeps, at least two, giving ``s >= 1.05·d``; parts of
+    the coil not within a few segments of each other then stay about ``d``
+    or more apart, centre to centre. With two or more sweeps the first one
+    crosses the equator at r ≈ D/2, so the first turns frame a ball of
+    diameter D (largest extent 0.95–1.0 D from one loop, L ≈ πD, up). A
+    single sweep is left to a coil too short for two sweeps of 0.4 turns
+    (L below about 2.5 D) or whose shrink cannot hold one dive
+    (``(1 - shrink)·D/2 <= 1.155·d``); it keeps r = D/2 until it crosses
+    the equator, or at the latest until its last half turn, and shrinks
+    after that (under half a turn it shrinks all along, eased in up to one
+    turn). A short coil, whose spacing would exceed D/4, narrows its band
+    about the equator instead. A coil too long for its ball (turns closer
+    than ``1.05·d`` even with as many sweeps as ``1.1·d`` dives fit in
+    ``(1 - shrink)·D/2``) raises PreshapeError; with d = 0.2921 mm and shrink 0.6 the limit is about
     27 mm for D = 2 mm, 77 mm for D = 3 mm, 196 mm for D = 4 mm and over
     400 mm from D = 6 mm.
 
@@ -142,7 +150,8 @@ def spherical_spiral(
 
     dive = _DIVE_WIRES * wire_diameter_mm
     max_sweeps = max(1, ceil((1.0 - shrink) * radius / ((1.0 + _SETTLE_DIVES) * dive)))
-    for sweeps in range(1, max_sweeps + 1):
+    # Two sweeps first (the first then frames the whole ball), one if two cannot be that short, then more.
+    for sweeps in [*range(min(2, max_sweeps), 0, -1), *range(3, max_sweeps + 1)]:
         spacing, sample = _fit_spiral(radius, shrink, dive, sweeps, length_mm)
         if spacing >= _SPACING_MIN_WIRES * wire_diameter_mm:
             return sample(np.linspace(0.0, length_mm, n + 1))
@@ -176,6 +185,11 @@ def _spiral(
     ramp = min(_DIVE_HALF_TURNS, 0.4 * turns.min())  # each dive, rounding included, fits in its sweeps
     w_r = np.concatenate(([0.0], np.repeat(w_knots[1:-1], 2) + np.tile([-ramp, ramp], sweeps - 1), [w_knots[-1]]))
     r_knots = np.concatenate(([radius], np.repeat(r_edge[1:-1], 2) + np.tile([dive, 0.0], sweeps - 1), [r_end]))
+    if sweeps == 1:  # D/2 until the equator or the last half turn, then the shrink; eased in from ½ to 1 turn
+        turns_all = w_knots[1]
+        w_hold = min(turns_all * half_band[0] / half_band.sum(), max(turns_all - 0.5, 0.5 * turns_all))
+        r_hold = radius - (1.0 - np.clip(2.0 * turns_all - 1.0, 0.0, 1.0)) * (radius - r_end) * w_hold / turns_all
+        w_r, r_knots = np.array([0.0, w_hold, turns_all]), np.array([radius, r_hold, r_end])
 
     def position(w: np.ndarray) -> np.ndarray:
         theta = _smooth_polyline(w, w_knots, theta_knots, _REVERSAL_HALF_TURNS)
@@ -206,7 +220,7 @@ def _fit_spiral(
         if previous is not None:
             slope = min((error - previous[1]) / np.log(spacing / previous[0]), -0.1)
         previous = (spacing, error)
-        spacing *= np.exp(-error / slope)
+        spacing *= np.exp(min(-error / slope, 5.0))  # bounded: a spiral longer than length_mm at any spacing
     else:
         closest = 0.0
 
