@@ -52,7 +52,7 @@ def record(scene_path: str, overrides: dict) -> tuple[Deployment, object, list[d
 
     def on_frame(frame, state):
         pushed = np.clip(state.advance.numpy()[member.coils.start:member.coils.stop], 0.0, member.coil_lengths_mm)
-        in_sac = float(areas @ pushed) - areas[max(member.active, 0)] * frame.length_outside_sac_mm
+        in_sac = float(areas @ pushed) - areas[max(member.active, 0)] * (frame.length_outside_sac_mm or 0.0)
         rows.append(dict(time_s=frame.time_s, pushed_mm=frame.deployed_length_mm, packing=in_sac / sac,
                          push_mean_uN=frame.push_force_mean_uN, push_peak_uN=frame.push_force_peak_uN,
                          elastic_nJ=frame.bend_nJ + frame.twist_nJ + frame.stretch_nJ, stretch_nJ=frame.stretch_nJ,

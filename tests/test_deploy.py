@@ -140,7 +140,7 @@ def test_a_jammed_coils_exported_geometry_ends_at_its_cut(tmp_path):
     from warpcoil.recorder.outputs import UsdFrames
 
     deployment = Deployment(two_coil_scene(jam_force_uN=2.0))
-    usd = UsdFrames.for_model(tmp_path / "run.usdc", deployment.model, 0.005)
+    usd = UsdFrames.for_model(tmp_path / "run.usdc", deployment.model, 0.005, deployment.members[0].withdrawn_from)
     result = deployment.run(usd)
     usd.close()
     first = result.coils[0]

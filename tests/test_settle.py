@@ -425,3 +425,23 @@ def test_a_coil_settling_free_of_contact_gains_no_energy():
     for k in range(out + 1, len(frames) - 1):
         if frames[k].wall_contacts == 0 and frames[k].coil_contacts == 0:
             assert energy[k + 1] - energy[k] <= max(SETTLE_RISE_QUIET_NJ, SETTLE_RISE_FRACTION * energy[k]), k
+
+
+def test_a_stalled_settling_that_asked_for_its_own_step_is_not_failed(monkeypatch):
+    """A run that asked for allow_unstable_dt gets no halving: a stall (or a rise) while it settles at its own
+    step is then no problem to stop it as failed (a reviewer's finding: it ended `failed`, "kinetic energy
+    stalled ... reduce simulation.dt_s"); it runs on at its step (here to the time limit: a rest criterion of
+    1e-12 nJ), where a run that may halve its step does so."""
+    from warpcoil import deploy
+
+    monkeypatch.setattr(deploy, "settle_stalled", lambda kinetic, _frame_s: len(kinetic) >= 1)
+    coil = wc.CoilSpec(name="h", shape="helix", wire_diameter_mm=0.25, loop_diameter_mm=3.0, pitch_mm=0.6,
+                       length_mm=8.0)
+    for allow in (False, True):
+        sim = wc.SimulationSettings(push_speed_mm_s=50.0, integrator="implicit", dt_s=2e-4, allow_unstable_dt=allow,
+                                    rest_kinetic_energy_nJ=1e-12, max_time_s=0.4)
+        scene = wc.Scene(coils=(coil,), catheter=wc.CatheterSpec(tip_mm=(0.0, 0.0, -1.5), direction=(0.0, 0.0, 1.0)),
+                         wall=wc.WallSpec(sphere_diameter_mm=4.0), simulation=sim)
+        result = Deployment(scene).run()
+        assert result.status != "failed", (allow, result.reason)
+        assert bool(result.step_reductions) is not allow  # (halved on the stall where it may)

@@ -222,3 +222,13 @@ def test_summary_png_headlines_the_packing_in_the_sac():
     assert title == "C0001: completed, packing density in sac 20.0 % (all deployed coil 30.0 %)"
     free = SimpleNamespace(status="completed", packing_density=None, packing_density_in_sac=None, occlusion=None)
     assert summary_title(SimpleNamespace(source=None), free) == "scene: completed, no sac"
+
+
+def test_a_coil_withdrawn_whole_or_to_one_node_has_no_tube():
+    """A coil jammed before its tip left the catheter keeps 0 nodes (one node if it jammed just after): no
+    tube for it — the mesh of the others keeps their coil ids — and an empty mesh where none is left; the
+    first version raised (IndexError, ValueError) from a run's outputs."""
+    line = np.column_stack([np.zeros(5), np.zeros(5), np.linspace(0.0, 1.0, 5)])
+    mesh = coils_tube_mesh([np.zeros((0, 3)), line[:1], line], [0.3, 0.3, 0.3])
+    assert set(mesh.face_attributes["coil_id"]) == {2} and mesh.is_watertight
+    assert len(coils_tube_mesh([np.zeros((0, 3))], [0.3]).faces) == 0

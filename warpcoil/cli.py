@@ -127,7 +127,8 @@ def _deploy_into(out: Path, scene, deployment, args: argparse.Namespace, warning
         recorders = []
         if scene.output.usd and not args.no_usd:
             recorders.append(outputs.UsdFrames.for_model(stage / outputs.DEPLOYMENT_USD, deployment.model,
-                                                         scene.simulation.frame_interval_s))
+                                                         scene.simulation.frame_interval_s,
+                                                         deployment.members[0].withdrawn_from))
         if scene.output.animation:
             from .recorder.animation import AnimationFrames
 

@@ -353,23 +353,26 @@ class Ensemble:
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
     @staticmethod
-    def _energy_rise_nJ(member: Member, energies: dict[str, np.ndarray]) -> float | None:
+    def _energy_rise_nJ(member: Member, energies: dict[str, np.ndarray], c0_mm: float) -> float | None:
         """The rise of the member's kinetic + elastic energy (nJ) over the frame just run, where it is
         past implicit.settle_energy_rose's tolerance and nothing drives the coil (every coil out, no
-        deflating balloon); else None."""
+        deflating balloon); else None. A frame that started with no node, contact sample (its smallest wall
+        gap ≥ the contact range ``c0_mm``), coil or device in contact has the tolerance of one free of contact."""
         if member.active >= 0 or (member.inflation or 0.0) > 0.0 or len(member.frames) == member.exact_wall_from:
             return None
         last = member.frames[-1]
         before = last.kinetic_nJ + last.bend_nJ + last.twist_nJ + last.stretch_nJ
         after = float(sum(e[member.world] for e in energies.values()))
         contact_free = (last.wall_contacts == 0 and last.coil_contacts == 0  # (no contact energy to give back)
+                        and last.min_wall_gap_mm >= c0_mm
                         and member.anatomy.balloon is None and member.anatomy.stent is None)
         return after - before if settle_energy_rose(before, after, contact_free) else None
 
     def _energy_rose(self, member: Member, energies: dict[str, np.ndarray]) -> bool:
         """Whether a settling frame raised the member's energy (:meth:`_energy_rise_nJ`) while a finer
         settling step is left to redo it at (SETTLE_RISE_REFINE_MAX)."""
-        return member.settle_refine < SETTLE_RISE_REFINE_MAX and self._energy_rise_nJ(member, energies) is not None
+        return (member.settle_refine < SETTLE_RISE_REFINE_MAX
+                and self._energy_rise_nJ(member, energies, self.model.contact.c0_mm) is not None)
 
     def _rises_as_problems(self, running: list[Member], energies: dict[str, np.ndarray],
                            problems: list[str | None]) -> None:
@@ -379,13 +382,15 @@ class Ensemble:
         halvings are left (MAX_STEP_HALVINGS); so is, in a run settling at its own step, a kinetic energy
         that has stalled (implicit.settle_stalled, as the settling step refines on it: a packed coil
         whose step sustains a cycle instead of coming to rest), where its wall field has not first given
-        way to the exact wall (:meth:`_stalled_settle`, halvings or not)."""
-        halvings_left = len(self.step_reductions) < MAX_STEP_HALVINGS
+        way to the exact wall (:meth:`_stalled_settle`, halvings or not). A member that asked for
+        ``allow_unstable_dt`` gets no halving, so neither is a problem for it."""
         frame_s = self.members[0].scene.simulation.frame_interval_s
         for m in running:
             if problems[m.world] is not None:
                 continue
-            rise = self._energy_rise_nJ(m, energies) if halvings_left else None
+            halvings_left = (len(self.step_reductions) < MAX_STEP_HALVINGS
+                             and not m.scene.simulation.allow_unstable_dt)
+            rise = self._energy_rise_nJ(m, energies, self.model.contact.c0_mm) if halvings_left else None
             if rise is not None:
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic + elastic energy rose {rise:.3g} nJ in a frame with nothing driving the coil",
@@ -394,22 +399,24 @@ class Ensemble:
                   and (halvings_left or self.solver.field_in_use(m.world))
                   and settle_stalled(m.settle_kinetic_nJ[m.settle_stall_from:], frame_s)):
                 m.settle_stall_from = len(m.settle_kinetic_nJ)
-                if self._stalled_settle(m) or not halvings_left:
+                if self._stalled_settle(m, before_frame=False) or not halvings_left:
                     continue
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic energy stalled at {m.settle_kinetic_nJ[-1]:.3g} nJ (less than "
                     f"{100 * SETTLE_STALL_DROP:g} % lost over {SETTLE_STALL_S:g} s) with nothing driving the coil",
                     self.stepper.state.time_s)
 
-    def _stalled_settle(self, member: Member) -> bool:
+    def _stalled_settle(self, member: Member, before_frame: bool = True) -> bool:
         """A settling member whose kinetic energy stalled: where its wall distances still come from a wall
         field, from now on all from the exact BVH (True; Solver.use_exact_wall: at the edge of the field's
         trusted region a wall contact's force switched between two distances and kept packed coils jittering,
-        kinetic 0.005–0.06 nJ for 2 s, where the BVH lets them rest); else False (refine the step)."""
+        kinetic 0.005–0.06 nJ for 2 s, where the BVH lets them rest); else False (refine the step).
+        ``before_frame``: called before the member's next frame runs (else after one not yet recorded)."""
         if not self.solver.field_in_use(member.world):
             return False
         self.solver.use_exact_wall(member.world)
-        member.exact_wall_from = len(member.frames)  # (its next frame's energy is measured on another distance)
+        # (the first frame on the BVH: its energy is measured on another distance, its start is the switch's time)
+        member.exact_wall_from = len(member.frames) + (0 if before_frame else 1)
         return True
 
     def _settle_again(self, risen: list[Member], running: list[Member], snapshot: State) -> None:

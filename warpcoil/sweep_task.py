@@ -100,10 +100,9 @@ def _this_worker_device(device: str | None) -> str | None:
     return worker_device(device, name, wp.get_cuda_device_count())
 
 
-def _frame_recorders(member, folder: Path, usd: bool, fixed) -> list:
+def _frame_recorders(member, folder: Path, usd: bool) -> list:
     """A member's recorders of its frames, as `warpcoil run` has them: its deployment.usdc (``usd``), with
-    its balloon or stent, and its deployment.gif where its scene's [output] asks for the animation; ``fixed``:
-    the ensemble model's fixed flags (UsdFrames)."""
+    its balloon or stent, and its deployment.gif where its scene's [output] asks for the animation."""
     from .recorder.animation import AnimationFrames
     from .recorder.outputs import ANIMATION_GIF, DEPLOYMENT_USD, UsdFrames
 
@@ -113,7 +112,7 @@ def _frame_recorders(member, folder: Path, usd: bool, fixed) -> list:
     recorders = []
     if usd:
         recorders.append(UsdFrames(folder / DEPLOYMENT_USD, member.coil_nodes, widths, vertices, faces, interval_s,
-                                   fixed))
+                                   member.withdrawn_from))
         recorders[-1].add_device(member.anatomy.balloon, member.anatomy.stent)
     if member.scene.output.animation:
         recorders.append(AnimationFrames(folder / ANIMATION_GIF, member.coil_nodes, widths, vertices, faces,
@@ -144,8 +143,8 @@ def run_task(task: EnsembleTask) -> list[MemberOutput]:
 
         def record(member, frame, state):
             k = member.index
-            if k not in recorders or frame.time_s < last_time_s[k]:  # a member rerun alone starts again
-                recorders[k] = _frame_recorders(member, folders[k], task.wants_usd(member.scene), ensemble.model.fixed)
+            if k not in recorders or frame.time_s <= last_time_s[k]:  # a member rerun alone starts again
+                recorders[k] = _frame_recorders(member, folders[k], task.wants_usd(member.scene))
             last_time_s[k] = frame.time_s
             for recorder in recorders[k]:
                 recorder(frame, state)

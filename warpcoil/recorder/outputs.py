@@ -82,27 +82,29 @@ class UsdFrames:
     :meth:`close`, in frame order (~0.25 ms a frame, outside the run).
 
     ``coil_nodes``: each coil's node slice in the state; ``wall_vertices_mm`` /
-    ``wall_faces``: the static wall, or None; ``fixed``: the model's fixed flags (a wp.array, changed in
-    place where a jam withdraws the rest of a coil: those nodes are drawn on the coil's cut end)."""
+    ``wall_faces``: the static wall, or None; ``withdrawn_from``: the member's list (deploy.Member, set in
+    place where a jam withdraws the rest of a coil) of each coil's first withdrawn node, or None: from the
+    jam on, those nodes are drawn on the coil's cut end."""
 
     def __init__(self, path: Path, coil_nodes: list[slice], widths_mm: list[float],
                  wall_vertices_mm: np.ndarray | None, wall_faces: np.ndarray | None, frame_interval_s: float,
-                 fixed=None):
+                 withdrawn_from: list | None = None):
         self.coil_nodes = coil_nodes
         self.balloon = False  # the model has a balloon (its inflation is recorded per frame)
-        self._fixed = fixed
+        self._withdrawn_from = withdrawn_from
         self._frames: list[tuple[float, np.ndarray, float | None]] = []  # (time s, positions mm, inflation)
         self.recorder = UsdRecorder(path, [s.stop - s.start for s in coil_nodes], widths_mm, wall_vertices_mm,
                                     wall_faces, time_codes_per_second=1.0 / frame_interval_s,
                                     frames_per_second=1.0 / frame_interval_s)  # one code per frame: real time
 
     @staticmethod
-    def for_model(path: Path, model: Model, frame_interval_s: float) -> "UsdFrames":
+    def for_model(path: Path, model: Model, frame_interval_s: float,
+                  withdrawn_from: list | None = None) -> "UsdFrames":
         """Every coil of a one-world model, with its wall."""
         wall = model.wall
         frames = UsdFrames(path, [model.node_slice(c) for c in range(model.coil_count)], [c.d for c in model.coils],
                            wall.vertices_mm if wall is not None else None,
-                           wall.faces_np if wall is not None else None, frame_interval_s, model.fixed)
+                           wall.faces_np if wall is not None else None, frame_interval_s, withdrawn_from)
         balloon = stent = None
         if model.has_stent:
             starts, ends, _ = model.strut_host
@@ -126,12 +128,9 @@ class UsdFrames:
     def __call__(self, frame: Frame, state: State) -> None:
         nodes = slice(self.coil_nodes[0].start, self.coil_nodes[-1].stop)
         x = state.x.numpy()[nodes].copy()
-        if self._fixed is not None:  # a jammed coil's withdrawn part drawn onto its cut end: no edge across the cut
-            withdrawn = (self._fixed.numpy()[nodes] == 1) & (state.free.numpy()[nodes] == 0)
-            for s in self.coil_nodes:
-                gone = np.flatnonzero(withdrawn[s.start - nodes.start:s.stop - nodes.start]) + s.start - nodes.start
-                if gone.size and gone[0] > s.start - nodes.start:
-                    x[gone] = x[gone[0] - 1]
+        for s, cut in zip(self.coil_nodes, self._withdrawn_from or []):  # no edge across a jammed coil's cut
+            if cut:
+                x[s.start - nodes.start + cut:s.stop - nodes.start] = x[s.start - nodes.start + cut - 1]
         self._frames.append((frame.time_s, x, frame.balloon_inflation))
 
     def close(self) -> None:

@@ -126,15 +126,22 @@ def coil_tube_mesh(centerline_mm: np.ndarray, diameter_mm: float, sides: int = 1
 def coils_tube_mesh(
     centerlines: list[np.ndarray], diameters_mm: list[float], sides: int = 12
 ) -> trimesh.Trimesh:
-    """All coils' tubes in one mesh (each closed on its own); per-face ``face_attributes["coil_id"]``."""
+    """All coils' tubes in one mesh (each closed on its own); per-face ``face_attributes["coil_id"]`` (the
+    coil's index among ``centerlines``). A coil with fewer than two distinct nodes (one jammed before its tip
+    left the catheter: withdrawn whole) has no tube; without any tube the mesh is empty."""
     if len(centerlines) != len(diameters_mm) or not centerlines:
         raise ValueError("need one diameter per centerline and at least one centerline")
-    tubes = [coil_tube_mesh(c, d, sides) for c, d in zip(centerlines, diameters_mm)]
+    kept = [(k, c, d) for k, (c, d) in enumerate(zip(centerlines, diameters_mm))
+            if len(c) >= 2 and np.ptp(np.asarray(c), axis=0).max() > 0.0]
+    tubes = [coil_tube_mesh(c, d, sides) for _, c, d in kept]
+    if not tubes:
+        return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
+                               face_attributes={"coil_id": np.zeros(0, dtype=np.int32)}, process=False)
     vertex_offsets = np.cumsum([0] + [len(t.vertices) for t in tubes[:-1]])
     return trimesh.Trimesh(
         np.vstack([t.vertices for t in tubes]),
         np.vstack([t.faces + offset for t, offset in zip(tubes, vertex_offsets)]),
-        face_attributes={"coil_id": np.repeat(np.arange(len(tubes), dtype=np.int32),
+        face_attributes={"coil_id": np.repeat(np.array([k for k, _, _ in kept], dtype=np.int32),
                                               [len(t.faces) for t in tubes])},
         process=False,
     )
