@@ -591,7 +591,7 @@ class Ensemble:
         if frame.time_s - member.resisted_since_s < sim.stall_window_s * (1.0 - 1e-9):
             return None
         sac_bend = (f" (or the force that bends it to the sac's curvature, {member.sac_bend_forces_uN[k]:.4g} µN, "
-                    "where larger)" if member.sac_bend_forces_uN[k] > 0.0 else "")
+                    "where larger)" if member.sac_bend_forces_uN[k] > member.self_deployment_force_uN else "")
         limit = (f"stall_force_uN = {sim.stall_force_uN:g} µN" if sim.stall_force_uN is not None else
                  f"stall_force_ratio = {sim.stall_force_ratio:g} × the coils' self-deployment force "
                  f"{member.self_deployment_force_uN:.4g} µN{sac_bend}, at least {STALL_DRAG_FACTOR:g} × the pushed "
