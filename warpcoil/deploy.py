@@ -352,19 +352,18 @@ class Ensemble:
         self._by_level(live, lambda m: m.settle_level, run_level)
         state.time_s = start + frame_s  # the same clock whichever steps a frame took
 
-    @staticmethod
-    def _energy_rise_nJ(member: Member, energies: dict[str, np.ndarray], c0_mm: float) -> float | None:
+    def _energy_rise_nJ(self, member: Member, energies: dict[str, np.ndarray]) -> float | None:
         """The rise of the member's kinetic + elastic energy (nJ) over the frame just run, where it is
         past implicit.settle_energy_rose's tolerance and nothing drives the coil (every coil out, no
         deflating balloon); else None. A frame that started with no node, contact sample (its smallest wall
-        gap ≥ the contact range ``c0_mm``), coil or device in contact has the tolerance of one free of contact."""
+        gap ≥ the contact range c0), coil or device in contact has the tolerance of one free of contact."""
         if member.active >= 0 or (member.inflation or 0.0) > 0.0 or len(member.frames) == member.exact_wall_from:
             return None
         last = member.frames[-1]
         before = last.kinetic_nJ + last.bend_nJ + last.twist_nJ + last.stretch_nJ
         after = float(sum(e[member.world] for e in energies.values()))
         contact_free = (last.wall_contacts == 0 and last.coil_contacts == 0  # (no contact energy to give back)
-                        and last.min_wall_gap_mm >= c0_mm
+                        and last.min_wall_gap_mm >= self.model.contact.c0_mm
                         and member.anatomy.balloon is None and member.anatomy.stent is None)
         return after - before if settle_energy_rose(before, after, contact_free) else None
 
@@ -372,7 +371,7 @@ class Ensemble:
         """Whether a settling frame raised the member's energy (:meth:`_energy_rise_nJ`) while a finer
         settling step is left to redo it at (SETTLE_RISE_REFINE_MAX)."""
         return (member.settle_refine < SETTLE_RISE_REFINE_MAX
-                and self._energy_rise_nJ(member, energies, self.model.contact.c0_mm) is not None)
+                and self._energy_rise_nJ(member, energies) is not None)
 
     def _rises_as_problems(self, running: list[Member], energies: dict[str, np.ndarray],
                            problems: list[str | None]) -> None:
@@ -390,7 +389,7 @@ class Ensemble:
                 continue
             halvings_left = (len(self.step_reductions) < MAX_STEP_HALVINGS
                              and not m.scene.simulation.allow_unstable_dt)
-            rise = self._energy_rise_nJ(m, energies, self.model.contact.c0_mm) if halvings_left else None
+            rise = self._energy_rise_nJ(m, energies) if halvings_left else None
             if rise is not None:
                 problems[m.world] = self.solver.unstable_reason(
                     f"kinetic + elastic energy rose {rise:.3g} nJ in a frame with nothing driving the coil",

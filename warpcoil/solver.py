@@ -287,6 +287,7 @@ class Solver:
                             for wall, (band, region) in zip(model.world_walls, extents)]
         self._field_ids = wp.array([0 if f is None else f.id for f in self.wall_fields], dtype=wp.uint64, device=dev)
         self._no_fields = wp.zeros(model.world_count, dtype=wp.uint64, device=dev)
+        self._exact_worlds: set[int] = set()  # worlds whose wall fields gave way to the BVH (use_exact_wall)
         # an anchored node must be beyond contact for the field too: its error is ≤ h √3/2 (1-Lipschitz, trilinear)
         self._anchor_margin = max([float(contact.ANCHOR_MARGIN_MM)] + [
             field_error_bound_mm(f.voxel_mm) + float(contact.ANCHOR_MARGIN_MM) for f in self.wall_fields if f])
@@ -622,16 +623,16 @@ class Solver:
 
     def field_in_use(self, world: int) -> bool:
         """Whether the world's wall distances come from its wall field (where trusted), not all from the BVH."""
-        return bool(self._field_ids.numpy()[world])
+        return self.wall_fields[world] is not None and world not in self._exact_worlds
 
     def use_exact_wall(self, world: int) -> None:
         """From now on every wall distance of ``world`` from the exact BVH query, none from its wall field (in
         place: the captured graphs see it). A coil at rest against the wall must feel one potential: where a
         node sits at the edge of a field's trusted region its force switches between the field's and the BVH's
         distance, which kept packed coils' wall contacts jittering instead of letting them come to rest."""
-        ids = self._field_ids.numpy()
-        ids[world] = 0
-        self._field_ids.assign(ids)
+        self._exact_worlds.add(world)
+        self._field_ids.assign(np.array([0 if f is None or w in self._exact_worlds else f.id
+                                         for w, f in enumerate(self.wall_fields)], dtype=np.uint64))
 
     def copy_state(self, target: State, source: State) -> None:
         """``target.copy_from(source)`` replayed from a captured graph (:meth:`_replayed`;

@@ -41,7 +41,7 @@ from .recorder.outputs import ANIMATION_GIF, DEPLOYMENT_USD, RESULT_JSON
 from .scene import INTEGRATOR_KEYS, SceneError, load_scene
 from .settings import AUTO_INTEGRATOR, Scene, reference_reasons
 from .solver import UnstableStepError, wall_field_extent
-from .sweep_task import MemberOutput, make_task, named_files, run_task
+from .sweep_task import MemberOutput, make_task, named_files, run_task, wants_usd
 from .wall import WallError
 
 FINAL_STATUSES = (COMPLETED, FAILED, JAMMED, TIMEOUT)
@@ -465,7 +465,7 @@ def run_members(scene_path: Path, todo: list[Member], out: Path, device: str | N
                 found = None  # made from another version of the scene (a value or a named file changed): run again
             if found is not None and found.get("scheme", {}).get("integrator") != scenes[member.index].simulation.integrator:
                 found = None  # run on another integrator (an earlier release's rule): run again
-            wanted = {DEPLOYMENT_USD: usd if usd is not None else scenes[member.index].output.usd,
+            wanted = {DEPLOYMENT_USD: wants_usd(scenes[member.index], usd),
                       ANIMATION_GIF: scenes[member.index].output.animation}
             if found is not None and any(want and name not in found.get("files", {}) for name, want in wanted.items()):
                 found = None  # made without a USD or GIF this sweep asks for (an earlier release's): run again

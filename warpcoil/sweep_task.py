@@ -20,6 +20,12 @@ from pathlib import Path
 from .settings import Scene
 
 
+def wants_usd(scene: Scene, usd: bool | None) -> bool:
+    """Whether a member of ``scene`` writes its deployment.usdc: ``usd`` (`--usd` True, `--no-usd` False), or
+    where that is None as the scene's [output] says (as for a single run)."""
+    return scene.output.usd if usd is None else usd
+
+
 @dataclass(frozen=True)
 class EnsembleTask:
     """Members (their sweep indices and checked scenes) that run as one Ensemble;
@@ -32,7 +38,7 @@ class EnsembleTask:
     device: str | None = None
 
     def wants_usd(self, scene: Scene) -> bool:
-        return scene.output.usd if self.usd is None else self.usd
+        return wants_usd(scene, self.usd)
 
 
 @dataclass(frozen=True)
